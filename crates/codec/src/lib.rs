@@ -1,0 +1,1 @@
+//! stereolink-codec (in progress).

@@ -1,0 +1,1 @@
+//! stereolink-display (in progress).

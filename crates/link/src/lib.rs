@@ -1,0 +1,1 @@
+//! stereolink-link (in progress).

@@ -1,0 +1,1 @@
+//! stereolink-robot (in progress).

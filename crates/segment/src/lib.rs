@@ -1,0 +1,1 @@
+//! stereolink-segment (in progress).

@@ -1,0 +1,1 @@
+//! stereolink-stereo (in progress).

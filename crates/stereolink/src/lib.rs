@@ -1,0 +1,7 @@
+//! The stereolink system: the CLI commands and the pipelines that join the
+//! crates (segment → encode → link → decode → match → display → axis).
+//!
+//! The binary is thin: every command is a function in [`cmd`] that a test can
+//! call, and every pipeline lives in the library.
+
+pub mod cmd;
