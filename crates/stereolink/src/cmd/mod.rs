@@ -3,7 +3,18 @@
 
 use clap::{Parser, Subcommand};
 
+pub mod bench;
+pub mod codec;
+pub mod demo;
+pub mod depth;
+pub mod eval;
 pub mod info;
+pub mod link_test;
+pub mod matching;
+pub mod receive;
+pub mod report;
+pub mod segment;
+pub mod send;
 pub mod synth;
 
 /// How commands print results.
@@ -62,18 +73,56 @@ pub struct Cli {
 /// The subcommands.
 #[derive(Debug, Subcommand)]
 pub enum Command {
+    /// Run the whole system on a synthetic scene over a simulated lossy XBee link.
+    Demo(demo::Args),
     /// Describe a stereo scene folder: sizes, disparity range, calibration, ground truth.
     Info(info::Args),
     /// Generate a synthetic stereo scene with exact ground truth.
     Synth(synth::Args),
+    /// Segment an image or a stereo pair (k-means, mean shift, PSO, DPSO, FO-DPSO, exact Otsu).
+    Segment(segment::Args),
+    /// Compute a disparity map (WTA-SAD, line growing, SGM).
+    #[command(name = "match")]
+    Match(matching::Args),
+    /// Turn a disparity map into depth, a point cloud and region distances.
+    Depth(depth::Args),
+    /// Score matchers against Middlebury ground truth.
+    Eval(eval::Args),
+    /// Segment and encode a stereo pair into a frame file.
+    Encode(codec::Args),
+    /// Decode a frame file back into the two segmented views.
+    Decode(codec::DecodeArgs),
+    /// Send test messages over a link and report goodput, loss and retransmissions.
+    LinkTest(link_test::Args),
+    /// Sender: segment, encode, match and send frames and depth reports.
+    Send(send::Args),
+    /// Receiver: rebuild, match, display and drive the axis.
+    Receive(receive::Args),
+    /// Reproduce the paper's tables on a data folder as an HTML report.
+    Report(report::Args),
+    /// Time one stage alone (for comparing with other tools in one run).
+    #[command(subcommand)]
+    Bench(bench::Target),
 }
 
 impl Command {
     /// Runs the command.
     pub fn run(self, out: &Output) -> anyhow::Result<()> {
         match self {
+            Command::Demo(args) => demo::run(args, out),
             Command::Info(args) => info::run(args, out),
             Command::Synth(args) => synth::run(args, out),
+            Command::Segment(args) => segment::run(args, out),
+            Command::Match(args) => matching::run(args, out),
+            Command::Depth(args) => depth::run(args, out),
+            Command::Eval(args) => eval::run(args, out),
+            Command::Encode(args) => codec::run(args, out),
+            Command::Decode(args) => codec::run_decode(args, out),
+            Command::LinkTest(args) => link_test::run(args, out),
+            Command::Send(args) => send::run(args, out),
+            Command::Receive(args) => receive::run(args, out),
+            Command::Report(args) => report::run(args, out),
+            Command::Bench(target) => bench::run(target, out),
         }
     }
 }
