@@ -1,0 +1,98 @@
+//! The CLI frame: exit codes, one-line errors, `synth` and `info`.
+
+use std::process::Command;
+
+fn stereolink() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_stereolink"))
+}
+
+#[test]
+fn usage_errors_exit_2_and_failures_exit_1_with_one_line() {
+    let out = stereolink().arg("no-such-command").output().unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    let out = stereolink()
+        .args(["info", "/no/such/scene"])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(err.contains("/no/such/scene"), "{err}");
+}
+
+#[test]
+fn synth_writes_a_scene_that_info_reads_back() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("s");
+    let out = stereolink()
+        .args([
+            "synth",
+            scene.to_str().unwrap(),
+            "--seed",
+            "5",
+            "--width",
+            "96",
+            "--height",
+            "64",
+        ])
+        .args(["--max-disp", "16"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for f in [
+        "left.png",
+        "right.png",
+        "gt_left.pfm",
+        "mask_nonocc.png",
+        "calib.txt",
+    ] {
+        assert!(scene.join(f).is_file(), "{f} missing");
+    }
+    let out = stereolink()
+        .args(["--json", "info", scene.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert!(out.status.success());
+    let info: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(
+        (info["width"].as_u64(), info["height"].as_u64()),
+        (Some(96), Some(64))
+    );
+    assert_eq!(info["ndisp"].as_u64(), Some(16));
+    let hi = info["gt_left_range"][1].as_f64().unwrap();
+    assert!(hi <= 0.95 * 16.0 + 1e-6 && hi > 8.0, "{hi}");
+}
+
+#[test]
+fn truncated_image_is_a_clear_error() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("s");
+    let status = stereolink()
+        .args([
+            "synth",
+            scene.to_str().unwrap(),
+            "--width",
+            "64",
+            "--height",
+            "48",
+            "--max-disp",
+            "8",
+        ])
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let right = scene.join("right.png");
+    let bytes = std::fs::read(&right).unwrap();
+    std::fs::write(&right, &bytes[..bytes.len() / 3]).unwrap();
+    let out = stereolink()
+        .args(["info", scene.to_str().unwrap()])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert!(err.contains("right.png"), "{err}");
+}
