@@ -155,7 +155,7 @@ impl MatchSpec {
             min_disp,
             max_disp,
             block: match algorithm {
-                Algorithm::Wta => 9,
+                Algorithm::Wta => 11,
                 Algorithm::LineGrowing => 5,
                 Algorithm::Sgm => 1,
             },

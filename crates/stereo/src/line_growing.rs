@@ -52,7 +52,7 @@ impl Default for LineGrowingParams {
 
 impl LineGrowingParams {
     pub(crate) fn validate(&self) -> Result<(), StereoError> {
-        if self.passes > 16 || !(self.threshold >= 0.0) {
+        if self.passes > 16 || self.threshold.is_nan() || self.threshold < 0.0 {
             return Err(StereoError::Parameter(format!(
                 "line growing needs at most 16 passes and a threshold >= 0 (got {} and {})",
                 self.passes, self.threshold
@@ -72,11 +72,11 @@ fn box_mean(plane: &mut [f32], w: usize, h: usize, r: usize, tmp: &mut Vec<f32>)
         let out = &mut tmp[y * w..(y + 1) * w];
         let at = |x: isize| row[x.clamp(0, w as isize - 1) as usize];
         let mut s: f32 = (-(r as isize)..=r as isize).map(at).sum();
-        for x in 0..w {
+        for (x, o) in out.iter_mut().enumerate() {
             if x > 0 {
                 s += at((x + r) as isize) - at(x as isize - r as isize - 1);
             }
-            out[x] = s / n;
+            *o = s / n;
         }
     }
     // Vertical running sum back into plane.

@@ -41,7 +41,7 @@ impl Refinement {
                 lr_check: Some(1.0),
                 subpixel: true,
                 uniqueness: 0,
-                median: 3,
+                median: 5,
                 fill: true,
             },
             Algorithm::LineGrowing => Refinement {

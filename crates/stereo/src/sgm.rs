@@ -46,8 +46,8 @@ impl Default for SgmParams {
     /// Measured on the Middlebury v2 scenes with `stereolink eval`.
     fn default() -> Self {
         SgmParams {
-            p1: 7,
-            p2: 100,
+            p1: 24,
+            p2: 90,
             p2_gamma: 24,
             paths: 8,
         }
@@ -237,7 +237,7 @@ fn vertical(vol: &Volume, sum: &mut [u16], upward: bool, use_avx2: bool) {
         let prev_ref = &prev;
         let mut cur_paths: Vec<&mut [u16]> = cur.chunks_mut(w * stride).collect();
         // Split each path's row and the sum row into the same column chunks.
-        let mut jobs: Vec<(usize, Vec<&mut [u16]>, &mut [u16])> = Vec::new();
+        let mut jobs: Vec<ChunkJob> = Vec::new();
         let mut s_rest = s_row;
         let mut x0 = 0;
         while x0 < w {
@@ -279,6 +279,9 @@ fn vertical(vol: &Volume, sum: &mut [u16], upward: bool, use_avx2: bool) {
         std::mem::swap(&mut prev, &mut cur);
     }
 }
+
+/// A column chunk of one row: first column, each path's cost rows, the sum row.
+type ChunkJob<'a> = (usize, Vec<&'a mut [u16]>, &'a mut [u16]);
 
 struct VerticalRow<'a> {
     vol: &'a Volume<'a>,

@@ -1,19 +1,242 @@
-//! `stereolink matching` (being built).
+//! `stereolink match` and `stereolink bench match`: disparity maps from a pair.
 
-/// Arguments (none yet).
-#[derive(Debug, clap::Args)]
-pub struct Args {}
+use std::path::PathBuf;
+use std::time::Instant;
 
-/// Not implemented yet.
-pub fn run(_args: Args, _out: &super::Output) -> anyhow::Result<()> {
-    anyhow::bail!("this command is not implemented yet")
+use anyhow::Context;
+use serde::Serialize;
+use stereolink_image::{colormap, io, pfm, Scene};
+use stereolink_stereo::{compute_disparity, Algorithm, MatchSpec, Refinement};
+
+/// Matcher options shared by `match`, `eval` and `bench match`.
+#[derive(Debug, Clone, clap::Args)]
+pub struct MatcherArgs {
+    /// Algorithm: wta (SAD winner-take-all), lg (line growing) or sgm (semi-global).
+    #[arg(long, default_value = "sgm", value_parser = parse_algorithm)]
+    pub algo: Algorithm,
+    /// Window size for wta and lg (odd, 1–15); default 11 for wta, 5 for lg.
+    #[arg(long)]
+    pub block: Option<usize>,
+    /// Raw matcher output: no LR check, subpixel, median or hole filling.
+    #[arg(long)]
+    pub raw: bool,
+    /// LR-check tolerance in px (0 disables).
+    #[arg(long)]
+    pub lr_check: Option<f32>,
+    /// Median filter size (0 disables).
+    #[arg(long)]
+    pub median: Option<usize>,
+    /// Leave invalid pixels invalid instead of filling them.
+    #[arg(long)]
+    pub no_fill: bool,
+    /// SGM penalty P1.
+    #[arg(long)]
+    pub p1: Option<u16>,
+    /// SGM base penalty P2.
+    #[arg(long)]
+    pub p2: Option<u16>,
+    /// SGM paths: 4 or 8.
+    #[arg(long)]
+    pub paths: Option<u8>,
+    /// Line-growing threshold on the averaged error energy.
+    #[arg(long)]
+    pub lg_threshold: Option<f32>,
+    /// Line-growing passes of the averaging filter (eq. 16).
+    #[arg(long)]
+    pub lg_passes: Option<usize>,
 }
 
-/// Arguments of the `bench` subcommand (none yet).
-#[derive(Debug, clap::Args)]
-pub struct BenchArgs {}
+fn parse_algorithm(s: &str) -> Result<Algorithm, String> {
+    s.parse()
+        .map_err(|e: stereolink_stereo::StereoError| e.to_string())
+}
 
-/// Not implemented yet.
-pub fn run_bench(_args: BenchArgs, _out: &super::Output) -> anyhow::Result<()> {
-    anyhow::bail!("this benchmark is not implemented yet")
+impl MatcherArgs {
+    /// The validated spec for a disparity range.
+    pub fn spec(&self, min_disp: usize, max_disp: usize) -> anyhow::Result<MatchSpec> {
+        let mut spec = MatchSpec::new(self.algo, min_disp, max_disp)?;
+        if let Some(b) = self.block {
+            spec.block = b;
+        }
+        if self.raw {
+            spec.refine = Refinement::NONE;
+        }
+        if let Some(t) = self.lr_check {
+            spec.refine.lr_check = (t > 0.0).then_some(t);
+        }
+        if let Some(m) = self.median {
+            spec.refine.median = m;
+        }
+        if self.no_fill {
+            spec.refine.fill = false;
+        }
+        spec.sgm.p1 = self.p1.unwrap_or(spec.sgm.p1);
+        spec.sgm.p2 = self.p2.unwrap_or(spec.sgm.p2);
+        spec.sgm.paths = self.paths.unwrap_or(spec.sgm.paths);
+        spec.line_growing.threshold = self.lg_threshold.unwrap_or(spec.line_growing.threshold);
+        spec.line_growing.passes = self.lg_passes.unwrap_or(spec.line_growing.passes);
+        Ok(spec)
+    }
+}
+
+/// Arguments of `stereolink match`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Left (reference) image.
+    pub left: PathBuf,
+    /// Right image.
+    pub right: PathBuf,
+    /// Output disparity map (PFM, `inf` = invalid).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Largest disparity searched.
+    #[arg(long)]
+    pub max_disp: usize,
+    /// Smallest disparity searched.
+    #[arg(long, default_value_t = 0)]
+    pub min_disp: usize,
+    /// Also write a colour-mapped PNG with a colour bar.
+    #[arg(long)]
+    pub png: Option<PathBuf>,
+    #[command(flatten)]
+    pub matcher: MatcherArgs,
+}
+
+#[derive(Serialize)]
+struct Matched {
+    output: PathBuf,
+    algorithm: Algorithm,
+    width: usize,
+    height: usize,
+    time_ms: f64,
+    valid_fraction: f64,
+}
+
+/// Matches a pair and writes the disparity map.
+pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
+    let left = io::read_rgb(&args.left)?;
+    let right = io::read_rgb(&args.right)?;
+    let spec = args.matcher.spec(args.min_disp, args.max_disp)?;
+    let start = Instant::now();
+    let disp = compute_disparity(&left, &right, &spec).with_context(|| {
+        format!(
+            "cannot match {} against {}",
+            args.left.display(),
+            args.right.display()
+        )
+    })?;
+    let time_ms = start.elapsed().as_secs_f64() * 1e3;
+    pfm::write(&args.output, &disp)?;
+    if let Some(png) = &args.png {
+        io::write_rgb(
+            png,
+            &colormap::colorize_with_bar(&disp, args.min_disp as f32, args.max_disp as f32),
+        )?;
+    }
+    let valid =
+        disp.as_slice().iter().filter(|d| d.is_finite()).count() as f64 / disp.len().max(1) as f64;
+    let m = Matched {
+        output: args.output.clone(),
+        algorithm: spec.algorithm,
+        width: left.width(),
+        height: left.height(),
+        time_ms,
+        valid_fraction: valid,
+    };
+    out.emit(&m, || {
+        format!(
+            "{} disparity map {}x{} written to {} in {:.1} ms ({:.1} % valid)\n",
+            m.algorithm,
+            m.width,
+            m.height,
+            m.output.display(),
+            m.time_ms,
+            m.valid_fraction * 100.0
+        )
+    })
+}
+
+/// Arguments of `stereolink bench match`.
+#[derive(Debug, clap::Args)]
+pub struct BenchArgs {
+    /// Scene folder (its ndisp sets the range unless --max-disp is given).
+    #[arg(long)]
+    pub scene: PathBuf,
+    /// Largest disparity searched (default: the scene's ndisp − 1).
+    #[arg(long)]
+    pub max_disp: Option<usize>,
+    /// Timed runs after one warm-up run.
+    #[arg(long, default_value_t = 10)]
+    pub iters: usize,
+    /// Worker threads (default: all cores).
+    #[arg(long)]
+    pub threads: Option<usize>,
+    #[command(flatten)]
+    pub matcher: MatcherArgs,
+}
+
+#[derive(Serialize)]
+struct Bench {
+    algorithm: Algorithm,
+    scene: String,
+    width: usize,
+    height: usize,
+    ndisp: usize,
+    iters: usize,
+    threads: usize,
+    median_ms: f64,
+    min_ms: f64,
+    bad_1_nonocc: Option<f64>,
+}
+
+/// Times the matcher alone (images in memory, after a warm-up).
+pub fn run_bench(args: BenchArgs, out: &super::Output) -> anyhow::Result<()> {
+    let scene = Scene::load(&args.scene)?;
+    let max_disp = args.max_disp.unwrap_or(scene.calib.ndisp.saturating_sub(1));
+    let spec = args.matcher.spec(0, max_disp)?;
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(args.threads.unwrap_or(0))
+        .build()?;
+    let (times, disp) = pool.install(|| -> anyhow::Result<_> {
+        let disp = compute_disparity(&scene.left, &scene.right, &spec)?;
+        let mut times = Vec::with_capacity(args.iters);
+        for _ in 0..args.iters.max(1) {
+            let t = Instant::now();
+            std::hint::black_box(compute_disparity(&scene.left, &scene.right, &spec)?);
+            times.push(t.elapsed().as_secs_f64() * 1e3);
+        }
+        Ok((times, disp))
+    })?;
+    let mut sorted = times.clone();
+    sorted.sort_by(f64::total_cmp);
+    let bad = scene.gt_left.as_ref().and_then(|gt| {
+        stereolink_image::metrics::bad_pixel_rate(&disp, gt, scene.masks.nonocc.as_ref(), 1.0)
+    });
+    let b = Bench {
+        algorithm: spec.algorithm,
+        scene: scene.name.clone(),
+        width: scene.left.width(),
+        height: scene.left.height(),
+        ndisp: spec.ndisp(),
+        iters: sorted.len(),
+        threads: pool.current_num_threads(),
+        median_ms: sorted[sorted.len() / 2],
+        min_ms: sorted[0],
+        bad_1_nonocc: bad,
+    };
+    out.emit(&b, || {
+        format!(
+            "{} on {} ({}x{}, {} disparities, {} threads): median {:.2} ms, min {:.2} ms over {} runs{}\n",
+            b.algorithm,
+            b.scene,
+            b.width,
+            b.height,
+            b.ndisp,
+            b.threads,
+            b.median_ms,
+            b.min_ms,
+            b.iters,
+            b.bad_1_nonocc.map_or(String::new(), |v| format!("; bad>1px nonocc {v:.2} %"))
+        )
+    })
 }
