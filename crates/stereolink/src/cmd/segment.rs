@@ -1,19 +1,223 @@
-//! `stereolink segment` (being built).
+//! `stereolink segment` and `stereolink bench segment`.
 
-/// Arguments (none yet).
-#[derive(Debug, clap::Args)]
-pub struct Args {}
+use std::path::PathBuf;
+use std::time::Instant;
 
-/// Not implemented yet.
-pub fn run(_args: Args, _out: &super::Output) -> anyhow::Result<()> {
-    anyhow::bail!("this command is not implemented yet")
+use anyhow::Context;
+use serde::Serialize;
+use stereolink_image::{io, metrics::psnr_rgb, RgbImage, Scene};
+use stereolink_segment::{meanshift::MeanShiftSpec, segment, Method, Segmentation};
+
+/// Segmentation options shared by the commands that segment.
+#[derive(Debug, Clone, clap::Args)]
+pub struct SegmentArgs {
+    /// Method: kmeans, meanshift, pso, dpso, fodpso or otsu (exact multilevel Otsu).
+    #[arg(long, default_value = "fodpso")]
+    pub method: String,
+    /// Classes: k for k-means, levels per channel for the thresholding methods.
+    #[arg(long, default_value_t = 3)]
+    pub levels: usize,
+    /// Seed of the stochastic methods (same seed, same result).
+    #[arg(long, default_value_t = 1)]
+    pub seed: u64,
+    /// Swarm iterations (pso, dpso, fodpso).
+    #[arg(long)]
+    pub iterations: Option<usize>,
+    /// Fractional order α (fodpso).
+    #[arg(long)]
+    pub alpha: Option<f64>,
+    /// Mean shift spatial bandwidth h_s.
+    #[arg(long)]
+    pub spatial: Option<usize>,
+    /// Mean shift range bandwidth h_r.
+    #[arg(long)]
+    pub range: Option<f32>,
+    /// Mean shift with the paper's preset (h_s 40, h_r 3, threshold 3).
+    #[arg(long)]
+    pub paper_preset: bool,
 }
 
-/// Arguments of the `bench` subcommand (none yet).
-#[derive(Debug, clap::Args)]
-pub struct BenchArgs {}
+impl SegmentArgs {
+    /// The method with the overrides applied.
+    pub fn method(&self) -> anyhow::Result<Method> {
+        let mut m: Method = self.method.parse()?;
+        match &mut m {
+            Method::Pso(s) | Method::Dpso(s) | Method::Fodpso(s) => {
+                s.iterations = self.iterations.unwrap_or(s.iterations);
+                if self.alpha.is_some() {
+                    s.alpha = self.alpha;
+                }
+            }
+            Method::MeanShift(s) => {
+                if self.paper_preset {
+                    *s = MeanShiftSpec::paper();
+                }
+                s.spatial = self.spatial.unwrap_or(s.spatial);
+                s.range = self.range.unwrap_or(s.range);
+            }
+            Method::KMeans | Method::Otsu => {}
+        }
+        Ok(m)
+    }
 
-/// Not implemented yet.
-pub fn run_bench(_args: BenchArgs, _out: &super::Output) -> anyhow::Result<()> {
-    anyhow::bail!("this benchmark is not implemented yet")
+    /// Segments one image.
+    pub fn run(&self, image: &RgbImage) -> anyhow::Result<Segmentation> {
+        Ok(segment(image, &self.method()?, self.levels, self.seed)?)
+    }
+}
+
+/// Arguments of `stereolink segment`.
+#[derive(Debug, clap::Args)]
+pub struct Args {
+    /// Input image (PNG, PPM, PGM).
+    pub input: PathBuf,
+    /// Output segmented image (PNG).
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// A second view (the right image of a pair), segmented the same way.
+    #[arg(long, requires = "right_output")]
+    pub right: Option<PathBuf>,
+    /// Where to write the segmented second view.
+    #[arg(long)]
+    pub right_output: Option<PathBuf>,
+    #[command(flatten)]
+    pub segment: SegmentArgs,
+}
+
+/// What one segmented view reports.
+#[derive(Serialize)]
+pub struct Report {
+    input: PathBuf,
+    output: PathBuf,
+    method: String,
+    classes: usize,
+    psnr_db: f64,
+    time_ms: f64,
+    iterations: usize,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    thresholds: Option<[Vec<u8>; 3]>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    fitness: Option<[f64; 3]>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    optimum: Option<[f64; 3]>,
+}
+
+fn one(input: &PathBuf, output: &PathBuf, args: &SegmentArgs) -> anyhow::Result<Report> {
+    let img = io::read_rgb(input)?;
+    let t = Instant::now();
+    let seg = args
+        .run(&img)
+        .with_context(|| format!("cannot segment {}", input.display()))?;
+    let time_ms = t.elapsed().as_secs_f64() * 1e3;
+    let rgb = seg.to_rgb();
+    io::write_rgb(output, &rgb)?;
+    let ch = seg.channels.as_ref();
+    Ok(Report {
+        input: input.clone(),
+        output: output.clone(),
+        method: args.method()?.name().into(),
+        classes: seg.image.palette().len(),
+        psnr_db: psnr_rgb(&img, &rgb)?.overall,
+        time_ms,
+        iterations: seg.iterations,
+        thresholds: ch.map(|c| c.thresholds.clone()),
+        fitness: ch.map(|c| c.fitness),
+        optimum: ch.map(|c| c.optimum),
+    })
+}
+
+/// Segments one image or both views of a pair.
+pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
+    let mut reports = vec![one(&args.input, &args.output, &args.segment)?];
+    if let (Some(r), Some(ro)) = (&args.right, &args.right_output) {
+        reports.push(one(r, ro, &args.segment)?);
+    }
+    let human = || {
+        reports
+            .iter()
+            .map(|r| {
+                format!(
+                    "{} → {}: {} classes by {}, PSNR {:.2} dB, {:.1} ms\n",
+                    r.input.display(),
+                    r.output.display(),
+                    r.classes,
+                    r.method,
+                    r.psnr_db,
+                    r.time_ms
+                )
+            })
+            .collect::<String>()
+    };
+    if reports.len() == 1 {
+        out.emit(&reports[0], human)
+    } else {
+        out.emit(&reports, human)
+    }
+}
+
+/// Arguments of `stereolink bench segment`.
+#[derive(Debug, clap::Args)]
+pub struct BenchArgs {
+    /// Scene folder; its left view is segmented.
+    #[arg(long)]
+    pub scene: PathBuf,
+    /// Timed runs after one warm-up run.
+    #[arg(long, default_value_t = 5)]
+    pub iters: usize,
+    #[command(flatten)]
+    pub segment: SegmentArgs,
+}
+
+#[derive(Serialize)]
+struct Bench {
+    method: String,
+    scene: String,
+    levels: usize,
+    iters: usize,
+    median_ms: f64,
+    psnr_db: f64,
+    fitness: Option<[f64; 3]>,
+    optimum: Option<[f64; 3]>,
+    fitness_fraction: Option<f64>,
+}
+
+/// Times the method alone on an image in memory.
+pub fn run_bench(args: BenchArgs, out: &super::Output) -> anyhow::Result<()> {
+    let scene = Scene::load(&args.scene)?;
+    let seg = args.segment.run(&scene.left)?;
+    let mut times = Vec::new();
+    for _ in 0..args.iters.max(1) {
+        let t = Instant::now();
+        std::hint::black_box(args.segment.run(&scene.left)?);
+        times.push(t.elapsed().as_secs_f64() * 1e3);
+    }
+    times.sort_by(f64::total_cmp);
+    let ch = seg.channels.as_ref();
+    let b = Bench {
+        method: args.segment.method()?.name().into(),
+        scene: scene.name.clone(),
+        levels: args.segment.levels,
+        iters: times.len(),
+        median_ms: times[times.len() / 2],
+        psnr_db: psnr_rgb(&scene.left, &seg.to_rgb())?.overall,
+        fitness: ch.map(|c| c.fitness),
+        optimum: ch.map(|c| c.optimum),
+        fitness_fraction: ch
+            .map(|c| c.fitness.iter().sum::<f64>() / c.optimum.iter().sum::<f64>().max(1e-12)),
+    };
+    out.emit(&b, || {
+        format!(
+            "{} on {} ({} levels): median {:.2} ms over {} runs, PSNR {:.2} dB{}\n",
+            b.method,
+            b.scene,
+            b.levels,
+            b.median_ms,
+            b.iters,
+            b.psnr_db,
+            b.fitness_fraction.map_or(String::new(), |f| format!(
+                ", fitness {:.3} % of the optimum",
+                f * 100.0
+            ))
+        )
+    })
 }
