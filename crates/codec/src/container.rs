@@ -1,0 +1,586 @@
+//! The frame container: a fixed header and a typed body, all little-endian.
+//! `docs/wire-format.md` gives the exact byte layout.
+//!
+//! ```text
+//!  0      4   5   6      8          12                 20         24         28
+//!  +------+---+---+------+----------+------------------+----------+----------+------ ...
+//!  | SLNK |ver|typ|flags | frame id | timestamp (µs)   | body len | body CRC | body
+//!  +------+---+---+------+----------+------------------+----------+----------+------ ...
+//! ```
+
+use stereolink_image::{Calibration, IndexedImage, Rgb};
+
+use crate::{
+    labels, rgb, CodecError, DepthReport, Limits, Message, ReportLevel, SegmentationKind,
+    StereoFrame, View,
+};
+
+/// The magic bytes.
+pub const MAGIC: [u8; 4] = *b"SLNK";
+/// The format version this build writes and reads.
+pub const VERSION: u8 = 1;
+/// Header length in bytes.
+pub const HEADER_LEN: usize = 28;
+
+/// Message type codes.
+pub mod kind {
+    /// [`crate::Message::StereoFrame`].
+    pub const STEREO_FRAME: u8 = 1;
+    /// [`crate::Message::DepthReport`].
+    pub const DEPTH_REPORT: u8 = 2;
+    /// [`crate::Message::Control`].
+    pub const CONTROL: u8 = 3;
+}
+
+/// View coding codes.
+mod coding {
+    pub const LABELS: u8 = 0;
+    pub const LABELS_CONDITIONED: u8 = 1;
+    pub const RGB: u8 = 2;
+}
+
+/// Stereo shift search range of the encoder (px); any value decodes.
+pub const SHIFT_SEARCH: usize = 96;
+
+/// The decoded header.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Header {
+    /// Format version.
+    pub version: u8,
+    /// Message type code.
+    pub kind: u8,
+    /// Frame id.
+    pub frame_id: u32,
+    /// Sender timestamp in microseconds.
+    pub timestamp_us: u64,
+    /// Body length in bytes.
+    pub body_len: u32,
+}
+
+struct Writer(Vec<u8>);
+
+impl Writer {
+    fn u8(&mut self, v: u8) {
+        self.0.push(v);
+    }
+    fn u16(&mut self, v: u16) {
+        self.0.extend_from_slice(&v.to_le_bytes());
+    }
+    fn u32(&mut self, v: u32) {
+        self.0.extend_from_slice(&v.to_le_bytes());
+    }
+    fn f32(&mut self, v: f32) {
+        self.0.extend_from_slice(&v.to_le_bytes());
+    }
+    fn f64(&mut self, v: f64) {
+        self.0.extend_from_slice(&v.to_le_bytes());
+    }
+    fn bytes(&mut self, b: &[u8]) {
+        self.0.extend_from_slice(b);
+    }
+}
+
+struct Reader<'a> {
+    data: &'a [u8],
+    pos: usize,
+}
+
+impl<'a> Reader<'a> {
+    fn take(&mut self, n: usize, what: &'static str) -> Result<&'a [u8], CodecError> {
+        let end = self
+            .pos
+            .checked_add(n)
+            .filter(|&e| e <= self.data.len())
+            .ok_or(CodecError::Truncated(what))?;
+        let s = &self.data[self.pos..end];
+        self.pos = end;
+        Ok(s)
+    }
+    fn u8(&mut self, what: &'static str) -> Result<u8, CodecError> {
+        Ok(self.take(1, what)?[0])
+    }
+    fn u16(&mut self, what: &'static str) -> Result<u16, CodecError> {
+        Ok(u16::from_le_bytes(
+            self.take(2, what)?.try_into().expect("2 bytes"),
+        ))
+    }
+    fn u32(&mut self, what: &'static str) -> Result<u32, CodecError> {
+        Ok(u32::from_le_bytes(
+            self.take(4, what)?.try_into().expect("4 bytes"),
+        ))
+    }
+    fn f32(&mut self, what: &'static str) -> Result<f32, CodecError> {
+        Ok(f32::from_le_bytes(
+            self.take(4, what)?.try_into().expect("4 bytes"),
+        ))
+    }
+    fn f64(&mut self, what: &'static str) -> Result<f64, CodecError> {
+        Ok(f64::from_le_bytes(
+            self.take(8, what)?.try_into().expect("8 bytes"),
+        ))
+    }
+}
+
+fn check(what: &'static str, value: usize, max: usize) -> Result<(), CodecError> {
+    if value > max {
+        Err(CodecError::TooLarge {
+            what,
+            value: value as u64,
+            max: max as u64,
+        })
+    } else {
+        Ok(())
+    }
+}
+
+/// Serialises a message with its header.
+///
+/// # Panics
+/// If the frame's views differ in size, exceed 65535 px a side, or `params`
+/// exceeds 255 bytes (the encoder's own inputs, not external data).
+pub fn encode(msg: &Message, frame_id: u32, timestamp_us: u64) -> Vec<u8> {
+    let mut body = Writer(Vec::new());
+    let kind = match msg {
+        Message::StereoFrame(f) => {
+            encode_frame(&mut body, f);
+            kind::STEREO_FRAME
+        }
+        Message::DepthReport(r) => {
+            encode_report(&mut body, r);
+            kind::DEPTH_REPORT
+        }
+        Message::Control(c) => {
+            body.bytes(c);
+            kind::CONTROL
+        }
+    };
+    let body = body.0;
+    let mut out = Writer(Vec::with_capacity(HEADER_LEN + body.len()));
+    out.bytes(&MAGIC);
+    out.u8(VERSION);
+    out.u8(kind);
+    out.u16(0);
+    out.u32(frame_id);
+    out.0.extend_from_slice(&timestamp_us.to_le_bytes());
+    out.u32(body.len() as u32);
+    out.u32(crc32fast::hash(&body));
+    out.bytes(&body);
+    out.0
+}
+
+fn encode_frame(w: &mut Writer, f: &StereoFrame) {
+    let (width, height) = f.left.dims();
+    assert_eq!(f.right.dims(), (width, height), "views differ in size");
+    w.u16(u16::try_from(width).expect("width fits 16 bits"));
+    w.u16(u16::try_from(height).expect("height fits 16 bits"));
+    w.u8(f.kind as u8);
+    w.u8(f.levels);
+    let params = f.params.as_bytes();
+    w.u8(u8::try_from(params.len()).expect("params fit 255 bytes"));
+    w.bytes(params);
+    match &f.thresholds {
+        None => w.u8(0),
+        Some(t) => {
+            w.u8(1);
+            for ch in t {
+                w.u8(ch.len() as u8);
+                w.bytes(ch);
+            }
+        }
+    }
+    match &f.calibration {
+        None => w.u8(0),
+        Some(c) => {
+            w.u8(1);
+            w.f64(c.focal_px.unwrap_or(0.0));
+            w.f64(c.baseline_m.unwrap_or(0.0));
+            w.f64(c.doffs);
+            w.u16(c.ndisp.min(u16::MAX as usize) as u16);
+        }
+    }
+    encode_view(w, &f.left, None);
+    let reference = match &f.left {
+        View::Indexed(l) => Some(l),
+        View::Rgb(_) => None,
+    };
+    encode_view(w, &f.right, reference);
+}
+
+fn encode_view(w: &mut Writer, view: &View, reference: Option<&IndexedImage>) {
+    let (code, palette, payload): (u8, &[Rgb], Vec<u8>) = match view {
+        View::Indexed(img) => {
+            let n = img.palette().len();
+            match reference {
+                Some(r) => {
+                    // Predict through the left labels mapped to this view's palette by colour.
+                    let remapped = remap(r, img);
+                    (
+                        coding::LABELS_CONDITIONED,
+                        img.palette(),
+                        labels::encode(img.labels(), n, Some(&remapped), SHIFT_SEARCH),
+                    )
+                }
+                None => (
+                    coding::LABELS,
+                    img.palette(),
+                    labels::encode(img.labels(), n, None, 0),
+                ),
+            }
+        }
+        View::Rgb(img) => (coding::RGB, &[], rgb::encode(img)),
+    };
+    w.u8(code);
+    w.u32(palette.len() as u32);
+    for p in palette {
+        w.bytes(p);
+    }
+    w.u32(payload.len() as u32);
+    w.bytes(&payload);
+}
+
+/// The reference labels expressed in `target`'s palette: each left label maps
+/// to the right palette entry of the same colour (or an impossible label, so
+/// it never predicts, when the colour is absent).
+fn remap(reference: &IndexedImage, target: &IndexedImage) -> stereolink_image::LabelMap {
+    let table: Vec<u16> = reference
+        .palette()
+        .iter()
+        .map(|c| {
+            target
+                .palette()
+                .iter()
+                .position(|t| t == c)
+                .map_or(u16::MAX, |i| i as u16)
+        })
+        .collect();
+    reference.labels().map(|l| table[l as usize])
+}
+
+fn encode_report(w: &mut Writer, r: &DepthReport) {
+    w.f32(r.target_distance_m);
+    for v in r.target_region {
+        w.u16(v);
+    }
+    w.u8(r.levels.len().min(255) as u8);
+    for l in r.levels.iter().take(255) {
+        w.f32(l.disparity);
+        w.f32(l.distance_m);
+        w.f32(l.share);
+    }
+    w.u32(r.histogram.len() as u32);
+    for &h in &r.histogram {
+        w.u32(h);
+    }
+}
+
+/// Parses and checks a header (without the body).
+pub fn decode_header(bytes: &[u8]) -> Result<Header, CodecError> {
+    let mut r = Reader {
+        data: bytes,
+        pos: 0,
+    };
+    if r.take(4, "header")? != MAGIC {
+        return Err(CodecError::BadMagic);
+    }
+    let version = r.u8("header")?;
+    if version != VERSION {
+        return Err(CodecError::UnsupportedVersion(version));
+    }
+    let kind = r.u8("header")?;
+    let _flags = r.u16("header")?;
+    let frame_id = r.u32("header")?;
+    let timestamp_us = u64::from_le_bytes(r.take(8, "header")?.try_into().expect("8 bytes"));
+    let body_len = r.u32("header")?;
+    Ok(Header {
+        version,
+        kind,
+        frame_id,
+        timestamp_us,
+        body_len,
+    })
+}
+
+/// Decodes one message; the bytes must hold exactly one header and its body.
+pub fn decode(bytes: &[u8], limits: &Limits) -> Result<(Header, Message), CodecError> {
+    let header = decode_header(bytes)?;
+    check("body length", header.body_len as usize, limits.max_body)?;
+    let crc = u32::from_le_bytes(
+        bytes
+            .get(24..28)
+            .ok_or(CodecError::Truncated("header"))?
+            .try_into()
+            .expect("4"),
+    );
+    let body = bytes
+        .get(HEADER_LEN..)
+        .ok_or(CodecError::Truncated("header"))?;
+    if body.len() < header.body_len as usize {
+        return Err(CodecError::Truncated("body"));
+    }
+    if body.len() > header.body_len as usize {
+        return Err(CodecError::Invalid(format!(
+            "{} bytes after the body",
+            body.len() - header.body_len as usize
+        )));
+    }
+    if crc32fast::hash(body) != crc {
+        return Err(CodecError::Crc);
+    }
+    let mut r = Reader { data: body, pos: 0 };
+    let msg = match header.kind {
+        kind::STEREO_FRAME => Message::StereoFrame(Box::new(decode_frame(&mut r, limits)?)),
+        kind::DEPTH_REPORT => Message::DepthReport(decode_report(&mut r, limits)?),
+        kind::CONTROL => Message::Control(body.to_vec()),
+        other => return Err(CodecError::UnknownType(other)),
+    };
+    if header.kind != kind::CONTROL && r.pos != body.len() {
+        return Err(CodecError::Invalid("trailing bytes in the body".into()));
+    }
+    Ok((header, msg))
+}
+
+fn decode_frame(r: &mut Reader, limits: &Limits) -> Result<StereoFrame, CodecError> {
+    let (w, h) = (r.u16("frame size")? as usize, r.u16("frame size")? as usize);
+    check("view size (pixels)", w * h, limits.max_pixels)?;
+    let kind = r.u8("segmentation kind")?;
+    let kind = SegmentationKind::from_u8(kind)
+        .ok_or_else(|| CodecError::Invalid(format!("segmentation kind {kind}")))?;
+    let levels = r.u8("levels")?;
+    let n = r.u8("params")? as usize;
+    let params = String::from_utf8(r.take(n, "params")?.to_vec())
+        .map_err(|_| CodecError::Invalid("params are not UTF-8".into()))?;
+    let thresholds = match r.u8("thresholds flag")? {
+        0 => None,
+        1 => {
+            let mut t: [Vec<u8>; 3] = Default::default();
+            for ch in &mut t {
+                let n = r.u8("thresholds")? as usize;
+                *ch = r.take(n, "thresholds")?.to_vec();
+            }
+            Some(t)
+        }
+        f => return Err(CodecError::Invalid(format!("thresholds flag {f}"))),
+    };
+    let calibration = match r.u8("calibration flag")? {
+        0 => None,
+        1 => {
+            let known = |v: f64| (v.is_finite() && v > 0.0).then_some(v);
+            Some(Calibration {
+                focal_px: known(r.f64("calibration")?),
+                baseline_m: known(r.f64("calibration")?),
+                doffs: r.f64("calibration")?,
+                ndisp: r.u16("calibration")? as usize,
+            })
+        }
+        f => return Err(CodecError::Invalid(format!("calibration flag {f}"))),
+    };
+    let left = decode_view(r, w, h, None, limits)?;
+    let reference = match &left {
+        View::Indexed(l) => Some(l.clone()),
+        View::Rgb(_) => None,
+    };
+    let right = decode_view(r, w, h, reference.as_ref(), limits)?;
+    Ok(StereoFrame {
+        kind,
+        levels,
+        params,
+        thresholds,
+        calibration,
+        left,
+        right,
+    })
+}
+
+fn decode_view(
+    r: &mut Reader,
+    w: usize,
+    h: usize,
+    left: Option<&IndexedImage>,
+    limits: &Limits,
+) -> Result<View, CodecError> {
+    let code = r.u8("view coding")?;
+    let n = r.u32("palette")? as usize;
+    check("palette", n, limits.max_palette)?;
+    let palette: Vec<Rgb> = r
+        .take(n * 3, "palette")?
+        .chunks_exact(3)
+        .map(|c| [c[0], c[1], c[2]])
+        .collect();
+    let len = r.u32("view payload")? as usize;
+    let payload = r.take(len, "view payload")?;
+    let indexed = |labels| {
+        IndexedImage::new(labels, palette.clone()).map_err(|e| CodecError::Invalid(e.to_string()))
+    };
+    match code {
+        coding::LABELS if n > 0 => Ok(View::Indexed(indexed(labels::decode(
+            payload, w, h, n, None,
+        )?)?)),
+        coding::LABELS_CONDITIONED if n > 0 => {
+            let left = left.ok_or_else(|| {
+                CodecError::Invalid("conditioned view without an indexed left view".into())
+            })?;
+            let target =
+                IndexedImage::new(stereolink_image::LabelMap::new(1, 1, 0), palette.clone())
+                    .map_err(|e| CodecError::Invalid(e.to_string()))?;
+            let remapped = remap(left, &target);
+            Ok(View::Indexed(indexed(labels::decode(
+                payload,
+                w,
+                h,
+                n,
+                Some(&remapped),
+            )?)?))
+        }
+        coding::RGB => Ok(View::Rgb(rgb::decode(payload, w, h)?)),
+        other => Err(CodecError::Invalid(format!(
+            "view coding {other} with a palette of {n}"
+        ))),
+    }
+}
+
+fn decode_report(r: &mut Reader, limits: &Limits) -> Result<DepthReport, CodecError> {
+    let target_distance_m = r.f32("report")?;
+    let mut target_region = [0u16; 4];
+    for v in &mut target_region {
+        *v = r.u16("report")?;
+    }
+    let n = r.u8("levels")? as usize;
+    let mut levels = Vec::with_capacity(n);
+    for _ in 0..n {
+        levels.push(ReportLevel {
+            disparity: r.f32("levels")?,
+            distance_m: r.f32("levels")?,
+            share: r.f32("levels")?,
+        });
+    }
+    let n = r.u32("histogram")? as usize;
+    check("histogram", n, limits.max_histogram)?;
+    let raw = r.take(n * 4, "histogram")?;
+    let histogram = raw
+        .chunks_exact(4)
+        .map(|c| u32::from_le_bytes(c.try_into().expect("4 bytes")))
+        .collect();
+    Ok(DepthReport {
+        target_distance_m,
+        target_region,
+        levels,
+        histogram,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use stereolink_image::{LabelMap, RgbImage};
+
+    fn frame(w: usize, h: usize) -> StereoFrame {
+        let palette = vec![[10, 20, 30], [200, 100, 0], [0, 255, 0]];
+        let left = IndexedImage::new(
+            LabelMap::from_fn(w, h, |x, y| ((x / 3 + y / 2) % 3) as u16),
+            palette.clone(),
+        )
+        .unwrap();
+        let right = IndexedImage::new(
+            LabelMap::from_fn(w, h, |x, y| (((x + 2) / 3 + y / 2) % 3) as u16),
+            palette,
+        )
+        .unwrap();
+        StereoFrame {
+            kind: SegmentationKind::Fodpso,
+            levels: 3,
+            params: "alpha=0.6".into(),
+            thresholds: Some([vec![80, 160], vec![90], vec![]]),
+            calibration: Some(Calibration {
+                focal_px: Some(700.0),
+                baseline_m: Some(0.12),
+                doffs: 0.0,
+                ndisp: 64,
+            }),
+            left: View::Indexed(left),
+            right: View::Indexed(right),
+        }
+    }
+
+    #[test]
+    fn frames_reports_and_control_round_trip() {
+        for (w, h) in [(1, 1), (7, 3), (33, 17)] {
+            let m = Message::StereoFrame(Box::new(frame(w, h)));
+            let bytes = encode(&m, 42, 123_456);
+            let (hd, back) = decode(&bytes, &Limits::default()).unwrap();
+            assert_eq!(
+                (hd.frame_id, hd.timestamp_us, hd.kind),
+                (42, 123_456, kind::STEREO_FRAME)
+            );
+            assert_eq!(back, m);
+        }
+        let rgb = StereoFrame {
+            left: View::Rgb(RgbImage::from_fn(5, 4, |x, y| [x as u8, y as u8, 9])),
+            right: View::Rgb(RgbImage::new(5, 4, [1, 2, 3])),
+            thresholds: None,
+            calibration: None,
+            kind: SegmentationKind::None,
+            ..frame(5, 4)
+        };
+        let m = Message::StereoFrame(Box::new(rgb));
+        assert_eq!(decode(&encode(&m, 1, 2), &Limits::default()).unwrap().1, m);
+        let c = Message::Control(vec![1, 2, 3]);
+        assert_eq!(decode(&encode(&c, 1, 2), &Limits::default()).unwrap().1, c);
+    }
+
+    #[test]
+    fn corrupt_and_foreign_bytes_are_typed_errors() {
+        let bytes = encode(&Message::StereoFrame(Box::new(frame(20, 10))), 1, 1);
+        let l = Limits::default();
+        let mut bad = bytes.clone();
+        bad[HEADER_LEN + 5] ^= 0x10;
+        assert_eq!(decode(&bad, &l).unwrap_err(), CodecError::Crc);
+        let mut v2 = bytes.clone();
+        v2[4] = 2;
+        assert_eq!(
+            decode(&v2, &l).unwrap_err(),
+            CodecError::UnsupportedVersion(2)
+        );
+        assert_eq!(decode(b"PNG....", &l).unwrap_err(), CodecError::BadMagic);
+        assert!(matches!(
+            decode(&bytes[..bytes.len() - 1], &l),
+            Err(CodecError::Truncated(_))
+        ));
+        let tight = Limits { max_body: 10, ..l };
+        assert!(matches!(
+            decode(&bytes, &tight),
+            Err(CodecError::TooLarge { .. })
+        ));
+        let tiny = Limits {
+            max_pixels: 100,
+            ..l
+        };
+        assert!(matches!(
+            decode(&bytes, &tiny),
+            Err(CodecError::TooLarge { .. })
+        ));
+    }
+
+    /// Pins the wire format: a depth report's exact bytes (checked independently
+    /// with Python's `struct` and `zlib.crc32`).
+    #[test]
+    fn golden_depth_report() {
+        let r = DepthReport {
+            target_distance_m: 0.5,
+            target_region: [1, 2, 3, 4],
+            levels: vec![ReportLevel {
+                disparity: 2.0,
+                distance_m: 1.0,
+                share: 0.5,
+            }],
+            histogram: vec![7],
+        };
+        let bytes = encode(&Message::DepthReport(r), 0x0102_0304, 5);
+        let hex: String = bytes.iter().map(|b| format!("{b:02x}")).collect();
+        assert_eq!(
+            hex,
+            "534c4e4b01020000040302010500000000000000210000006237a12c\
+             0000003f01000200030004000100000040\
+             0000803f0000003f0100000007000000"
+        );
+    }
+}
