@@ -481,7 +481,7 @@ mod tests {
         )
         .unwrap();
         let right = IndexedImage::new(
-            LabelMap::from_fn(w, h, |x, y| (((x + 2) / 3 + y / 2) % 3) as u16),
+            LabelMap::from_fn(w, h, |x, y| (((x + 3) / 3 + y / 2) % 3) as u16),
             palette,
         )
         .unwrap();

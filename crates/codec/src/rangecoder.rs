@@ -228,14 +228,14 @@ mod tests {
         #[test]
         fn bits_round_trip(bits in proptest::collection::vec(any::<bool>(), 0..2000), skew in 0usize..4) {
             let mut enc = Encoder::new();
-            let mut probs = vec![Prob::default(); 4];
+            let mut probs = [Prob::default(); 4];
             for (i, &b) in bits.iter().enumerate() {
                 enc.bit(&mut probs[(i + skew) % 4], b);
             }
             enc.direct(0x2A5, 10);
             let bytes = enc.finish();
             let mut dec = Decoder::new(&bytes);
-            let mut probs = vec![Prob::default(); 4];
+            let mut probs = [Prob::default(); 4];
             for (i, &b) in bits.iter().enumerate() {
                 prop_assert_eq!(dec.bit(&mut probs[(i + skew) % 4]), b);
             }
