@@ -1,1 +1,34 @@
-//! stereolink-link (in progress).
+//! The radio link: XBee API frames, AT-mode framing, fragmentation and
+//! selective-repeat ARQ in a `no_std` + `alloc` core; serial, UDP and
+//! simulated 802.15.4 transports and fallback under the `std` feature.
+//!
+//! # Layers (sender to receiver)
+//!
+//! 1. **Radio frame** ([`xbee`], [`slip`]): XBee API frames (modes 1 and 2) or,
+//!    in transparent mode, SLIP frames with a CRC-16.
+//! 2. **Link segment** ([`arq`]): DATA fragments (message id, index, count),
+//!    cumulative + bitmap ACKs, FAIL; a CRC-16 on each.
+//! 3. **Message**: the payload with a CRC-32 end to end.
+//!
+//! The ARQ machines do no I/O and read no clock; [`endpoint`] drives them over
+//! a [`transport::Transport`] with a real clock, and [`sim`] drives them in
+//! simulated time for tests and the loss sweep.
+
+#![cfg_attr(not(any(test, feature = "std")), no_std)]
+#![deny(unsafe_code)]
+
+extern crate alloc;
+
+pub mod arq;
+pub mod crc;
+pub mod slip;
+pub mod xbee;
+
+#[cfg(feature = "std")]
+pub mod endpoint;
+#[cfg(feature = "std")]
+pub mod sim;
+#[cfg(feature = "std")]
+pub mod spec;
+#[cfg(feature = "std")]
+pub mod transport;

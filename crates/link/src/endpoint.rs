@@ -1,0 +1,240 @@
+//! A blocking message endpoint: the ARQ machines driven over a
+//! [`Transport`] with the real clock. Both directions share one endpoint,
+//! so a side can send messages and receive messages at the same time.
+
+use std::collections::VecDeque;
+use std::time::{Duration, Instant};
+
+use crate::arq::{ArqError, Config, Micros, Receiver, Segment, SendState, Sender};
+use crate::transport::Transport;
+
+/// Everything that can end a send or receive.
+#[derive(Debug)]
+pub enum LinkError {
+    /// The transport failed.
+    Io(std::io::Error),
+    /// The protocol gave up (deadline, abort, corruption, reassembly timeout).
+    Arq(ArqError),
+    /// Nothing arrived in time.
+    Timeout,
+}
+
+impl std::fmt::Display for LinkError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            LinkError::Io(e) => write!(f, "link I/O error: {e}"),
+            LinkError::Arq(e) => write!(f, "{e}"),
+            LinkError::Timeout => write!(f, "timed out waiting for a message"),
+        }
+    }
+}
+
+impl std::error::Error for LinkError {}
+
+impl From<std::io::Error> for LinkError {
+    fn from(e: std::io::Error) -> Self {
+        LinkError::Io(e)
+    }
+}
+
+/// What sending one message took.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct SendStats {
+    /// Message bytes.
+    pub bytes: u64,
+    /// DATA segments sent.
+    pub segments: u64,
+    /// Retransmitted segments.
+    pub retransmissions: u64,
+    /// Time until every fragment was acknowledged.
+    pub elapsed: Duration,
+}
+
+impl SendStats {
+    /// Message bits per second.
+    pub fn goodput_bps(&self) -> f64 {
+        self.bytes as f64 * 8.0 / self.elapsed.as_secs_f64().max(1e-9)
+    }
+}
+
+/// A message endpoint over a transport.
+pub struct Endpoint {
+    transport: Box<dyn Transport>,
+    sender: Sender,
+    receiver: Receiver,
+    epoch: Instant,
+    inbox: VecDeque<Vec<u8>>,
+    failures: VecDeque<ArqError>,
+}
+
+/// Longest single wait inside the loops, so timers and peers are served.
+const TICK: Duration = Duration::from_millis(20);
+
+impl Endpoint {
+    /// An endpoint with the default protocol parameters for the transport's MTU.
+    pub fn new(transport: Box<dyn Transport>) -> Self {
+        let cfg = Config::for_mtu(transport.mtu());
+        Self::with_config(transport, cfg)
+    }
+
+    /// An endpoint with explicit protocol parameters.
+    pub fn with_config(transport: Box<dyn Transport>, cfg: Config) -> Self {
+        Endpoint {
+            transport,
+            sender: Sender::new(cfg),
+            receiver: Receiver::new(cfg),
+            epoch: Instant::now(),
+            inbox: VecDeque::new(),
+            failures: VecDeque::new(),
+        }
+    }
+
+    /// The transport's description.
+    pub fn describe(&self) -> String {
+        self.transport.describe()
+    }
+
+    fn now(&self) -> Micros {
+        self.epoch.elapsed().as_micros() as Micros
+    }
+
+    /// Handles one incoming packet; damaged or foreign packets are dropped.
+    fn handle(&mut self, packet: &[u8]) -> Result<(), LinkError> {
+        let Some(seg) = Segment::parse(packet) else {
+            return Ok(());
+        };
+        let now = self.now();
+        match seg {
+            Segment::Ack { .. } => self.sender.on_segment(&seg, now),
+            Segment::Data { .. } | Segment::Fail { .. } => {
+                self.sender.on_segment(&seg, now);
+                let (ack, delivery) = self.receiver.on_segment(&seg, now);
+                if let Some(a) = ack {
+                    self.transport.send(&a)?;
+                }
+                match delivery {
+                    Some(Ok(m)) => self.inbox.push_back(m),
+                    Some(Err((_, e))) => self.failures.push_back(e),
+                    None => {}
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn service(&mut self, wait: Duration) -> Result<(), LinkError> {
+        if let Some(p) = self.transport.recv(wait)? {
+            self.handle(&p)?;
+            // Drain whatever else is already there.
+            while let Some(p) = self.transport.recv(Duration::ZERO)? {
+                self.handle(&p)?;
+            }
+        }
+        if let Some(Err((_, e))) = self.receiver.poll(self.now()) {
+            self.failures.push_back(e);
+        }
+        Ok(())
+    }
+
+    /// Sends one message and waits until every fragment is acknowledged.
+    pub fn send_message(&mut self, message: &[u8]) -> Result<SendStats, LinkError> {
+        let start = Instant::now();
+        self.sender
+            .start(message, self.now())
+            .map_err(LinkError::Arq)?;
+        loop {
+            while let Some(seg) = self.sender.poll_transmit(self.now()) {
+                self.transport.send(&seg)?;
+            }
+            match self.sender.state() {
+                SendState::Done => {
+                    let c = self.sender.counters();
+                    return Ok(SendStats {
+                        bytes: c.message_bytes,
+                        segments: c.segments,
+                        retransmissions: c.retransmissions,
+                        elapsed: start.elapsed(),
+                    });
+                }
+                SendState::Failed(e) => return Err(LinkError::Arq(e)),
+                SendState::Idle | SendState::Sending => {}
+            }
+            let wait = self
+                .sender
+                .poll_at()
+                .map_or(TICK, |t| {
+                    Duration::from_micros(t.saturating_sub(self.now()))
+                })
+                .min(TICK);
+            self.service(wait)?;
+        }
+    }
+
+    /// Waits up to `timeout` for the next complete message.
+    pub fn recv_message(&mut self, timeout: Duration) -> Result<Vec<u8>, LinkError> {
+        let until = Instant::now() + timeout;
+        loop {
+            if let Some(m) = self.inbox.pop_front() {
+                return Ok(m);
+            }
+            if let Some(e) = self.failures.pop_front() {
+                return Err(LinkError::Arq(e));
+            }
+            let now = Instant::now();
+            if now >= until {
+                return Err(LinkError::Timeout);
+            }
+            self.service((until - now).min(TICK))?;
+        }
+    }
+
+    /// Keeps answering the peer (ACKs for retransmitted fragments) for `time`.
+    pub fn linger(&mut self, time: Duration) -> Result<(), LinkError> {
+        let until = Instant::now() + time;
+        while Instant::now() < until {
+            self.service(TICK.min(until - Instant::now()))?;
+        }
+        Ok(())
+    }
+
+    /// Duplicate segments the receiver dropped.
+    pub fn duplicates(&self) -> u64 {
+        self.receiver.duplicates()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::sim::{pair, SimConfig};
+
+    #[test]
+    fn two_threads_exchange_messages_over_a_lossy_sim_link() {
+        let (a, b) = pair(
+            SimConfig {
+                loss: 0.1,
+                seed: 4,
+                ..SimConfig::default()
+            },
+            20.0,
+        );
+        let msgs: Vec<Vec<u8>> = (0..3)
+            .map(|i| (0..2000 + i * 500).map(|j| (j * 31 + i) as u8).collect())
+            .collect();
+        let expected = msgs.clone();
+        let rx = std::thread::spawn(move || {
+            let mut e = Endpoint::new(Box::new(b));
+            let got: Vec<Vec<u8>> = (0..3)
+                .map(|_| e.recv_message(Duration::from_secs(20)).unwrap())
+                .collect();
+            e.linger(Duration::from_millis(300)).unwrap();
+            got
+        });
+        let mut e = Endpoint::new(Box::new(a));
+        for m in &msgs {
+            let s = e.send_message(m).unwrap();
+            assert_eq!(s.bytes as usize, m.len());
+        }
+        assert_eq!(rx.join().unwrap(), expected);
+    }
+}

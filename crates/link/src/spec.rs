@@ -1,0 +1,247 @@
+//! Link specifications, as users write them on the command line:
+//!
+//! * `serial:/dev/ttyUSB0?baud=115200&api=2&dest=0x0001&mtu=100` — an XBee in
+//!   API mode 1 or 2 (`api=0`: transparent mode or a USB cable, SLIP framed);
+//! * `udp:127.0.0.1:9001?peer=127.0.0.1:9000` — bind locally, send to `peer`
+//!   (without `peer`, answer whoever sends first);
+//! * `sim:?loss=0.1&seed=3&baud=115200&mac_retries=0&ber=0&dup=0&reorder=0&speedup=20` —
+//!   the simulated 802.15.4 channel (inside one process);
+//! * `fallback:PRIMARY,SECONDARY?silence_ms=2000` (the query after the last
+//!   spec applies to the fallback).
+
+use std::net::SocketAddr;
+use std::time::Duration;
+
+use crate::sim::SimConfig;
+use crate::transport::{Fallback, Serial, SerialFraming, Transport, Udp};
+use crate::xbee::ApiMode;
+
+/// A parsed link specification.
+#[derive(Clone, Debug, PartialEq)]
+pub enum LinkSpec {
+    /// A serial port.
+    Serial {
+        path: String,
+        baud: u32,
+        framing: SerialFraming,
+        mtu: usize,
+    },
+    /// A UDP socket.
+    Udp {
+        bind: SocketAddr,
+        peer: Option<SocketAddr>,
+        mtu: usize,
+    },
+    /// The simulated channel, real time sped up by `speedup`.
+    Sim { config: SimConfig, speedup: f64 },
+    /// Primary and secondary.
+    Fallback {
+        primary: Box<LinkSpec>,
+        secondary: Box<LinkSpec>,
+        silence: Duration,
+    },
+}
+
+fn query(q: &str) -> Vec<(&str, &str)> {
+    q.split('&')
+        .filter(|p| !p.is_empty())
+        .map(|p| p.split_once('=').unwrap_or((p, "")))
+        .collect()
+}
+
+fn num<T: std::str::FromStr>(key: &str, v: &str) -> Result<T, String> {
+    let v2 = v.trim_start_matches("0x");
+    if v.starts_with("0x") {
+        if let Ok(n) = u64::from_str_radix(v2, 16) {
+            if let Ok(t) = n.to_string().parse() {
+                return Ok(t);
+            }
+        }
+    }
+    v.parse()
+        .map_err(|_| format!("{key}={v} is not a valid number"))
+}
+
+impl std::str::FromStr for LinkSpec {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        let (kind, rest) = s
+            .split_once(':')
+            .ok_or_else(|| format!("link {s:?}: expected serial:, udp:, sim: or fallback:"))?;
+        if kind == "fallback" {
+            let (specs, q) = match rest.rsplit_once('?') {
+                Some((a, q)) if !q.contains(':') => (a, q),
+                _ => (rest, ""),
+            };
+            let (p, sec) = specs
+                .split_once(',')
+                .ok_or("fallback: needs PRIMARY,SECONDARY")?;
+            let mut silence = Duration::from_millis(2000);
+            for (k, v) in query(q) {
+                match k {
+                    "silence_ms" => silence = Duration::from_millis(num(k, v)?),
+                    _ => return Err(format!("fallback: unknown option {k}")),
+                }
+            }
+            return Ok(LinkSpec::Fallback {
+                primary: Box::new(p.parse()?),
+                secondary: Box::new(sec.parse()?),
+                silence,
+            });
+        }
+        let (target, q) = rest.split_once('?').unwrap_or((rest, ""));
+        let q = query(q);
+        match kind {
+            "serial" => {
+                if target.is_empty() {
+                    return Err("serial: needs a device path, e.g. serial:/dev/ttyUSB0".into());
+                }
+                let (mut baud, mut api, mut dest, mut mtu) = (115_200u32, 2u8, 0xFFFFu16, 100usize);
+                for (k, v) in q {
+                    match k {
+                        "baud" => baud = num(k, v)?,
+                        "api" => api = num(k, v)?,
+                        "dest" => dest = num(k, v)?,
+                        "mtu" => mtu = num(k, v)?,
+                        _ => return Err(format!("serial: unknown option {k}")),
+                    }
+                }
+                let framing = match api {
+                    0 => SerialFraming::Transparent,
+                    1 => SerialFraming::Api {
+                        mode: ApiMode::Plain,
+                        dest,
+                    },
+                    2 => SerialFraming::Api {
+                        mode: ApiMode::Escaped,
+                        dest,
+                    },
+                    _ => return Err(format!("serial: api={api} must be 0, 1 or 2")),
+                };
+                Ok(LinkSpec::Serial {
+                    path: target.into(),
+                    baud,
+                    framing,
+                    mtu,
+                })
+            }
+            "udp" => {
+                let bind = target
+                    .parse()
+                    .map_err(|_| format!("udp:{target}: not an address like 127.0.0.1:9000"))?;
+                let (mut peer, mut mtu) = (None, 100usize);
+                for (k, v) in q {
+                    match k {
+                        "peer" => {
+                            peer = Some(v.parse().map_err(|_| format!("peer={v}: not an address"))?)
+                        }
+                        "mtu" => mtu = num(k, v)?,
+                        _ => return Err(format!("udp: unknown option {k}")),
+                    }
+                }
+                Ok(LinkSpec::Udp { bind, peer, mtu })
+            }
+            "sim" => {
+                let (mut c, mut speedup) = (SimConfig::default(), 1.0);
+                for (k, v) in q {
+                    match k {
+                        "loss" => c.loss = num(k, v)?,
+                        "seed" => c.seed = num(k, v)?,
+                        "baud" => c.baud = num(k, v)?,
+                        "mtu" => c.mtu = num(k, v)?,
+                        "mac_retries" => c.mac_retries = num(k, v)?,
+                        "ber" => c.bit_error = num(k, v)?,
+                        "dup" => c.duplicate = num(k, v)?,
+                        "reorder" => c.reorder = num(k, v)?,
+                        "speedup" => speedup = num(k, v)?,
+                        _ => return Err(format!("sim: unknown option {k}")),
+                    }
+                }
+                if !(0.0..=1.0).contains(&c.loss) || c.baud == 0 || c.mtu < 16 {
+                    return Err("sim: loss must be in 0..1, baud > 0, mtu >= 16".into());
+                }
+                Ok(LinkSpec::Sim { config: c, speedup })
+            }
+            other => Err(format!(
+                "unknown link kind {other:?}: use serial:, udp:, sim: or fallback:"
+            )),
+        }
+    }
+}
+
+/// Opens a transport (not `sim:`, whose two ends live in one process: use
+/// [`crate::sim::pair`]).
+pub fn open(spec: &LinkSpec) -> std::io::Result<Box<dyn Transport>> {
+    Ok(match spec {
+        LinkSpec::Serial { path, baud, framing, mtu } => {
+            let port = serialport::new(path, *baud).timeout(Duration::from_millis(10)).open().map_err(|e| {
+                std::io::Error::new(std::io::ErrorKind::NotFound, format!("cannot open serial port {path}: {e}"))
+            })?;
+            Box::new(Serial::new(port, *framing, *mtu, format!("serial:{path}")))
+        }
+        LinkSpec::Udp { bind, peer, mtu } => Box::new(Udp::bind(*bind, *peer, *mtu)?),
+        LinkSpec::Sim { .. } => {
+            return Err(std::io::Error::new(
+                std::io::ErrorKind::Unsupported,
+                "a sim: link has both ends in one process (demo, link-test); use serial: or udp: between processes",
+            ))
+        }
+        LinkSpec::Fallback { primary, secondary, silence } => Box::new(Fallback::new(open(primary)?, open(secondary)?, *silence)),
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn parses_every_kind() {
+        let s: LinkSpec = "serial:/dev/ttyUSB0?baud=57600&api=1&dest=0x1234"
+            .parse()
+            .unwrap();
+        assert_eq!(
+            s,
+            LinkSpec::Serial {
+                path: "/dev/ttyUSB0".into(),
+                baud: 57600,
+                framing: SerialFraming::Api {
+                    mode: ApiMode::Plain,
+                    dest: 0x1234
+                },
+                mtu: 100
+            }
+        );
+        let u: LinkSpec = "udp:127.0.0.1:9001?peer=127.0.0.1:9000".parse().unwrap();
+        assert!(matches!(u, LinkSpec::Udp { peer: Some(_), .. }));
+        let m: LinkSpec = "sim:?loss=0.1&seed=3".parse().unwrap();
+        assert!(
+            matches!(m, LinkSpec::Sim { config: SimConfig { loss, seed: 3, .. }, .. } if loss == 0.1)
+        );
+        let f: LinkSpec = "fallback:udp:127.0.0.1:1,udp:127.0.0.1:2?silence_ms=500"
+            .parse()
+            .unwrap();
+        assert!(
+            matches!(f, LinkSpec::Fallback { silence, .. } if silence == Duration::from_millis(500))
+        );
+        for bad in [
+            "",
+            "tcp:1",
+            "serial:",
+            "udp:nope",
+            "sim:?loss=2",
+            "sim:?what=1",
+            "serial:/x?api=7",
+            "fallback:udp:1.2.3.4:5",
+        ] {
+            assert!(bad.parse::<LinkSpec>().is_err(), "{bad}");
+        }
+    }
+
+    #[test]
+    fn absent_serial_device_is_a_clear_error() {
+        let spec: LinkSpec = "serial:/dev/does-not-exist".parse().unwrap();
+        let err = open(&spec).err().unwrap().to_string();
+        assert!(err.contains("/dev/does-not-exist"), "{err}");
+    }
+}

@@ -1,0 +1,322 @@
+//! Transports carry link segments (one packet each, at most `mtu` bytes):
+//! a serial port to an XBee radio (API mode 1/2 or transparent mode), a UDP
+//! socket (the IP fallback), and [`Fallback`], which switches between two.
+
+use std::collections::VecDeque;
+use std::io::{self, Read, Write};
+use std::net::{SocketAddr, UdpSocket};
+use std::time::{Duration, Instant};
+
+use crate::slip;
+use crate::xbee::{ApiMode, Frame, Parser};
+
+/// A packet transport.
+pub trait Transport: Send {
+    /// Sends one packet (at most [`Transport::mtu`] bytes).
+    fn send(&mut self, packet: &[u8]) -> io::Result<()>;
+    /// Waits up to `timeout` for one packet.
+    fn recv(&mut self, timeout: Duration) -> io::Result<Option<Vec<u8>>>;
+    /// Largest packet carried.
+    fn mtu(&self) -> usize;
+    /// A short description for logs and reports.
+    fn describe(&self) -> String;
+}
+
+/// UDP on any address; the peer is fixed, or learnt from the first datagram.
+pub struct Udp {
+    socket: UdpSocket,
+    peer: Option<SocketAddr>,
+    mtu: usize,
+}
+
+impl Udp {
+    /// Binds `local`; sends to `peer` (or to whoever sends first).
+    pub fn bind(local: SocketAddr, peer: Option<SocketAddr>, mtu: usize) -> io::Result<Self> {
+        Ok(Udp {
+            socket: UdpSocket::bind(local)?,
+            peer,
+            mtu,
+        })
+    }
+
+    /// The bound address.
+    pub fn local_addr(&self) -> io::Result<SocketAddr> {
+        self.socket.local_addr()
+    }
+}
+
+impl Transport for Udp {
+    fn send(&mut self, packet: &[u8]) -> io::Result<()> {
+        match self.peer {
+            Some(p) => self.socket.send_to(packet, p).map(|_| ()),
+            None => Ok(()), // nobody to talk to yet: like a radio with no peer in range
+        }
+    }
+
+    fn recv(&mut self, timeout: Duration) -> io::Result<Option<Vec<u8>>> {
+        self.socket
+            .set_read_timeout(Some(timeout.max(Duration::from_micros(100))))?;
+        let mut buf = [0u8; 2048];
+        match self.socket.recv_from(&mut buf) {
+            Ok((n, from)) => {
+                if self.peer.is_none() {
+                    self.peer = Some(from);
+                }
+                Ok((Some(from) == self.peer).then(|| buf[..n].to_vec()))
+            }
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    io::ErrorKind::WouldBlock | io::ErrorKind::TimedOut
+                ) =>
+            {
+                Ok(None)
+            }
+            Err(e) => Err(e),
+        }
+    }
+
+    fn mtu(&self) -> usize {
+        self.mtu
+    }
+
+    fn describe(&self) -> String {
+        format!(
+            "udp:{}",
+            self.socket
+                .local_addr()
+                .map_or("?".into(), |a| a.to_string())
+        )
+    }
+}
+
+/// How packets travel over a serial line.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SerialFraming {
+    /// XBee API frames: packets go out as TX16 requests to `dest` and come in as RX frames.
+    Api { mode: ApiMode, dest: u16 },
+    /// Transparent (AT) mode or a plain USB cable: SLIP frames with a CRC-16.
+    Transparent,
+}
+
+/// A serial port to an XBee radio or a USB cable.
+pub struct Serial<P> {
+    port: P,
+    framing: SerialFraming,
+    parser: Parser,
+    deframer: slip::Deframer,
+    ready: VecDeque<Vec<u8>>,
+    mtu: usize,
+    name: String,
+    /// Frames or packets dropped as damaged (for link statistics).
+    pub damaged: u64,
+}
+
+impl<P: Read + Write + Send> Serial<P> {
+    /// Wraps an open port (its read timeout should be short, e.g. 10 ms).
+    pub fn new(port: P, framing: SerialFraming, mtu: usize, name: impl Into<String>) -> Self {
+        let mode = match framing {
+            SerialFraming::Api { mode, .. } => mode,
+            SerialFraming::Transparent => ApiMode::Plain,
+        };
+        Serial {
+            port,
+            framing,
+            parser: Parser::new(mode),
+            deframer: slip::Deframer::new(mtu.max(1) + 16),
+            ready: VecDeque::new(),
+            mtu,
+            name: name.into(),
+            damaged: 0,
+        }
+    }
+
+    fn feed(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            match self.framing {
+                SerialFraming::Api { .. } => match self.parser.push(b) {
+                    Some(Ok(frame)) => {
+                        if let (Some(p), false) = (
+                            frame.payload(),
+                            matches!(
+                                frame,
+                                Frame::Tx16 { .. } | Frame::Tx64 { .. } | Frame::ZbTx { .. }
+                            ),
+                        ) {
+                            self.ready.push_back(p.to_vec());
+                        }
+                    }
+                    Some(Err(_)) => self.damaged += 1,
+                    None => {}
+                },
+                SerialFraming::Transparent => match self.deframer.push(b) {
+                    Some(Ok(p)) => self.ready.push_back(p),
+                    Some(Err(_)) => self.damaged += 1,
+                    None => {}
+                },
+            }
+        }
+    }
+}
+
+impl<P: Read + Write + Send> Transport for Serial<P> {
+    fn send(&mut self, packet: &[u8]) -> io::Result<()> {
+        let bytes = match self.framing {
+            SerialFraming::Api { mode, dest } => Frame::Tx16 {
+                frame_id: 0,
+                dest,
+                options: 0,
+                data: packet.to_vec(),
+            }
+            .encode(mode),
+            SerialFraming::Transparent => slip::encode(packet),
+        };
+        self.port.write_all(&bytes)?;
+        self.port.flush()
+    }
+
+    fn recv(&mut self, timeout: Duration) -> io::Result<Option<Vec<u8>>> {
+        let until = Instant::now() + timeout;
+        let mut buf = [0u8; 512];
+        loop {
+            if let Some(p) = self.ready.pop_front() {
+                return Ok(Some(p));
+            }
+            match self.port.read(&mut buf) {
+                Ok(0) => {}
+                Ok(n) => {
+                    let chunk = buf[..n].to_vec();
+                    self.feed(&chunk);
+                    continue;
+                }
+                Err(e)
+                    if matches!(
+                        e.kind(),
+                        io::ErrorKind::WouldBlock
+                            | io::ErrorKind::TimedOut
+                            | io::ErrorKind::Interrupted
+                    ) => {}
+                Err(e) => return Err(e),
+            }
+            if Instant::now() >= until {
+                return Ok(None);
+            }
+        }
+    }
+
+    fn mtu(&self) -> usize {
+        self.mtu
+    }
+
+    fn describe(&self) -> String {
+        self.name.clone()
+    }
+}
+
+/// Two transports: traffic goes over the primary until it stays silent for
+/// `silence` after we sent, then over the secondary; the first packet heard
+/// on the primary again switches back. The ARQ above keeps the message
+/// stream intact across switches.
+pub struct Fallback {
+    links: [Box<dyn Transport>; 2],
+    active: usize,
+    silence: Duration,
+    last_heard: Instant,
+    last_sent: Option<Instant>,
+    /// Every switch, as "primary->secondary" or "secondary->primary".
+    pub switches: Vec<String>,
+}
+
+impl Fallback {
+    /// Primary and secondary, switching after `silence` without an answer.
+    pub fn new(
+        primary: Box<dyn Transport>,
+        secondary: Box<dyn Transport>,
+        silence: Duration,
+    ) -> Self {
+        Fallback {
+            links: [primary, secondary],
+            active: 0,
+            silence,
+            last_heard: Instant::now(),
+            last_sent: None,
+            switches: Vec::new(),
+        }
+    }
+
+    /// 0 for the primary, 1 for the secondary.
+    pub fn active(&self) -> usize {
+        self.active
+    }
+
+    fn switch_to(&mut self, to: usize) {
+        if self.active != to {
+            let names = ["primary", "secondary"];
+            self.switches
+                .push(format!("{}->{}", names[self.active], names[to]));
+            eprintln!(
+                "link: switching from {} to {}",
+                self.links[self.active].describe(),
+                self.links[to].describe()
+            );
+            self.active = to;
+            self.last_heard = Instant::now();
+        }
+    }
+}
+
+impl Transport for Fallback {
+    fn send(&mut self, packet: &[u8]) -> io::Result<()> {
+        let now = Instant::now();
+        if self.active == 0
+            && self.last_sent.is_some()
+            && now.duration_since(self.last_heard) > self.silence
+        {
+            self.switch_to(1);
+        }
+        self.last_sent = Some(now);
+        let r = self.links[self.active].send(packet);
+        if r.is_err() && self.active == 0 {
+            self.switch_to(1);
+            return self.links[1].send(packet);
+        }
+        r
+    }
+
+    fn recv(&mut self, timeout: Duration) -> io::Result<Option<Vec<u8>>> {
+        let half = timeout / 2;
+        // Listen on the primary first: it wins back the traffic when it answers.
+        if let Ok(Some(p)) = self.links[0].recv(if self.active == 0 {
+            timeout - half
+        } else {
+            half
+        }) {
+            self.last_heard = Instant::now();
+            self.switch_to(0);
+            return Ok(Some(p));
+        }
+        match self.links[1].recv(half)? {
+            Some(p) => {
+                if self.active == 1 {
+                    self.last_heard = Instant::now();
+                } else if Instant::now().duration_since(self.last_heard) > self.silence {
+                    self.switch_to(1);
+                }
+                Ok(Some(p))
+            }
+            None => Ok(None),
+        }
+    }
+
+    fn mtu(&self) -> usize {
+        self.links[0].mtu().min(self.links[1].mtu())
+    }
+
+    fn describe(&self) -> String {
+        format!(
+            "fallback:{},{}",
+            self.links[0].describe(),
+            self.links[1].describe()
+        )
+    }
+}
