@@ -1,10 +1,245 @@
-//! `stereolink link_test` (being built).
+//! `stereolink link-test`: send test messages over a link and report goodput,
+//! loss and retransmissions. On a `sim:` link it runs the ARQ over the
+//! simulated 802.15.4 channel in simulated time (and `--sweep` prints the loss
+//! sweep); on real links one process runs `--role send` and the other
+//! `--role receive`.
 
-/// Arguments (none yet).
+use std::time::{Duration, Instant};
+
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use serde::Serialize;
+use stereolink_link::arq::Config;
+use stereolink_link::endpoint::Endpoint;
+use stereolink_link::sim::{self, SimConfig};
+use stereolink_link::spec::{self, LinkSpec};
+
+/// Which side this process plays on a real link.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum Role {
+    /// Send the test messages.
+    Send,
+    /// Receive and verify them.
+    Receive,
+}
+
+/// Arguments of `stereolink link-test`.
 #[derive(Debug, clap::Args)]
-pub struct Args {}
+pub struct Args {
+    /// Link: serial:/dev/ttyUSB0?baud=115200&api=2, udp:BIND?peer=ADDR, sim:?loss=0.1&seed=3, fallback:A,B.
+    #[arg(long, default_value = "sim:?loss=0.1&seed=1")]
+    pub link: String,
+    /// Messages to send.
+    #[arg(long, default_value_t = 5)]
+    pub count: usize,
+    /// Bytes per message.
+    #[arg(long, default_value_t = 30_000)]
+    pub size: usize,
+    /// Seed of the message contents (both sides must agree).
+    #[arg(long, default_value_t = 7)]
+    pub seed: u64,
+    /// On a sim link: print the loss sweep (0, 1, 5, 10, 20, 30 %) instead.
+    #[arg(long)]
+    pub sweep: bool,
+    /// On a real link: this process sends or receives.
+    #[arg(long, value_enum)]
+    pub role: Option<Role>,
+    /// Receiver: give up after this many seconds without a message.
+    #[arg(long, default_value_t = 60)]
+    pub timeout_s: u64,
+}
 
-/// Not implemented yet.
-pub fn run(_args: Args, _out: &super::Output) -> anyhow::Result<()> {
-    anyhow::bail!("this command is not implemented yet")
+/// The deterministic test message `i`.
+pub fn test_message(seed: u64, i: usize, size: usize) -> Vec<u8> {
+    let mut r = ChaCha8Rng::seed_from_u64(seed ^ (i as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+    (0..size).map(|_| r.gen()).collect()
+}
+
+#[derive(Serialize)]
+struct Summary {
+    link: String,
+    messages: usize,
+    bytes_per_message: usize,
+    delivered: usize,
+    failed: usize,
+    corrupted: usize,
+    retransmissions: u64,
+    goodput_bps: f64,
+    bound_bps: Option<f64>,
+    seconds: f64,
+}
+
+#[derive(Serialize)]
+struct SweepRow {
+    loss: f64,
+    delivered: bool,
+    seconds: f64,
+    goodput_bps: f64,
+    goodput_of_bound: f64,
+    segments: u64,
+    retransmissions: u64,
+}
+
+/// Runs the test.
+pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
+    let spec: LinkSpec = args
+        .link
+        .parse()
+        .map_err(|e: String| anyhow::anyhow!("{e}"))?;
+    match spec {
+        LinkSpec::Sim { config, .. } if args.sweep => sweep(config, &args, out),
+        LinkSpec::Sim { config, .. } => simulate(config, &args, out),
+        other => real(&other, &args, out),
+    }
+}
+
+fn simulate(config: SimConfig, args: &Args, out: &super::Output) -> anyhow::Result<()> {
+    let mut s = Summary {
+        link: args.link.clone(),
+        messages: args.count,
+        bytes_per_message: args.size,
+        delivered: 0,
+        failed: 0,
+        corrupted: 0,
+        retransmissions: 0,
+        goodput_bps: 0.0,
+        bound_bps: Some(config.bound_bps()),
+        seconds: 0.0,
+    };
+    for i in 0..args.count {
+        let msg = test_message(args.seed, i, args.size);
+        let cfg = SimConfig {
+            seed: config.seed.wrapping_add(i as u64),
+            ..config
+        };
+        let r = sim::transfer(cfg, Config::for_mtu(config.mtu), &msg);
+        s.delivered += r.delivered as usize;
+        s.failed += (!r.delivered) as usize;
+        s.corrupted += r.corrupted as usize;
+        s.retransmissions += r.retransmissions;
+        s.seconds += r.seconds;
+    }
+    s.goodput_bps = (s.delivered * args.size) as f64 * 8.0 / s.seconds.max(1e-9);
+    print_summary(&s, out)
+}
+
+fn print_summary(s: &Summary, out: &super::Output) -> anyhow::Result<()> {
+    out.emit(s, || {
+        format!(
+            "{}: {}/{} messages of {} B delivered, {} failed, {} corrupted; {} retransmissions; goodput {:.1} kb/s{} over {:.2} s\n",
+            s.link,
+            s.delivered,
+            s.messages,
+            s.bytes_per_message,
+            s.failed,
+            s.corrupted,
+            s.retransmissions,
+            s.goodput_bps / 1e3,
+            s.bound_bps.map_or(String::new(), |b| format!(" ({:.1} % of the {:.1} kb/s bound)", 100.0 * s.goodput_bps / b, b / 1e3)),
+            s.seconds
+        )
+    })
+}
+
+fn sweep(config: SimConfig, args: &Args, out: &super::Output) -> anyhow::Result<()> {
+    let bound = config.bound_bps();
+    let msg = test_message(args.seed, 0, args.size);
+    let rows: Vec<SweepRow> = [0.0, 0.01, 0.05, 0.10, 0.20, 0.30]
+        .into_iter()
+        .map(|loss| {
+            let r = sim::transfer(
+                SimConfig { loss, ..config },
+                Config::for_mtu(config.mtu),
+                &msg,
+            );
+            SweepRow {
+                loss,
+                delivered: r.delivered,
+                seconds: r.seconds,
+                goodput_bps: r.goodput_bps,
+                goodput_of_bound: r.goodput_bps / bound,
+                segments: r.segments,
+                retransmissions: r.retransmissions,
+            }
+        })
+        .collect();
+    out.emit(&rows, || {
+        let mut s = format!(
+            "{} B message over simulated XBee 802.15.4 at {} baud (bound {:.1} kb/s)\n loss  delivered  time s  goodput kb/s  of bound  segments  retransmissions\n",
+            args.size,
+            config.baud,
+            bound / 1e3
+        );
+        for r in &rows {
+            s += &format!(
+                "{:4.0} %  {:>9}  {:6.2}  {:12.1}  {:7.1} %  {:8}  {:15}\n",
+                r.loss * 100.0,
+                r.delivered,
+                r.seconds,
+                r.goodput_bps / 1e3,
+                r.goodput_of_bound * 100.0,
+                r.segments,
+                r.retransmissions
+            );
+        }
+        s
+    })
+}
+
+fn real(spec: &LinkSpec, args: &Args, out: &super::Output) -> anyhow::Result<()> {
+    let role = args.role.ok_or_else(|| {
+        anyhow::anyhow!("a real link needs --role send or --role receive (one process each)")
+    })?;
+    let transport = spec::open(spec)?;
+    let mut ep = Endpoint::new(transport);
+    let start = Instant::now();
+    let mut s = Summary {
+        link: args.link.clone(),
+        messages: args.count,
+        bytes_per_message: args.size,
+        delivered: 0,
+        failed: 0,
+        corrupted: 0,
+        retransmissions: 0,
+        goodput_bps: 0.0,
+        bound_bps: None,
+        seconds: 0.0,
+    };
+    for i in 0..args.count {
+        let msg = test_message(args.seed, i, args.size);
+        match role {
+            Role::Send => match ep.send_message(&msg) {
+                Ok(st) => {
+                    s.delivered += 1;
+                    s.retransmissions += st.retransmissions;
+                }
+                Err(e) => {
+                    eprintln!("message {i}: {e}");
+                    s.failed += 1;
+                }
+            },
+            Role::Receive => match ep.recv_message(Duration::from_secs(args.timeout_s)) {
+                Ok(m) if m == msg => s.delivered += 1,
+                Ok(_) => s.corrupted += 1,
+                Err(e) => {
+                    eprintln!("message {i}: {e}");
+                    s.failed += 1;
+                }
+            },
+        }
+    }
+    s.seconds = start.elapsed().as_secs_f64();
+    s.goodput_bps = (s.delivered * args.size) as f64 * 8.0 / s.seconds.max(1e-9);
+    if role == Role::Receive {
+        // Keep answering retransmissions in case our last ACK was lost.
+        ep.linger(Duration::from_millis(500))?;
+    }
+    print_summary(&s, out)?;
+    anyhow::ensure!(
+        s.failed == 0 && s.corrupted == 0,
+        "{} failed, {} corrupted",
+        s.failed,
+        s.corrupted
+    );
+    Ok(())
 }
