@@ -1,0 +1,192 @@
+//! The receiver's 480x272 screen: the 3-D view and the disparity map side by
+//! side, each scaled to fit a 236x177 panel, and a status area below (frame
+//! id, link quality, distance, axis position, and a free message).
+//!
+//! [`Screen`] keeps its buffers, so rendering frame after frame allocates
+//! nothing once the first frame is drawn.
+
+use serde::Serialize;
+use stereolink_image::{colormap, DisparityMap, Rgb, RgbImage};
+
+use crate::font::{draw_text, text_width, GLYPH_H};
+
+/// Screen width (the board's TFT).
+pub const SCREEN_WIDTH: usize = 480;
+/// Screen height.
+pub const SCREEN_HEIGHT: usize = 272;
+const PANEL_W: usize = 236;
+const PANEL_H: usize = 177;
+const MARGIN: usize = 2;
+const BAR_W: usize = 8;
+const BACKGROUND: Rgb = [16, 18, 24];
+const TEXT: Rgb = [230, 230, 230];
+const ACCENT: Rgb = [255, 200, 60];
+
+/// What the status area says.
+#[derive(Clone, Debug, Default, PartialEq, Serialize)]
+pub struct ScreenStatus {
+    /// Frame id of the shown pair.
+    pub frame_id: u32,
+    /// Share of link segments that needed no retransmission (0..1), if known.
+    pub link_quality: Option<f64>,
+    /// Target distance from the depth report, metres.
+    pub distance_m: Option<f64>,
+    /// Axis position, millimetres.
+    pub axis_mm: Option<f64>,
+    /// A free line (method, errors, ...).
+    pub message: String,
+}
+
+/// The screen and its buffers.
+pub struct Screen {
+    image: RgbImage,
+    colour: RgbImage,
+}
+
+impl Default for Screen {
+    fn default() -> Self {
+        Screen {
+            image: RgbImage::new(SCREEN_WIDTH, SCREEN_HEIGHT, BACKGROUND),
+            colour: RgbImage::new(0, 0, BACKGROUND),
+        }
+    }
+}
+
+/// Nearest-neighbour scale of `src` into the panel at `(x0, y0)`, keeping the aspect ratio.
+fn blit_scaled(dst: &mut RgbImage, src: &RgbImage, x0: usize, y0: usize, w: usize, h: usize) {
+    let (sw, sh) = src.dims();
+    if sw == 0 || sh == 0 {
+        return;
+    }
+    let scale = (w as f32 / sw as f32).min(h as f32 / sh as f32);
+    let (tw, th) = (
+        ((sw as f32 * scale) as usize).max(1),
+        ((sh as f32 * scale) as usize).max(1),
+    );
+    let (ox, oy) = (x0 + (w - tw.min(w)) / 2, y0 + (h - th.min(h)) / 2);
+    for y in 0..th.min(h) {
+        let sy = (y * sh / th).min(sh - 1);
+        let row = src.row(sy);
+        let out = &mut dst.row_mut(oy + y)[ox..ox + tw.min(w)];
+        for (x, px) in out.iter_mut().enumerate() {
+            *px = row[(x * sw / tw).min(sw - 1)];
+        }
+    }
+}
+
+impl Screen {
+    /// A blank screen.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// The current screen image.
+    pub fn image(&self) -> &RgbImage {
+        &self.image
+    }
+
+    /// Draws a frame: the 3-D view, the disparity map over `[dmin, dmax]` with
+    /// a labelled colour bar, and the status.
+    pub fn render(
+        &mut self,
+        view: &RgbImage,
+        disparity: &DisparityMap,
+        dmin: f32,
+        dmax: f32,
+        status: &ScreenStatus,
+    ) -> &RgbImage {
+        if self.colour.dims() != disparity.dims() {
+            self.colour = RgbImage::new(disparity.width(), disparity.height(), BACKGROUND);
+        }
+        let span = (dmax - dmin).max(f32::EPSILON);
+        for (c, &d) in self
+            .colour
+            .as_mut_slice()
+            .iter_mut()
+            .zip(disparity.as_slice())
+        {
+            *c = if d.is_finite() {
+                colormap::turbo((d - dmin) / span)
+            } else {
+                colormap::INVALID
+            };
+        }
+        let img = &mut self.image;
+        img.as_mut_slice().fill(BACKGROUND);
+        draw_text(img, MARGIN + 2, MARGIN + 1, "3-D VIEW", ACCENT);
+        draw_text(
+            img,
+            PANEL_W + 3 * MARGIN + 2,
+            MARGIN + 1,
+            "DISPARITY",
+            ACCENT,
+        );
+        let top = MARGIN + GLYPH_H + 3;
+        blit_scaled(img, view, MARGIN, top, PANEL_W, PANEL_H);
+        let dx = PANEL_W + 3 * MARGIN;
+        blit_scaled(img, &self.colour, dx, top, PANEL_W - BAR_W - 16, PANEL_H);
+        // Colour bar with its range.
+        let bx = dx + PANEL_W - BAR_W - 14;
+        for y in 0..PANEL_H {
+            let t = 1.0 - y as f32 / (PANEL_H - 1) as f32;
+            for x in bx..bx + BAR_W {
+                img.set(x, top + y, colormap::turbo(t));
+            }
+        }
+        let label = |v: f32| format!("{v:.0}");
+        let hi = label(dmax);
+        draw_text(img, SCREEN_WIDTH - MARGIN - text_width(&hi), top, &hi, TEXT);
+        let lo = label(dmin);
+        draw_text(
+            img,
+            SCREEN_WIDTH - MARGIN - text_width(&lo),
+            top + PANEL_H - GLYPH_H,
+            &lo,
+            TEXT,
+        );
+        // Status area.
+        let sy = top + PANEL_H + 6;
+        let opt = |v: Option<f64>, f: &dyn Fn(f64) -> String| v.map_or("--".to_string(), f);
+        let line1 = format!(
+            "FRAME {}   LINK {}   DIST {}   AXIS {}",
+            status.frame_id,
+            opt(status.link_quality, &|q| format!("{:.0}%", q * 100.0)),
+            opt(status.distance_m, &|d| format!("{d:.3} M")),
+            opt(status.axis_mm, &|a| format!("{a:.1} MM")),
+        );
+        draw_text(img, MARGIN + 2, sy, &line1, TEXT);
+        draw_text(
+            img,
+            MARGIN + 2,
+            sy + GLYPH_H + 5,
+            &status.message,
+            [160, 200, 255],
+        );
+        &self.image
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn renders_the_fixed_size_layout_and_reuses_its_buffer() {
+        let mut s = Screen::new();
+        let view = RgbImage::new(384, 288, [200, 0, 0]);
+        let disp = DisparityMap::from_fn(384, 288, |x, _| x as f32 / 12.0);
+        let status = ScreenStatus {
+            frame_id: 7,
+            distance_m: Some(1.5),
+            ..Default::default()
+        };
+        let ptr = s.image().as_slice().as_ptr();
+        let img = s.render(&view, &disp, 0.0, 32.0, &status).clone();
+        assert_eq!(img.dims(), (SCREEN_WIDTH, SCREEN_HEIGHT));
+        assert_eq!(img.get(100, 100), [200, 0, 0]); // inside the 3-D panel
+        assert_ne!(img.get(300, 100), BACKGROUND); // disparity panel painted
+        assert!(img.as_slice().contains(&TEXT));
+        s.render(&view, &disp, 0.0, 32.0, &status);
+        assert_eq!(s.image().as_slice().as_ptr(), ptr);
+    }
+}
