@@ -1,1 +1,102 @@
-//! stereolink-robot (in progress).
+//! The receiver's linear axis: it moves "exactly the calculated distance".
+//!
+//! * [`policy`] turns a validated depth report into a target position
+//!   (distance minus a stand-off, clamped to soft limits, at a bounded
+//!   speed) and holds the watchdog that stops the axis when reports stop.
+//! * [`Axis`] is what a driver offers; [`grbl::GrblAxis`] drives a GRBL
+//!   controller over a serial port, [`sim::SimAxis`] simulates a DC motor
+//!   with an encoder and a PID position loop.
+//!
+//! This crate knows nothing of images: distances come in metres.
+
+#![deny(missing_docs)]
+
+pub mod grbl;
+pub mod policy;
+pub mod sim;
+
+use std::fmt;
+
+/// Errors of the axis drivers.
+#[derive(Debug)]
+pub enum AxisError {
+    /// The port failed.
+    Io(std::io::Error),
+    /// GRBL answered `error:N`.
+    Grbl(u32),
+    /// GRBL raised `ALARM:N`; the axis must be unlocked by the operator.
+    Alarm(u32),
+    /// No answer in time.
+    Timeout(&'static str),
+    /// An unexpected answer.
+    Protocol(String),
+}
+
+impl fmt::Display for AxisError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            AxisError::Io(e) => write!(f, "axis port: {e}"),
+            AxisError::Grbl(n) => write!(f, "GRBL error:{n}"),
+            AxisError::Alarm(n) => write!(
+                f,
+                "GRBL ALARM:{n}: the axis is locked; check it and unlock ($X)"
+            ),
+            AxisError::Timeout(what) => write!(f, "axis did not answer {what} in time"),
+            AxisError::Protocol(s) => write!(f, "unexpected answer from the axis: {s}"),
+        }
+    }
+}
+
+impl std::error::Error for AxisError {}
+
+impl From<std::io::Error> for AxisError {
+    fn from(e: std::io::Error) -> Self {
+        AxisError::Io(e)
+    }
+}
+
+/// A linear axis, positions in millimetres from its home.
+pub trait Axis: Send {
+    /// Starts moving to `position_mm` at `speed_mm_s` (returns at once; a new
+    /// call retargets a move in progress).
+    fn move_to(&mut self, position_mm: f64, speed_mm_s: f64) -> Result<(), AxisError>;
+    /// Current position.
+    fn position(&mut self) -> Result<f64, AxisError>;
+    /// True while moving.
+    fn is_moving(&mut self) -> Result<bool, AxisError>;
+    /// Stops at once (feed hold).
+    fn stop(&mut self) -> Result<(), AxisError>;
+    /// A short description.
+    fn describe(&self) -> String;
+}
+
+/// Opens an axis from its spec: `sim` or `grbl:/dev/ttyACM0[?baud=115200]`.
+pub fn open_axis(spec: &str) -> Result<Box<dyn Axis>, AxisError> {
+    if spec == "sim" {
+        return Ok(Box::new(sim::SimAxis::new(sim::MotorParams::default())));
+    }
+    let Some(rest) = spec.strip_prefix("grbl:") else {
+        return Err(AxisError::Protocol(format!(
+            "axis {spec:?}: use sim or grbl:/dev/ttyACM0"
+        )));
+    };
+    let (path, query) = rest.split_once('?').unwrap_or((rest, ""));
+    let baud = query
+        .strip_prefix("baud=")
+        .map(|b| {
+            b.parse()
+                .map_err(|_| AxisError::Protocol(format!("baud={b} is not a number")))
+        })
+        .transpose()?
+        .unwrap_or(115_200);
+    let port = serialport::new(path, baud)
+        .timeout(std::time::Duration::from_millis(20))
+        .open()
+        .map_err(|e| {
+            AxisError::Io(std::io::Error::new(
+                std::io::ErrorKind::NotFound,
+                format!("cannot open {path}: {e}"),
+            ))
+        })?;
+    Ok(Box::new(grbl::GrblAxis::new(port, path)?))
+}
