@@ -201,7 +201,7 @@ fn layout(spec: &SynthSpec) -> Layout {
 
 /// Generates a scene: both views, both ground truths, the masks (`nonocc`,
 /// `all`, `disc`) and a calibration with focal length `0.8·width` px and a
-/// 0.1 m baseline.
+/// 3 cm baseline (a small robot's stereo head: the scene lies 0.3–3 m away).
 pub fn synthesize(spec: &SynthSpec) -> Result<Scene> {
     if spec.width < 16 || spec.height < 16 {
         return Err(Error::InvalidParameter(format!(
@@ -255,7 +255,7 @@ pub fn synthesize(spec: &SynthSpec) -> Result<Scene> {
         },
         calib: Calibration {
             focal_px: Some(0.8 * w as f64),
-            baseline_m: Some(0.1),
+            baseline_m: Some(0.03),
             doffs: 0.0,
             ndisp: spec.max_disp,
         },
@@ -299,7 +299,7 @@ mod tests {
             for y in 0..s.left.height() {
                 for x in 0..s.left.width() {
                     let d = gt.get(x, y);
-                    assert!(d >= 0.1 * 24.0 - 1e-3 && d <= 0.95 * 24.0 + 1e-3, "{d}");
+                    assert!((0.1 * 24.0 - 1e-3..=0.95 * 24.0 + 1e-3).contains(&d), "{d}");
                     if !nonocc.get(x, y) {
                         continue;
                     }

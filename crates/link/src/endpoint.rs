@@ -123,12 +123,10 @@ impl Endpoint {
     }
 
     fn service(&mut self, wait: Duration) -> Result<(), LinkError> {
-        if let Some(p) = self.transport.recv(wait)? {
+        let mut wait = wait;
+        while let Some(p) = self.transport.recv(wait)? {
             self.handle(&p)?;
-            // Drain whatever else is already there.
-            while let Some(p) = self.transport.recv(Duration::ZERO)? {
-                self.handle(&p)?;
-            }
+            wait = Duration::ZERO; // then drain whatever else is already there
         }
         if let Some(Err((_, e))) = self.receiver.poll(self.now()) {
             self.failures.push_back(e);
@@ -145,6 +143,8 @@ impl Endpoint {
         loop {
             while let Some(seg) = self.sender.poll_transmit(self.now()) {
                 self.transport.send(&seg)?;
+                // Take in ACKs between segments, so a long send never starves them.
+                self.service(Duration::ZERO)?;
             }
             match self.sender.state() {
                 SendState::Done => {

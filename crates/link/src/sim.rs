@@ -336,13 +336,17 @@ impl Transport for SimEnd {
         let (lock, cv) = &*self.shared;
         let mut s = lock.lock().expect("sim lock");
         let now = s.epoch.elapsed().as_secs_f64() * 1e6 * s.scale;
-        let (arrivals, _) = s.channel.send(self.side, now, packet);
+        let (arrivals, uart_done) = s.channel.send(self.side, now, packet);
         for (t, b) in arrivals {
             s.channel.sequence += 1;
             let seq = s.channel.sequence;
             s.queues[1 - self.side].push(Event(t, seq, 1 - self.side, b));
         }
         cv.notify_all();
+        // Like a serial write with flow control: return once the UART has taken the packet.
+        let wait = Duration::from_secs_f64(((uart_done - now) / 1e6 / s.scale).max(0.0));
+        drop(s);
+        std::thread::sleep(wait);
         Ok(())
     }
 

@@ -175,7 +175,7 @@ impl std::str::FromStr for LinkSpec {
 pub fn open(spec: &LinkSpec) -> std::io::Result<Box<dyn Transport>> {
     Ok(match spec {
         LinkSpec::Serial { path, baud, framing, mtu } => {
-            let port = serialport::new(path, *baud).timeout(Duration::from_millis(10)).open().map_err(|e| {
+            let port = serialport::new(path, *baud).timeout(Duration::from_millis(1)).open().map_err(|e| {
                 std::io::Error::new(std::io::ErrorKind::NotFound, format!("cannot open serial port {path}: {e}"))
             })?;
             Box::new(Serial::new(port, *framing, *mtu, format!("serial:{path}")))

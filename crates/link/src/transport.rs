@@ -113,7 +113,8 @@ pub struct Serial<P> {
 }
 
 impl<P: Read + Write + Send> Serial<P> {
-    /// Wraps an open port (its read timeout should be short, e.g. 10 ms).
+    /// Wraps an open port (its read timeout should be short, e.g. 1 ms: a
+    /// zero-timeout receive costs one read).
     pub fn new(port: P, framing: SerialFraming, mtu: usize, name: impl Into<String>) -> Self {
         let mode = match framing {
             SerialFraming::Api { mode, .. } => mode,

@@ -159,9 +159,13 @@ impl Axis for SimAxis {
         Ok(self.encoder_mm())
     }
 
+    /// Moving until the setpoint has arrived and the encoder is within
+    /// 0.05 mm of it, at rest (GRBL's "Idle" after a move).
     fn is_moving(&mut self) -> Result<bool, AxisError> {
         self.step_for(0.01);
-        Ok((self.setpoint - self.target).abs() > 1e-9 || self.omega.abs() > 0.05)
+        Ok((self.setpoint - self.target).abs() > 1e-9
+            || self.omega.abs() > 0.05
+            || (self.encoder_mm() - self.target).abs() > 0.05)
     }
 
     fn stop(&mut self) -> Result<(), AxisError> {

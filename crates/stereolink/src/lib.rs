@@ -5,3 +5,4 @@
 //! call, and every pipeline lives in the library.
 
 pub mod cmd;
+pub mod pipeline;

@@ -1,0 +1,192 @@
+//! The board's receiver: decodes messages, rebuilds the pair, matches it
+//! with WTA-SAD (as the paper's ARM board does), renders the 480x272 screen
+//! and moves the axis by the reported distance.
+//!
+//! Only a message that decoded completely (CRC-32 over the link, CRC-32 of
+//! the container body, every structural check) reaches the axis, and only
+//! through a [`ValidatedDistance`]; a frame that fails is reported and
+//! ignored. The WTA matcher and the screen keep their buffers between frames.
+
+use std::time::Instant;
+
+use stereolink_codec::{container, CodecError, Limits, Message, StereoFrame};
+use stereolink_display::{anaglyph, Anaglyph, Screen, ScreenStatus, Sink};
+use stereolink_image::{color, DisparityMap, GrayImage, RgbImage};
+use stereolink_robot::policy::{MotionPolicy, ValidatedDistance, Watchdog};
+use stereolink_robot::Axis;
+use stereolink_stereo::wta::{WtaMatcher, WtaParams};
+
+/// What the receiver did with one message.
+#[derive(Clone, Debug, serde::Serialize)]
+pub enum Event {
+    /// A pair was rebuilt, matched and shown.
+    Frame {
+        /// Frame id.
+        frame_id: u32,
+        /// Size of the message.
+        bytes: usize,
+        /// Time to decode, match and render.
+        ms: f64,
+    },
+    /// A depth report moved (or could not move) the axis.
+    Report {
+        /// Frame id.
+        frame_id: u32,
+        /// Reported distance, metres.
+        distance_m: f32,
+        /// Commanded axis position, mm (None: the distance was not valid).
+        commanded_mm: Option<f64>,
+    },
+    /// A message was rejected.
+    Rejected(String),
+}
+
+/// The receiver and its buffers.
+pub struct BoardReceiver {
+    matcher: WtaMatcher,
+    params: WtaParams,
+    gray: (GrayImage, GrayImage),
+    disparity: DisparityMap,
+    screen: Screen,
+    mode: Anaglyph,
+    limits: Limits,
+    /// The last rebuilt pair.
+    pub pair: Option<(RgbImage, RgbImage)>,
+    /// The display, if any.
+    pub sink: Option<Box<dyn Sink>>,
+    /// The axis, if any.
+    pub axis: Option<Box<dyn Axis>>,
+    /// Motion limits.
+    pub policy: MotionPolicy,
+    /// Stops the axis when reports stop.
+    pub watchdog: Watchdog,
+    /// Status shown on the screen.
+    pub status: ScreenStatus,
+}
+
+impl BoardReceiver {
+    /// A receiver matching up to `max_disp` disparities with a `block`×`block` window.
+    pub fn new(max_disp: usize, block: usize, watchdog: std::time::Duration) -> Self {
+        BoardReceiver {
+            matcher: WtaMatcher::new(),
+            params: WtaParams {
+                min_disp: 0,
+                ndisp: max_disp + 1,
+                block,
+                uniqueness: 0,
+                subpixel: false,
+            },
+            gray: (GrayImage::new(0, 0, 0), GrayImage::new(0, 0, 0)),
+            disparity: DisparityMap::new(0, 0, 0.0),
+            screen: Screen::new(),
+            mode: Anaglyph::Dubois,
+            limits: Limits::default(),
+            pair: None,
+            sink: None,
+            axis: None,
+            policy: MotionPolicy::default(),
+            watchdog: Watchdog::new(watchdog),
+            status: ScreenStatus::default(),
+        }
+    }
+
+    /// The last disparity map computed on the board.
+    pub fn disparity(&self) -> &DisparityMap {
+        &self.disparity
+    }
+
+    /// The current screen.
+    pub fn screen(&self) -> &RgbImage {
+        self.screen.image()
+    }
+
+    /// Handles one message from the link.
+    pub fn handle(&mut self, bytes: &[u8]) -> Event {
+        let start = Instant::now();
+        match container::decode(bytes, &self.limits) {
+            Err(e) => Event::Rejected(format!("message rejected: {e}")),
+            Ok((header, Message::StereoFrame(frame))) => {
+                match self.show_frame(header.frame_id, &frame) {
+                    Ok(()) => Event::Frame {
+                        frame_id: header.frame_id,
+                        bytes: bytes.len(),
+                        ms: start.elapsed().as_secs_f64() * 1e3,
+                    },
+                    Err(e) => Event::Rejected(format!("frame {} rejected: {e}", header.frame_id)),
+                }
+            }
+            Ok((header, Message::DepthReport(report))) => {
+                let d = report.target_distance_m;
+                self.status.distance_m = d.is_finite().then_some(d as f64);
+                let commanded = ValidatedDistance::new(d as f64).map(|v| self.policy.plan(v));
+                if commanded.is_some() {
+                    self.watchdog.feed(Instant::now());
+                }
+                if let (Some(m), Some(axis)) = (commanded, self.axis.as_mut()) {
+                    if let Err(e) = axis.move_to(m.position_mm, m.speed_mm_s) {
+                        return Event::Rejected(format!("axis: {e}"));
+                    }
+                }
+                Event::Report {
+                    frame_id: header.frame_id,
+                    distance_m: d,
+                    commanded_mm: commanded.map(|m| m.position_mm),
+                }
+            }
+            Ok((_, Message::Control(_))) => {
+                Event::Rejected("control messages are not used by this receiver".into())
+            }
+        }
+    }
+
+    fn show_frame(&mut self, frame_id: u32, frame: &StereoFrame) -> Result<(), CodecError> {
+        let (left, right) = (frame.left.to_rgb(), frame.right.to_rgb());
+        let (w, h) = left.dims();
+        if self.params.ndisp > w {
+            return Err(CodecError::Invalid(format!(
+                "a {w} px wide frame is narrower than the disparity range"
+            )));
+        }
+        self.gray = (color::rgb_to_gray(&left), color::rgb_to_gray(&right));
+        if self.disparity.dims() != (w, h) {
+            self.disparity = DisparityMap::new(w, h, 0.0);
+        }
+        self.matcher.compute_into(
+            &self.gray.0,
+            &self.gray.1,
+            &self.params,
+            &mut self.disparity,
+        );
+        let view = anaglyph(&left, &right, self.mode);
+        self.status.frame_id = frame_id;
+        self.status.message = format!("{} PAIR {}X{}", frame.kind.name(), w, h);
+        if let Some(axis) = self.axis.as_mut() {
+            self.status.axis_mm = axis.position().ok();
+        }
+        let max = (self.params.min_disp + self.params.ndisp - 1) as f32;
+        let screen = self.screen.render(
+            &view,
+            &self.disparity,
+            self.params.min_disp as f32,
+            max,
+            &self.status,
+        );
+        if let Some(sink) = self.sink.as_mut() {
+            sink.show(screen, &self.status)
+                .map_err(|e| CodecError::Invalid(format!("display: {e}")))?;
+        }
+        self.pair = Some((left, right));
+        Ok(())
+    }
+
+    /// Stops the axis if the watchdog expired; returns true if it did.
+    pub fn check_watchdog(&mut self) -> bool {
+        if self.watchdog.expired(Instant::now()) {
+            if let Some(axis) = self.axis.as_mut() {
+                let _ = axis.stop();
+                return true;
+            }
+        }
+        false
+    }
+}

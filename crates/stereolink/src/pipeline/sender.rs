@@ -1,0 +1,147 @@
+//! The sender: segments both views, encodes the pair into a `StereoFrame`,
+//! estimates disparity on the original pair (the sender has it, and depth
+//! should be as good as possible), and builds the `DepthReport`: depth
+//! levels, the target region's distance, the disparity histogram.
+//!
+//! The target region defaults to the central ninth of the image (the middle
+//! third in each direction), where a robot camera points at what it
+//! approaches; `--roi x,y,w,h` chooses another.
+
+use std::time::Instant;
+
+use anyhow::Context;
+use stereolink_codec::{
+    container, DepthReport, Message, ReportLevel, SegmentationKind, StereoFrame, View,
+};
+use stereolink_image::{metrics::psnr_rgb, Calibration, DisparityMap, RgbImage};
+use stereolink_segment::{segment, Method};
+use stereolink_stereo::depth::{depth_levels, depth_of, region_distance, LevelSpec, Roi};
+use stereolink_stereo::{compute_disparity, MatchSpec};
+
+/// What the sender does with a pair.
+#[derive(Clone, Debug)]
+pub struct SenderConfig {
+    /// Segmentation method.
+    pub method: Method,
+    /// Levels (classes).
+    pub levels: usize,
+    /// Seed of the segmentation.
+    pub seed: u64,
+    /// Matcher for the depth report.
+    pub matcher: MatchSpec,
+    /// Target region (default: the central ninth).
+    pub roi: Option<Roi>,
+    /// How depth levels are counted.
+    pub levels_spec: LevelSpec,
+}
+
+/// A pair ready to send, with what the sender measured on the way.
+pub struct Prepared {
+    /// The encoded StereoFrame message.
+    pub frame_bytes: Vec<u8>,
+    /// The encoded DepthReport message.
+    pub report_bytes: Vec<u8>,
+    /// The segmented views as sent.
+    pub sent: (RgbImage, RgbImage),
+    /// The sender's disparity map.
+    pub disparity: DisparityMap,
+    /// The depth report.
+    pub report: DepthReport,
+    /// PSNR of the segmented left and right views against the originals.
+    pub psnr_db: (f64, f64),
+    /// Segmentation, encoding and matching times (ms).
+    pub times_ms: (f64, f64, f64),
+}
+
+/// The central ninth of a `w`×`h` image.
+pub fn default_roi(w: usize, h: usize) -> Roi {
+    Roi {
+        x: w / 3,
+        y: h / 3,
+        w: (w / 3).max(1),
+        h: (h / 3).max(1),
+    }
+}
+
+/// Segments, encodes, matches and reports.
+pub fn prepare(
+    left: &RgbImage,
+    right: &RgbImage,
+    calib: &Calibration,
+    cfg: &SenderConfig,
+    frame_id: u32,
+) -> anyhow::Result<Prepared> {
+    anyhow::ensure!(
+        left.dims() == right.dims(),
+        "left is {:?} but right is {:?}",
+        left.dims(),
+        right.dims()
+    );
+    let t = Instant::now();
+    let (sl, sr) = rayon::join(
+        || segment(left, &cfg.method, cfg.levels, cfg.seed),
+        || segment(right, &cfg.method, cfg.levels, cfg.seed),
+    );
+    let (sl, sr) = (
+        sl.context("segmenting the left view")?,
+        sr.context("segmenting the right view")?,
+    );
+    let seg_ms = t.elapsed().as_secs_f64() * 1e3;
+    let sent = (sl.to_rgb(), sr.to_rgb());
+    let psnr_db = (
+        psnr_rgb(left, &sent.0)?.overall,
+        psnr_rgb(right, &sent.1)?.overall,
+    );
+    let t = Instant::now();
+    let frame = StereoFrame {
+        kind: SegmentationKind::from_name(cfg.method.name()).unwrap_or(SegmentationKind::None),
+        levels: cfg.levels.min(255) as u8,
+        params: format!("seed={}", cfg.seed),
+        thresholds: sl.channels.as_ref().map(|c| c.thresholds.clone()),
+        calibration: Some(*calib),
+        left: View::Indexed(sl.image),
+        right: View::Indexed(sr.image),
+    };
+    let timestamp = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_micros() as u64);
+    let frame_bytes =
+        container::encode(&Message::StereoFrame(Box::new(frame)), frame_id, timestamp);
+    let enc_ms = t.elapsed().as_secs_f64() * 1e3;
+    let t = Instant::now();
+    let disparity = compute_disparity(left, right, &cfg.matcher)?;
+    let match_ms = t.elapsed().as_secs_f64() * 1e3;
+    let (w, h) = left.dims();
+    let roi = cfg.roi.unwrap_or_else(|| default_roi(w, h));
+    let distance = region_distance(&disparity, roi, calib).ok().flatten();
+    let levels = depth_levels(&disparity, &cfg.levels_spec);
+    let metric = |d: f32| match (calib.focal_px, calib.baseline_m) {
+        (Some(f), Some(b)) => depth_of(d, f, b, calib.doffs).map_or(f32::NAN, |z| z as f32),
+        _ => f32::NAN,
+    };
+    let report = DepthReport {
+        target_distance_m: distance.map_or(f32::NAN, |d| d as f32),
+        target_region: [roi.x, roi.y, roi.w, roi.h].map(|v| v.min(u16::MAX as usize) as u16),
+        levels: levels
+            .levels
+            .iter()
+            .map(|l| ReportLevel {
+                disparity: l.disparity,
+                distance_m: metric(l.disparity),
+                share: l.share as f32,
+            })
+            .collect(),
+        histogram: levels.histogram,
+    };
+    let report_bytes =
+        container::encode(&Message::DepthReport(report.clone()), frame_id, timestamp);
+    Ok(Prepared {
+        frame_bytes,
+        report_bytes,
+        sent,
+        disparity,
+        report,
+        psnr_db,
+        times_ms: (seg_ms, enc_ms, match_ms),
+    })
+}
