@@ -1,10 +1,147 @@
-//! `stereolink receive` (being built).
+//! `stereolink receive`: the board's receiver on a real link.
 
-/// Arguments (none yet).
+use std::time::Duration;
+
+use anyhow::Context;
+use stereolink_display::open_sink;
+use stereolink_link::endpoint::{Endpoint, LinkError};
+use stereolink_link::spec::{self, LinkSpec};
+use stereolink_robot::open_axis;
+use stereolink_robot::policy::MotionPolicy;
+
+use crate::pipeline::receiver::{BoardReceiver, Event};
+
+/// Arguments of `stereolink receive`.
 #[derive(Debug, clap::Args)]
-pub struct Args {}
+pub struct Args {
+    /// Link: serial:/dev/ttyUSB0?baud=115200&api=2, udp:BIND?peer=ADDR, fallback:A,B.
+    #[arg(long)]
+    pub link: String,
+    /// Display: fb:/dev/fb0, png:DIR or web:127.0.0.1:8080.
+    #[arg(long)]
+    pub display: Option<String>,
+    /// Axis: grbl:/dev/ttyACM0 or sim.
+    #[arg(long)]
+    pub robot: Option<String>,
+    /// Matcher on the board (only wta, as the paper's ARM board).
+    #[arg(long = "match", default_value = "wta")]
+    pub matcher: String,
+    /// Largest disparity the board searches.
+    #[arg(long, default_value_t = 32)]
+    pub max_disp: usize,
+    /// Also write each received pair (received-left.png, received-right.png) here.
+    #[arg(long)]
+    pub save: Option<std::path::PathBuf>,
+    /// Stop after this many frames (0: run until the link is silent for --timeout-s).
+    #[arg(long, default_value_t = 0)]
+    pub frames: u32,
+    /// Give up after this many seconds without a message.
+    #[arg(long, default_value_t = 120)]
+    pub timeout_s: u64,
+    /// Stop the axis when no valid depth report arrived for this long.
+    #[arg(long, default_value_t = 10)]
+    pub watchdog_s: u64,
+    /// Stand-off: stop this far short of the target, mm.
+    #[arg(long, default_value_t = 0.0)]
+    pub standoff_mm: f64,
+    /// Axis soft limit, mm from home.
+    #[arg(long, default_value_t = 1000.0)]
+    pub max_travel_mm: f64,
+    /// Axis speed limit, mm/s.
+    #[arg(long, default_value_t = 50.0)]
+    pub max_speed: f64,
+}
 
-/// Not implemented yet.
-pub fn run(_args: Args, _out: &super::Output) -> anyhow::Result<()> {
-    anyhow::bail!("this command is not implemented yet")
+/// Receives, shows and moves until done.
+pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        args.matcher == "wta",
+        "the board matches with wta only (got {})",
+        args.matcher
+    );
+    let spec: LinkSpec = args
+        .link
+        .parse()
+        .map_err(|e: String| anyhow::anyhow!("{e}"))?;
+    let mut ep = Endpoint::new(
+        spec::open(&spec).with_context(|| format!("cannot open link {}", args.link))?,
+    );
+    let mut board = BoardReceiver::new(args.max_disp, 9, Duration::from_secs(args.watchdog_s));
+    board.policy = MotionPolicy {
+        standoff_mm: args.standoff_mm,
+        min_mm: 0.0,
+        max_mm: args.max_travel_mm,
+        max_speed_mm_s: args.max_speed,
+    };
+    if let Some(d) = &args.display {
+        board.sink = Some(open_sink(d).with_context(|| format!("cannot open display {d}"))?);
+    }
+    if let Some(r) = &args.robot {
+        board.axis = Some(open_axis(r).with_context(|| format!("cannot open axis {r}"))?);
+    }
+    let mut frames = 0;
+    let mut events = Vec::new();
+    while args.frames == 0 || frames < args.frames {
+        let msg = match ep.recv_message(Duration::from_secs(args.timeout_s)) {
+            Ok(m) => m,
+            Err(LinkError::Timeout) if args.frames == 0 => break,
+            Err(e) => return Err(e).context("receiving"),
+        };
+        let event = board.handle(&msg);
+        if let (Some(dir), Event::Frame { .. }, Some((l, r))) = (&args.save, &event, &board.pair) {
+            std::fs::create_dir_all(dir)
+                .with_context(|| format!("cannot create {}", dir.display()))?;
+            stereolink_image::io::write_rgb(dir.join("received-left.png"), l)?;
+            stereolink_image::io::write_rgb(dir.join("received-right.png"), r)?;
+        }
+        if board.check_watchdog() {
+            eprintln!(
+                "watchdog: no valid depth report for {} s, axis stopped",
+                args.watchdog_s
+            );
+        }
+        if !out.json {
+            match &event {
+                Event::Frame {
+                    frame_id,
+                    bytes,
+                    ms,
+                } => println!(
+                    "frame {frame_id}: {bytes} B, rebuilt, matched and shown in {ms:.1} ms"
+                ),
+                Event::Report {
+                    frame_id,
+                    distance_m,
+                    commanded_mm,
+                } => println!(
+                    "report {frame_id}: distance {distance_m:.3} m, axis {}",
+                    commanded_mm.map_or("not moved (no valid distance)".into(), |p| format!(
+                        "to {p:.1} mm"
+                    ))
+                ),
+                Event::Rejected(why) => eprintln!("{why}"),
+            }
+        }
+        if matches!(event, Event::Report { .. }) {
+            frames += 1;
+        }
+        events.push(event);
+    }
+    // Answer late retransmissions, and let the axis finish its move.
+    ep.linger(Duration::from_millis(500))?;
+    if let Some(axis) = board.axis.as_mut() {
+        for _ in 0..6000 {
+            if !axis.is_moving()? {
+                break;
+            }
+        }
+        let pos = axis.position()?;
+        if !out.json {
+            println!("axis at {pos:.3} mm");
+        }
+    }
+    if out.json {
+        out.emit(&events, String::new)?;
+    }
+    Ok(())
 }

@@ -1,0 +1,255 @@
+//! `send` and `receive` as separate processes over UDP and over a pair of
+//! pseudo-terminals joined by an emulated radio, with the display writing
+//! PNGs and the simulated axis; the received views must equal the sent
+//! segmented views bit for bit, and the axis must end at the reported
+//! distance. Also the demo on a small scene.
+
+use std::io::{Read, Write};
+use std::path::Path;
+use std::process::{Child, Command, Stdio};
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+use std::time::Duration;
+
+use serialport::{SerialPort, TTYPort};
+use stereolink_image::io;
+use stereolink_link::xbee::{ApiMode, Frame, Parser};
+
+fn spawn(args: &[String]) -> Child {
+    Command::new(env!("CARGO_BIN_EXE_stereolink"))
+        .args(args)
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap()
+}
+
+fn finish(child: Child, what: &str) -> String {
+    let out = child.wait_with_output().unwrap();
+    let text = String::from_utf8_lossy(&out.stdout).into_owned();
+    assert!(
+        out.status.success(),
+        "{what} failed: {text}{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    text
+}
+
+fn strings(v: &[&str]) -> Vec<String> {
+    v.iter().map(|s| s.to_string()).collect()
+}
+
+fn synth(dir: &Path) {
+    let status = Command::new(env!("CARGO_BIN_EXE_stereolink"))
+        .args([
+            "synth",
+            dir.to_str().unwrap(),
+            "--width",
+            "160",
+            "--height",
+            "120",
+            "--max-disp",
+            "24",
+            "--seed",
+            "3",
+        ])
+        .stdout(Stdio::null())
+        .status()
+        .unwrap();
+    assert!(status.success());
+}
+
+fn run_pair(rx_link: String, tx_link: String) {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("scene");
+    synth(&scene);
+    let (shots, saved) = (dir.path().join("screens"), dir.path().join("saved"));
+    let mut rx_args = strings(&[
+        "receive",
+        "--link",
+        &rx_link,
+        "--robot",
+        "sim",
+        "--frames",
+        "1",
+        "--max-disp",
+        "24",
+        "--timeout-s",
+        "60",
+    ]);
+    rx_args.extend(strings(&[
+        "--display",
+        &format!("png:{}", shots.display()),
+        "--save",
+        saved.to_str().unwrap(),
+    ]));
+    let rx = spawn(&rx_args);
+    std::thread::sleep(Duration::from_millis(200));
+    let mut tx_args = strings(&[
+        "send",
+        "--link",
+        &tx_link,
+        "--max-disp",
+        "23",
+        "--focal-px",
+        "128",
+        "--baseline-m",
+        "0.03",
+    ]);
+    tx_args.extend(strings(&[
+        "--left",
+        scene.join("left.png").to_str().unwrap(),
+        "--right",
+        scene.join("right.png").to_str().unwrap(),
+    ]));
+    tx_args.extend(strings(&[
+        "--save",
+        saved.to_str().unwrap(),
+        "--method",
+        "kmeans",
+        "--levels",
+        "4",
+    ]));
+    let tx = spawn(&tx_args);
+    let sent = finish(tx, "send");
+    let got = finish(rx, "receive");
+    for side in ["left", "right"] {
+        let a = io::read_rgb(saved.join(format!("sent-{side}.png"))).unwrap();
+        let b = io::read_rgb(saved.join(format!("received-{side}.png"))).unwrap();
+        assert_eq!(a, b, "{side} view differs");
+    }
+    assert!(shots.join("screen-00001.png").is_file());
+    assert_eq!(
+        io::read_rgb(shots.join("screen.png")).unwrap().dims(),
+        (480, 272)
+    );
+    // The axis went to the reported distance (clamped to its 1 m travel).
+    let distance: f64 = sent
+        .split("distance ")
+        .nth(1)
+        .unwrap()
+        .split(' ')
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
+    let axis: f64 = got
+        .split("axis at ")
+        .nth(1)
+        .unwrap()
+        .split(' ')
+        .next()
+        .unwrap()
+        .parse()
+        .unwrap();
+    let commanded = (distance * 1000.0).min(1000.0);
+    assert!(
+        (axis - commanded).abs() <= 0.5,
+        "axis {axis} mm for {commanded} mm ({sent} / {got})"
+    );
+}
+
+fn free_port() -> u16 {
+    std::net::UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+#[test]
+fn send_and_receive_over_udp() {
+    let (a, b) = (free_port(), free_port());
+    run_pair(
+        format!("udp:127.0.0.1:{b}?peer=127.0.0.1:{a}"),
+        format!("udp:127.0.0.1:{a}?peer=127.0.0.1:{b}"),
+    );
+}
+
+/// The two radios: TX16 requests written on one pty come out of the other as RX16 frames.
+fn radio(mut from: TTYPort, mut to: TTYPort, stop: Arc<AtomicBool>) -> std::thread::JoinHandle<()> {
+    std::thread::spawn(move || {
+        let mut parser = Parser::new(ApiMode::Escaped);
+        let mut buf = [0u8; 256];
+        while !stop.load(Ordering::Relaxed) {
+            let Ok(n) = from.read(&mut buf) else { continue };
+            for &b in &buf[..n] {
+                if let Some(Ok(Frame::Tx16 { data, .. })) = parser.push(b) {
+                    let _ = to.write_all(
+                        &Frame::Rx16 {
+                            source: 1,
+                            rssi: 0x30,
+                            options: 0,
+                            data,
+                        }
+                        .encode(ApiMode::Escaped),
+                    );
+                }
+            }
+        }
+    })
+}
+
+#[test]
+fn send_and_receive_over_a_pty_pair() {
+    let (mut m1, s1) = TTYPort::pair().unwrap();
+    let (mut m2, s2) = TTYPort::pair().unwrap();
+    m1.set_timeout(Duration::from_millis(5)).unwrap();
+    m2.set_timeout(Duration::from_millis(5)).unwrap();
+    let stop = Arc::new(AtomicBool::new(false));
+    let t1 = radio(
+        m1.try_clone_native().unwrap(),
+        m2.try_clone_native().unwrap(),
+        stop.clone(),
+    );
+    let t2 = radio(m2, m1, stop.clone());
+    let (p1, p2) = (s1.name().unwrap(), s2.name().unwrap());
+    run_pair(
+        format!("serial:{p2}?baud=115200&api=2"),
+        format!("serial:{p1}?baud=115200&api=2"),
+    );
+    stop.store(true, Ordering::Relaxed);
+    t1.join().unwrap();
+    t2.join().unwrap();
+}
+
+#[test]
+fn demo_on_a_small_synthetic_scene() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("demo-out");
+    let scene = dir.path().join("scene");
+    synth(&scene);
+    let run = spawn(&strings(&[
+        "--json",
+        "demo",
+        "--out",
+        out.to_str().unwrap(),
+        "--scene",
+        scene.to_str().unwrap(),
+        "--method",
+        "otsu",
+    ]));
+    let text = finish(run, "demo");
+    let report: serde_json::Value = serde_json::from_str(&text).unwrap();
+    assert_eq!(report["received_equals_sent"], true);
+    assert!(report["axis_error_mm"].as_f64().unwrap() <= 0.5, "{report}");
+    let (d, t) = (
+        report["distance_m"].as_f64().unwrap(),
+        report["true_distance_m"].as_f64().unwrap(),
+    );
+    assert!((d - t).abs() / t < 0.05, "distance {d} vs ground truth {t}");
+    for f in [
+        "sent/left.png",
+        "sent/right.png",
+        "received/left.png",
+        "received/right.png",
+        "screen.png",
+        "report.json",
+    ] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
+    assert_eq!(
+        io::read_rgb(out.join("sent/left.png")).unwrap(),
+        io::read_rgb(out.join("received/left.png")).unwrap()
+    );
+}
