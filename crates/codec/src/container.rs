@@ -212,13 +212,17 @@ fn encode_view(w: &mut Writer, view: &View, reference: Option<&IndexedImage>) {
             let n = img.palette().len();
             match reference {
                 Some(r) => {
-                    // Predict through the left labels mapped to this view's palette by colour.
-                    let remapped = remap(r, img);
-                    (
-                        coding::LABELS_CONDITIONED,
-                        img.palette(),
-                        labels::encode(img.labels(), n, Some(&remapped), SHIFT_SEARCH),
-                    )
+                    // Predict through the left labels mapped to this view's labels.
+                    let table = label_table(r, img);
+                    let predicted = r.labels().map(|l| table[l as usize]);
+                    let mut payload: Vec<u8> = table.iter().flat_map(|t| t.to_le_bytes()).collect();
+                    payload.extend(labels::encode(
+                        img.labels(),
+                        n,
+                        Some(&predicted),
+                        SHIFT_SEARCH,
+                    ));
+                    (coding::LABELS_CONDITIONED, img.palette(), payload)
                 }
                 None => (
                     coding::LABELS,
@@ -238,22 +242,26 @@ fn encode_view(w: &mut Writer, view: &View, reference: Option<&IndexedImage>) {
     w.bytes(&payload);
 }
 
-/// The reference labels expressed in `target`'s palette: each left label maps
-/// to the right palette entry of the same colour (or an impossible label, so
-/// it never predicts, when the colour is absent).
-fn remap(reference: &IndexedImage, target: &IndexedImage) -> stereolink_image::LabelMap {
-    let table: Vec<u16> = reference
-        .palette()
+/// The map from the left view's labels to the right view's, sent with the
+/// right view so that any mapping decodes. The two views are segmented
+/// separately, so their classes correspond but their numbering may differ;
+/// this encoder maps each left label to the right label of the nearest
+/// colour (on the Middlebury pairs it predicts better than the most frequent
+/// co-located label at the dominant disparity, which was also measured).
+fn label_table(left: &IndexedImage, right: &IndexedImage) -> Vec<u16> {
+    let dist = |a: &Rgb, b: &Rgb| {
+        (0..3)
+            .map(|k| (a[k] as i32 - b[k] as i32).pow(2))
+            .sum::<i32>()
+    };
+    left.palette()
         .iter()
         .map(|c| {
-            target
-                .palette()
-                .iter()
-                .position(|t| t == c)
-                .map_or(u16::MAX, |i| i as u16)
+            (0..right.palette().len())
+                .min_by_key(|&i| (dist(c, &right.palette()[i]), i))
+                .unwrap_or(0) as u16
         })
-        .collect();
-    reference.labels().map(|l| table[l as usize])
+        .collect()
 }
 
 fn encode_report(w: &mut Writer, r: &DepthReport) {
@@ -419,16 +427,27 @@ fn decode_view(
             let left = left.ok_or_else(|| {
                 CodecError::Invalid("conditioned view without an indexed left view".into())
             })?;
-            let target =
-                IndexedImage::new(stereolink_image::LabelMap::new(1, 1, 0), palette.clone())
-                    .map_err(|e| CodecError::Invalid(e.to_string()))?;
-            let remapped = remap(left, &target);
+            // The label table: one u16 per left label, each below this view's palette size.
+            let (table, coded) = payload
+                .split_at_checked(2 * left.palette().len())
+                .ok_or(CodecError::Truncated("label table"))?;
+            let table: Vec<u16> = table
+                .chunks_exact(2)
+                .map(|c| u16::from_le_bytes([c[0], c[1]]))
+                .collect();
+            if let Some(&bad) = table.iter().find(|&&t| t as usize >= n) {
+                return Err(CodecError::LabelOutOfRange {
+                    label: bad as u32,
+                    labels: n,
+                });
+            }
+            let predicted = left.labels().map(|l| table[l as usize]);
             Ok(View::Indexed(indexed(labels::decode(
-                payload,
+                coded,
                 w,
                 h,
                 n,
-                Some(&remapped),
+                Some(&predicted),
             )?)?))
         }
         coding::RGB => Ok(View::Rgb(rgb::decode(payload, w, h)?)),

@@ -3,7 +3,7 @@
 //! Each pixel is coded as a short sequence of binary decisions with the
 //! [range coder](crate::rangecoder): "is it the same label as candidate i?"
 //! for the causal neighbours W, N, NE, NW (duplicates skipped), and, when the
-//! map is the right view of a pair, first the **stereo prediction** P: the
+//! map is the right view of a pair, right after W the **stereo prediction** P: the
 //! left view's label at `x + s`, with one shift `s` per block of
 //! [`BLOCK`] columns of a row chosen by the encoder (the dominant disparity
 //! there) and sent with the row. Each decision's context is the candidate's
@@ -23,7 +23,7 @@ pub const BLOCK: usize = 32;
 pub const MAX_SHIFT: usize = 255;
 
 const CANDIDATES: usize = 5;
-const PATTERNS: usize = 64;
+const PATTERNS: usize = 128;
 
 struct Model {
     flags: Vec<Prob>,
@@ -64,10 +64,11 @@ fn candidates(
         | eq(wv, nw) << 2
         | eq(nv, nw) << 3
         | (predicted.is_some() as usize) << 4
-        | eq(predicted, wv) << 5;
+        | eq(predicted, wv) << 5
+        | eq(predicted, nv) << 6;
     let mut list = [0u16; CANDIDATES];
     let mut n = 0;
-    for c in [predicted, wv, nv, ne, nw].into_iter().flatten() {
+    for c in [wv, predicted, nv, ne, nw].into_iter().flatten() {
         if !list[..n].contains(&c) {
             list[n] = c;
             n += 1;
@@ -77,25 +78,33 @@ fn candidates(
 }
 
 /// Per-block shifts that best predict row `y` of `map` from `reference`.
+/// A block keeps the shift of the block above unless another shift predicts
+/// at least two more pixels, so flat areas (where every shift ties) cost
+/// one cheap "same shift" decision per block.
 fn best_shifts(
     map: &LabelMap,
     reference: &LabelMap,
     y: usize,
     max_shift: usize,
+    above: &[u8],
     out: &mut Vec<u8>,
 ) {
     let w = map.width();
     let (row, refrow) = (map.row(y), reference.row(y));
     out.clear();
-    for x0 in (0..w).step_by(BLOCK) {
+    let hits = |x0: usize, x1: usize, s: usize| {
+        (x0..x1)
+            .filter(|&x| x + s < w && row[x] == refrow[x + s])
+            .count()
+    };
+    for (b, x0) in (0..w).step_by(BLOCK).enumerate() {
         let x1 = (x0 + BLOCK).min(w);
-        let mut best = (0usize, 0usize);
+        let keep = above.get(b).map_or(0, |&s| s as usize);
+        let mut best = (hits(x0, x1, keep), keep);
         for s in 0..=max_shift.min(w - 1) {
-            let hits = (x0..x1)
-                .filter(|&x| x + s < w && row[x] == refrow[x + s])
-                .count();
-            if hits > best.0 {
-                best = (hits, s);
+            let h = hits(x0, x1, s);
+            if h > best.0 + 1 {
+                best = (h, s);
             }
         }
         out.push(best.1 as u8);
@@ -118,7 +127,7 @@ pub fn encode(
     let mut above: Vec<u8> = Vec::new();
     for y in 0..h {
         if let Some(r) = reference {
-            best_shifts(map, r, y, max_shift.min(MAX_SHIFT), &mut shifts);
+            best_shifts(map, r, y, max_shift.min(MAX_SHIFT), &above, &mut shifts);
             for (b, &s) in shifts.iter().enumerate() {
                 let same = above.get(b) == Some(&s);
                 enc.bit(&mut model.same_shift, same);

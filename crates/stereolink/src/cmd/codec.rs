@@ -1,28 +1,286 @@
-//! `stereolink codec` (being built).
+//! `stereolink encode`, `stereolink decode` and `stereolink bench codec`.
 
-/// Arguments (none yet).
+use std::path::PathBuf;
+use std::time::Instant;
+
+use anyhow::Context;
+use serde::Serialize;
+use stereolink_codec::{container, labels, Limits, Message, SegmentationKind, StereoFrame, View};
+use stereolink_image::{io, metrics::psnr_rgb, Scene};
+
+use super::segment::SegmentArgs;
+
+/// Arguments of `stereolink encode`.
 #[derive(Debug, clap::Args)]
-pub struct Args {}
-
-/// Not implemented yet.
-pub fn run(_args: Args, _out: &super::Output) -> anyhow::Result<()> {
-    anyhow::bail!("this command is not implemented yet")
+pub struct Args {
+    /// Left image.
+    pub left: PathBuf,
+    /// Right image.
+    pub right: PathBuf,
+    /// Output frame file.
+    #[arg(short, long)]
+    pub output: PathBuf,
+    /// Send the original views losslessly instead of segmenting them.
+    #[arg(long)]
+    pub original: bool,
+    #[command(flatten)]
+    pub segment: SegmentArgs,
 }
 
-/// Arguments of the `bench` subcommand (none yet).
-#[derive(Debug, clap::Args)]
-pub struct BenchArgs {}
-
-/// Not implemented yet.
-pub fn run_bench(_args: BenchArgs, _out: &super::Output) -> anyhow::Result<()> {
-    anyhow::bail!("this benchmark is not implemented yet")
+#[derive(Serialize)]
+struct Encoded {
+    output: PathBuf,
+    bytes: usize,
+    original_file_bytes: u64,
+    reduction_percent: f64,
+    bits_per_pixel: f64,
+    psnr_db: Option<(f64, f64)>,
 }
 
-/// Arguments of `stereolink decode` (none yet).
-#[derive(Debug, clap::Args)]
-pub struct DecodeArgs {}
+/// Segments (unless `--original`) and encodes a pair.
+pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
+    let left = io::read_rgb(&args.left)?;
+    let right = io::read_rgb(&args.right)?;
+    anyhow::ensure!(
+        left.dims() == right.dims(),
+        "{} is {:?} but {} is {:?}",
+        args.left.display(),
+        left.dims(),
+        args.right.display(),
+        right.dims()
+    );
+    let (frame, psnr) = if args.original {
+        let f = StereoFrame {
+            kind: SegmentationKind::None,
+            levels: 0,
+            params: String::new(),
+            thresholds: None,
+            calibration: None,
+            left: View::Rgb(left.clone()),
+            right: View::Rgb(right.clone()),
+        };
+        (f, None)
+    } else {
+        let method = args.segment.method()?;
+        let (sl, sr) = (args.segment.run(&left)?, args.segment.run(&right)?);
+        let psnr = (
+            psnr_rgb(&left, &sl.to_rgb())?.overall,
+            psnr_rgb(&right, &sr.to_rgb())?.overall,
+        );
+        let f = StereoFrame {
+            kind: SegmentationKind::from_name(method.name()).unwrap_or(SegmentationKind::None),
+            levels: args.segment.levels.min(255) as u8,
+            params: format!("seed={}", args.segment.seed),
+            thresholds: sl.channels.as_ref().map(|c| c.thresholds.clone()),
+            calibration: None,
+            left: View::Indexed(sl.image),
+            right: View::Indexed(sr.image),
+        };
+        (f, Some(psnr))
+    };
+    let bytes = container::encode(&Message::StereoFrame(Box::new(frame)), 1, 0);
+    std::fs::write(&args.output, &bytes)
+        .with_context(|| format!("cannot write {}", args.output.display()))?;
+    let original = std::fs::metadata(&args.left)?.len() + std::fs::metadata(&args.right)?.len();
+    let e = Encoded {
+        output: args.output.clone(),
+        bytes: bytes.len(),
+        original_file_bytes: original,
+        reduction_percent: 100.0 * (1.0 - bytes.len() as f64 / original as f64),
+        bits_per_pixel: bytes.len() as f64 * 8.0 / (2 * left.len()) as f64,
+        psnr_db: psnr,
+    };
+    out.emit(&e, || {
+        format!(
+            "{}: {} B for the pair ({:.3} bit/pixel), {:.1} % smaller than the original files ({} B){}\n",
+            e.output.display(),
+            e.bytes,
+            e.bits_per_pixel,
+            e.reduction_percent,
+            e.original_file_bytes,
+            e.psnr_db.map_or(String::new(), |(l, r)| format!("; PSNR {l:.2} / {r:.2} dB"))
+        )
+    })
+}
 
-/// Not implemented yet.
-pub fn run_decode(_args: DecodeArgs, _out: &super::Output) -> anyhow::Result<()> {
-    anyhow::bail!("this command is not implemented yet")
+/// Arguments of `stereolink decode`.
+#[derive(Debug, clap::Args)]
+pub struct DecodeArgs {
+    /// Frame file written by `stereolink encode` (or received).
+    pub input: PathBuf,
+    /// Folder to write left.png and right.png into.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Original left image, to report PSNR.
+    #[arg(long)]
+    pub left: Option<PathBuf>,
+    /// Original right image, to report PSNR.
+    #[arg(long)]
+    pub right: Option<PathBuf>,
+}
+
+#[derive(Serialize)]
+struct Decoded {
+    frame_id: u32,
+    kind: String,
+    width: usize,
+    height: usize,
+    bytes: usize,
+    psnr_db: Option<(f64, f64)>,
+}
+
+/// Decodes a frame file into its two views.
+pub fn run_decode(args: DecodeArgs, out: &super::Output) -> anyhow::Result<()> {
+    let bytes = std::fs::read(&args.input)
+        .with_context(|| format!("cannot read {}", args.input.display()))?;
+    let (header, msg) = container::decode(&bytes, &Limits::default())
+        .with_context(|| format!("{} is not a valid frame", args.input.display()))?;
+    let Message::StereoFrame(frame) = msg else {
+        anyhow::bail!(
+            "{} holds a message of type {}, not a stereo frame",
+            args.input.display(),
+            header.kind
+        )
+    };
+    let (l, r) = (frame.left.to_rgb(), frame.right.to_rgb());
+    std::fs::create_dir_all(&args.out)?;
+    io::write_rgb(args.out.join("left.png"), &l)?;
+    io::write_rgb(args.out.join("right.png"), &r)?;
+    let psnr = match (&args.left, &args.right) {
+        (Some(a), Some(b)) => Some((
+            psnr_rgb(&io::read_rgb(a)?, &l)?.overall,
+            psnr_rgb(&io::read_rgb(b)?, &r)?.overall,
+        )),
+        _ => None,
+    };
+    let d = Decoded {
+        frame_id: header.frame_id,
+        kind: frame.kind.name().into(),
+        width: l.width(),
+        height: l.height(),
+        bytes: bytes.len(),
+        psnr_db: psnr,
+    };
+    out.emit(&d, || {
+        format!(
+            "frame {} ({}, {}x{}, {} B) written to {}{}\n",
+            d.frame_id,
+            d.kind,
+            d.width,
+            d.height,
+            d.bytes,
+            args.out.display(),
+            d.psnr_db
+                .map_or(String::new(), |(a, b)| format!("; PSNR {a:.2} / {b:.2} dB"))
+        )
+    })
+}
+
+/// Arguments of `stereolink bench codec`.
+#[derive(Debug, clap::Args)]
+pub struct BenchArgs {
+    /// Scene folder.
+    #[arg(long)]
+    pub scene: PathBuf,
+    /// Timed runs after a warm-up.
+    #[arg(long, default_value_t = 10)]
+    pub iters: usize,
+    #[command(flatten)]
+    pub segment: SegmentArgs,
+}
+
+#[derive(Serialize)]
+struct CodecBench {
+    scene: String,
+    method: String,
+    width: usize,
+    height: usize,
+    palette_left: usize,
+    palette_right: usize,
+    bytes_left: usize,
+    bytes_right_alone: usize,
+    bytes_right_conditioned: usize,
+    frame_bytes: usize,
+    bits_per_pixel: f64,
+    conditioned_gain_percent: f64,
+    encode_ms: f64,
+    decode_ms: f64,
+    decode_mpixel_s: f64,
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// Sizes and speeds of the label coder on a scene's segmented pair.
+pub fn run_bench(args: BenchArgs, out: &super::Output) -> anyhow::Result<()> {
+    let scene = Scene::load(&args.scene)?;
+    let (sl, sr) = (
+        args.segment.run(&scene.left)?,
+        args.segment.run(&scene.right)?,
+    );
+    let (l, r) = (&sl.image, &sr.image);
+    let nl = l.palette().len();
+    let nr = r.palette().len();
+    let left_bytes = labels::encode(l.labels(), nl, None, 0);
+    let right_alone = labels::encode(r.labels(), nr, None, 0);
+    let frame = StereoFrame {
+        kind: SegmentationKind::None,
+        levels: 0,
+        params: String::new(),
+        thresholds: None,
+        calibration: None,
+        left: View::Indexed(l.clone()),
+        right: View::Indexed(r.clone()),
+    };
+    let msg = Message::StereoFrame(Box::new(frame));
+    let bytes = container::encode(&msg, 1, 0);
+    // The conditioned right view is what the frame holds beyond the left view.
+    let right_cond = bytes.len() - container::HEADER_LEN - left_bytes.len() - 3 * (nl + nr) - 32;
+    let (mut enc, mut dec) = (Vec::new(), Vec::new());
+    for _ in 0..=args.iters.max(1) {
+        let t = Instant::now();
+        let b = container::encode(&msg, 1, 0);
+        enc.push(t.elapsed().as_secs_f64() * 1e3);
+        let t = Instant::now();
+        std::hint::black_box(container::decode(&b, &Limits::default())?);
+        dec.push(t.elapsed().as_secs_f64() * 1e3);
+    }
+    let (encode_ms, decode_ms) = (median(enc[1..].to_vec()), median(dec[1..].to_vec()));
+    let px = scene.left.len();
+    let b = CodecBench {
+        scene: scene.name.clone(),
+        method: args.segment.method()?.name().into(),
+        width: scene.left.width(),
+        height: scene.left.height(),
+        palette_left: nl,
+        palette_right: nr,
+        bytes_left: left_bytes.len(),
+        bytes_right_alone: right_alone.len(),
+        bytes_right_conditioned: right_cond,
+        frame_bytes: bytes.len(),
+        bits_per_pixel: left_bytes.len() as f64 * 8.0 / px as f64,
+        conditioned_gain_percent: 100.0 * (1.0 - right_cond as f64 / right_alone.len() as f64),
+        encode_ms,
+        decode_ms,
+        decode_mpixel_s: 2.0 * px as f64 / decode_ms / 1e3,
+    };
+    out.emit(&b, || {
+        format!(
+            "{} {} ({}x{}): left {} B ({:.3} bit/px), right alone {} B, conditioned {} B ({:.1} % smaller); encode {:.2} ms, decode {:.2} ms ({:.0} Mpixel/s)\n",
+            b.scene,
+            b.method,
+            b.width,
+            b.height,
+            b.bytes_left,
+            b.bits_per_pixel,
+            b.bytes_right_alone,
+            b.bytes_right_conditioned,
+            b.conditioned_gain_percent,
+            b.encode_ms,
+            b.decode_ms,
+            b.decode_mpixel_s
+        )
+    })
 }
