@@ -124,6 +124,10 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         }
         if matches!(event, Event::Report { .. }) {
             frames += 1;
+            if let Some(axis) = board.axis.as_mut() {
+                board.status.axis_mm = axis.position().ok();
+            }
+            board.refresh().context("display")?;
         }
         events.push(event);
     }

@@ -198,6 +198,8 @@ pub fn run(cfg: DemoConfig, progress: &dyn Fn(&str)) -> anyhow::Result<DemoRepor
         &colormap::colorize_with_bar(board.disparity(), 0.0, dmax),
     )?;
     board.status.axis_mm = axis_final;
+    board.status.link_quality = Some(1.0 - retransmissions as f64 / segments.max(1) as f64);
+    board.refresh()?;
     write_png(&cfg.out, "screen.png", board.screen())?;
     let roi: Roi = cfg.sender.roi.unwrap_or_else(|| default_roi(w, h));
     let true_distance_m = scene

@@ -52,6 +52,8 @@ pub struct BoardReceiver {
     limits: Limits,
     /// The last rebuilt pair.
     pub pair: Option<(RgbImage, RgbImage)>,
+    /// The last 3-D view, kept to redraw the screen when the status changes.
+    view: Option<RgbImage>,
     /// The display, if any.
     pub sink: Option<Box<dyn Sink>>,
     /// The axis, if any.
@@ -82,6 +84,7 @@ impl BoardReceiver {
             mode: Anaglyph::Dubois,
             limits: Limits::default(),
             pair: None,
+            view: None,
             sink: None,
             axis: None,
             policy: MotionPolicy::default(),
@@ -163,20 +166,29 @@ impl BoardReceiver {
         if let Some(axis) = self.axis.as_mut() {
             self.status.axis_mm = axis.position().ok();
         }
+        self.view = Some(view);
+        self.pair = Some((left, right));
+        self.refresh()
+            .map_err(|e| CodecError::Invalid(format!("display: {e}")))
+    }
+
+    /// Redraws the screen with the current status (distance, axis, link) and shows it.
+    pub fn refresh(&mut self) -> std::io::Result<()> {
+        let Some(view) = &self.view else {
+            return Ok(());
+        };
         let max = (self.params.min_disp + self.params.ndisp - 1) as f32;
         let screen = self.screen.render(
-            &view,
+            view,
             &self.disparity,
             self.params.min_disp as f32,
             max,
             &self.status,
         );
-        if let Some(sink) = self.sink.as_mut() {
-            sink.show(screen, &self.status)
-                .map_err(|e| CodecError::Invalid(format!("display: {e}")))?;
+        match self.sink.as_mut() {
+            Some(sink) => sink.show(screen, &self.status),
+            None => Ok(()),
         }
-        self.pair = Some((left, right));
-        Ok(())
     }
 
     /// Stops the axis if the watchdog expired; returns true if it did.
