@@ -179,6 +179,8 @@ struct Bench {
     fitness: Option<[f64; 3]>,
     optimum: Option<[f64; 3]>,
     fitness_fraction: Option<f64>,
+    /// k-means objective J (sum of squared RGB distances to the centres).
+    objective: Option<f64>,
 }
 
 /// Times the method alone on an image in memory.
@@ -204,6 +206,17 @@ pub fn run_bench(args: BenchArgs, out: &super::Output) -> anyhow::Result<()> {
         optimum: ch.map(|c| c.optimum),
         fitness_fraction: ch
             .map(|c| c.fitness.iter().sum::<f64>() / c.optimum.iter().sum::<f64>().max(1e-12)),
+        objective: match args.segment.method()? {
+            Method::KMeans => Some(
+                stereolink_segment::kmeans::cluster(
+                    &scene.left,
+                    args.segment.levels,
+                    args.segment.seed,
+                )?
+                .objective,
+            ),
+            _ => None,
+        },
     };
     out.emit(&b, || {
         format!(

@@ -1,0 +1,80 @@
+#!/usr/bin/env python3
+"""Segmentation speed and quality against the anchors, in one run, on Cones:
+
+* exact multilevel Otsu (ours, DP) vs scikit-image `threshold_multiotsu`
+  (brute force) at 5 classes on each of R, G, B; and ours up to 16 levels;
+* FO-DPSO / DPSO / PSO: fitness over 20 seeds as a share of the exact optimum
+  at 4 and 5 levels, and their times;
+* k-means k=3 (ours) vs scikit-learn `KMeans(n_clusters=3, n_init=1)` on the
+  same pixels: time and objective J;
+* mean shift (ours, h_s=20, h_r=40) vs OpenCV `pyrMeanShiftFiltering(20, 40)`.
+
+    cargo build --release && python3 bench/segment_vs_anchors.py [DATA_DIR]
+"""
+import json
+import os
+import subprocess
+import sys
+import time
+
+import cv2
+import numpy as np
+from skimage.filters import threshold_multiotsu
+from sklearn.cluster import KMeans
+
+BIN = "target/release/stereolink"
+
+
+def ours(scene, method, levels, iters=5, seed=1, extra=()):
+    out = subprocess.run([BIN, "--json", "bench", "segment", "--scene", scene, "--method", method, "--levels", str(levels),
+                          "--iters", str(iters), "--seed", str(seed), *extra], check=True, capture_output=True, text=True).stdout
+    return json.loads(out)
+
+
+def timed(fn, iters=3):
+    fn()
+    ts = []
+    for _ in range(iters):
+        t = time.perf_counter()
+        r = fn()
+        ts.append((time.perf_counter() - t) * 1e3)
+    return float(np.median(ts)), r
+
+
+def main():
+    data = sys.argv[1] if len(sys.argv) > 1 else os.environ.get("STEREOLINK_DATA", "../shared/data/middlebury")
+    scene = os.path.join(data, "cones")
+    rgb = cv2.cvtColor(cv2.imread(os.path.join(scene, "left.png")), cv2.COLOR_BGR2RGB)
+
+    t_sk, _ = timed(lambda: [threshold_multiotsu(rgb[..., c], classes=5) for c in range(3)], iters=1)
+    r = ours(scene, "otsu", 5)
+    print(f"exact Otsu, 5 classes x 3 channels: scikit-image {t_sk:.0f} ms, ours {r['median_ms']:.2f} ms "
+          f"-> {t_sk / r['median_ms']:.0f}x faster")
+    for levels in (8, 16):
+        print(f"exact Otsu, {levels} levels x 3 channels: ours {ours(scene, 'otsu', levels)['median_ms']:.2f} ms")
+
+    for levels in (4, 5):
+        for method in ("pso", "dpso", "fodpso"):
+            fr, ms = [], []
+            for seed in range(20):
+                r = ours(scene, method, levels, iters=1, seed=seed)
+                fr.append(r["fitness_fraction"])
+                ms.append(r["median_ms"])
+            print(f"{method:>6} {levels} levels, 20 seeds: median fitness {100 * np.median(fr):.3f} % of optimum "
+                  f"(min {100 * min(fr):.3f} %), median time {np.median(ms):.2f} ms")
+
+    pixels = rgb.reshape(-1, 3).astype(np.float64)
+    t_km, km = timed(lambda: KMeans(n_clusters=3, n_init=1, random_state=0).fit(pixels))
+    r = ours(scene, "kmeans", 3)
+    print(f"k-means k=3: scikit-learn {t_km:.1f} ms (J {km.inertia_:.4g}), ours {r['median_ms']:.1f} ms "
+          f"(J {r['objective']:.4g}) -> {t_km / r['median_ms']:.1f}x faster, J ratio {r['objective'] / km.inertia_:.4f}")
+
+    bgr = cv2.imread(os.path.join(scene, "left.png"))
+    t_cv, _ = timed(lambda: cv2.pyrMeanShiftFiltering(bgr, 20, 40), iters=2)
+    r = ours(scene, "meanshift", 3, iters=2, extra=("--spatial", "20", "--range", "40"))
+    print(f"mean shift h_s=20 h_r=40: OpenCV pyrMeanShiftFiltering {t_cv:.0f} ms, ours (filtering + clustering) "
+          f"{r['median_ms']:.0f} ms -> {t_cv / r['median_ms']:.2f}x")
+
+
+if __name__ == "__main__":
+    main()
