@@ -284,11 +284,15 @@ fn add_sub_lanes(acc: &mut [u16], a: &[u16], s: &[u16]) {
 /// The winning disparity among `costs` (index `k` is disparity `d_min + k`).
 #[inline(always)]
 fn winner(costs: &[u16], p: &WtaParams) -> f32 {
-    let best = *costs.iter().min().expect("at least one disparity");
-    let k = costs
+    // Cost in the high half, index in the low half: one vectorisable minimum
+    // gives the smallest cost and, among equal costs, the smallest disparity.
+    let packed = costs
         .iter()
-        .position(|&c| c == best)
-        .expect("minimum exists");
+        .zip(0u32..)
+        .map(|(&c, k)| (c as u32) << 16 | k)
+        .min()
+        .expect("at least one disparity");
+    let (best, k) = ((packed >> 16) as u16, (packed & 0xFFFF) as usize);
     if p.uniqueness > 0 {
         let limit = best as u32 * (100 + p.uniqueness);
         let ambiguous = costs

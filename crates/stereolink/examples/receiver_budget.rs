@@ -1,0 +1,59 @@
+//! The board's per-frame cost: decode a 480x272 StereoFrame, WTA-match it
+//! with 32 disparities (one thread, as on the ARM9) and render the screen,
+//! `FRAMES` times (argument 1, default 1). Run it under callgrind twice, with
+//! 1 and with 11 frames, and divide the difference by 10 to get the cost of
+//! one frame after the first:
+//!
+//! ```sh
+//! cargo build --release --example receiver_budget
+//! RAYON_NUM_THREADS=1 valgrind --tool=callgrind --callgrind-out-file=/tmp/cg1 target/release/examples/receiver_budget 1
+//! RAYON_NUM_THREADS=1 valgrind --tool=callgrind --callgrind-out-file=/tmp/cg11 target/release/examples/receiver_budget 11
+//! RAYON_NUM_THREADS=1 valgrind --tool=dhat target/release/examples/receiver_budget 11   # peak heap
+//! ```
+
+use std::time::Duration;
+
+use stereolink::pipeline::receiver::{BoardReceiver, Event};
+use stereolink_codec::{container, Message, SegmentationKind, StereoFrame, View};
+use stereolink_image::synth::{synthesize, SynthSpec};
+use stereolink_segment::segment;
+
+fn main() {
+    let frames: u32 = std::env::args()
+        .nth(1)
+        .and_then(|a| a.parse().ok())
+        .unwrap_or(1);
+    let scene = synthesize(&SynthSpec {
+        width: 480,
+        height: 272,
+        max_disp: 32,
+        seed: 1,
+    })
+    .expect("valid spec");
+    let method = "kmeans".parse().expect("known method");
+    let (l, r) = (
+        segment(&scene.left, &method, 3, 1).expect("segments"),
+        segment(&scene.right, &method, 3, 1).expect("segments"),
+    );
+    let frame = StereoFrame {
+        kind: SegmentationKind::KMeans,
+        levels: 3,
+        params: String::new(),
+        thresholds: None,
+        calibration: None,
+        left: View::Indexed(l.image),
+        right: View::Indexed(r.image),
+    };
+    let bytes = container::encode(&Message::StereoFrame(Box::new(frame)), 1, 0);
+    let mut board = BoardReceiver::new(31, 9, Duration::from_secs(10));
+    for _ in 0..frames {
+        match board.handle(&bytes) {
+            Event::Frame { .. } => {}
+            other => panic!("unexpected {other:?}"),
+        }
+    }
+    println!(
+        "{frames} frames of {} bytes decoded, matched and rendered",
+        bytes.len()
+    );
+}
