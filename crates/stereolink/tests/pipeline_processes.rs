@@ -4,36 +4,14 @@
 //! segmented views bit for bit, and the axis must end at the reported
 //! distance. Also the demo on a small scene.
 
-use std::io::{Read, Write};
+mod common;
+
 use std::path::Path;
-use std::process::{Child, Command, Stdio};
-use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
+use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use serialport::{SerialPort, TTYPort};
+use common::{finish, free_port, spawn, RadioLink};
 use stereolink_image::io;
-use stereolink_link::xbee::{ApiMode, Frame, Parser};
-
-fn spawn(args: &[String]) -> Child {
-    Command::new(env!("CARGO_BIN_EXE_stereolink"))
-        .args(args)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap()
-}
-
-fn finish(child: Child, what: &str) -> String {
-    let out = child.wait_with_output().unwrap();
-    let text = String::from_utf8_lossy(&out.stdout).into_owned();
-    assert!(
-        out.status.success(),
-        "{what} failed: {text}{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    text
-}
 
 fn strings(v: &[&str]) -> Vec<String> {
     v.iter().map(|s| s.to_string()).collect()
@@ -149,14 +127,6 @@ fn run_pair(rx_link: String, tx_link: String) {
     );
 }
 
-fn free_port() -> u16 {
-    std::net::UdpSocket::bind("127.0.0.1:0")
-        .unwrap()
-        .local_addr()
-        .unwrap()
-        .port()
-}
-
 #[test]
 fn send_and_receive_over_udp() {
     let (a, b) = (free_port(), free_port());
@@ -166,51 +136,13 @@ fn send_and_receive_over_udp() {
     );
 }
 
-/// The two radios: TX16 requests written on one pty come out of the other as RX16 frames.
-fn radio(mut from: TTYPort, mut to: TTYPort, stop: Arc<AtomicBool>) -> std::thread::JoinHandle<()> {
-    std::thread::spawn(move || {
-        let mut parser = Parser::new(ApiMode::Escaped);
-        let mut buf = [0u8; 256];
-        while !stop.load(Ordering::Relaxed) {
-            let Ok(n) = from.read(&mut buf) else { continue };
-            for &b in &buf[..n] {
-                if let Some(Ok(Frame::Tx16 { data, .. })) = parser.push(b) {
-                    let _ = to.write_all(
-                        &Frame::Rx16 {
-                            source: 1,
-                            rssi: 0x30,
-                            options: 0,
-                            data,
-                        }
-                        .encode(ApiMode::Escaped),
-                    );
-                }
-            }
-        }
-    })
-}
-
 #[test]
 fn send_and_receive_over_a_pty_pair() {
-    let (mut m1, s1) = TTYPort::pair().unwrap();
-    let (mut m2, s2) = TTYPort::pair().unwrap();
-    m1.set_timeout(Duration::from_millis(5)).unwrap();
-    m2.set_timeout(Duration::from_millis(5)).unwrap();
-    let stop = Arc::new(AtomicBool::new(false));
-    let t1 = radio(
-        m1.try_clone_native().unwrap(),
-        m2.try_clone_native().unwrap(),
-        stop.clone(),
-    );
-    let t2 = radio(m2, m1, stop.clone());
-    let (p1, p2) = (s1.name().unwrap(), s2.name().unwrap());
+    let radio = RadioLink::new(None);
     run_pair(
-        format!("serial:{p2}?baud=115200&api=2"),
-        format!("serial:{p1}?baud=115200&api=2"),
+        format!("serial:{}?baud=115200&api=2", radio.b),
+        format!("serial:{}?baud=115200&api=2", radio.a),
     );
-    stop.store(true, Ordering::Relaxed);
-    t1.join().unwrap();
-    t2.join().unwrap();
 }
 
 #[test]

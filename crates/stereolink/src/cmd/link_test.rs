@@ -69,6 +69,23 @@ struct Summary {
     seconds: f64,
 }
 
+impl Summary {
+    fn new(args: &Args, bound_bps: Option<f64>) -> Self {
+        Summary {
+            link: args.link.clone(),
+            messages: args.count,
+            bytes_per_message: args.size,
+            delivered: 0,
+            failed: 0,
+            corrupted: 0,
+            retransmissions: 0,
+            goodput_bps: 0.0,
+            bound_bps,
+            seconds: 0.0,
+        }
+    }
+}
+
 #[derive(Serialize)]
 struct SweepRow {
     loss: f64,
@@ -94,18 +111,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
 }
 
 fn simulate(config: SimConfig, args: &Args, out: &super::Output) -> anyhow::Result<()> {
-    let mut s = Summary {
-        link: args.link.clone(),
-        messages: args.count,
-        bytes_per_message: args.size,
-        delivered: 0,
-        failed: 0,
-        corrupted: 0,
-        retransmissions: 0,
-        goodput_bps: 0.0,
-        bound_bps: Some(config.bound_bps()),
-        seconds: 0.0,
-    };
+    let mut s = Summary::new(args, Some(config.bound_bps()));
     for i in 0..args.count {
         let msg = test_message(args.seed, i, args.size);
         let cfg = SimConfig {
@@ -193,18 +199,7 @@ fn real(spec: &LinkSpec, args: &Args, out: &super::Output) -> anyhow::Result<()>
     let transport = spec::open(spec)?;
     let mut ep = Endpoint::new(transport);
     let start = Instant::now();
-    let mut s = Summary {
-        link: args.link.clone(),
-        messages: args.count,
-        bytes_per_message: args.size,
-        delivered: 0,
-        failed: 0,
-        corrupted: 0,
-        retransmissions: 0,
-        goodput_bps: 0.0,
-        bound_bps: None,
-        seconds: 0.0,
-    };
+    let mut s = Summary::new(args, None);
     for i in 0..args.count {
         let msg = test_message(args.seed, i, args.size);
         match role {
