@@ -113,31 +113,37 @@ pub fn lr_check(left: &mut DisparityMap, right: &DisparityMap, tol: f32) {
     }
 }
 
-/// Median over the valid pixels of a `size`×`size` window; invalid pixels stay invalid.
+/// Median over the valid pixels of a `size`×`size` window; invalid pixels
+/// stay invalid. Rows run in parallel.
 pub fn median(map: &DisparityMap, size: usize) -> DisparityMap {
+    use rayon::prelude::*;
     let (w, h) = map.dims();
     let r = (size / 2) as isize;
-    let mut window = Vec::with_capacity(size * size);
-    Plane::from_fn(w, h, |x, y| {
-        let c = map.get(x, y);
-        if !c.is_finite() {
-            return c;
-        }
-        window.clear();
-        for dy in -r..=r {
-            for dx in -r..=r {
-                let (xx, yy) = (x as isize + dx, y as isize + dy);
-                if xx >= 0 && yy >= 0 && (xx as usize) < w && (yy as usize) < h {
-                    let v = map.get(xx as usize, yy as usize);
-                    if v.is_finite() {
-                        window.push(v);
+    let mut out = map.clone();
+    out.as_mut_slice()
+        .par_chunks_mut(w.max(1))
+        .enumerate()
+        .for_each(|(y, row)| {
+            let mut window = Vec::with_capacity(size * size);
+            for (x, o) in row.iter_mut().enumerate() {
+                if !o.is_finite() {
+                    continue;
+                }
+                window.clear();
+                for yy in (y as isize - r).max(0)..=(y as isize + r).min(h as isize - 1) {
+                    let src = map.row(yy as usize);
+                    for xx in (x as isize - r).max(0)..=(x as isize + r).min(w as isize - 1) {
+                        let v = src[xx as usize];
+                        if v.is_finite() {
+                            window.push(v);
+                        }
                     }
                 }
+                let mid = window.len() / 2;
+                *o = *window.select_nth_unstable_by(mid, f32::total_cmp).1;
             }
-        }
-        let mid = window.len() / 2;
-        *window.select_nth_unstable_by(mid, f32::total_cmp).1
-    })
+        });
+    out
 }
 
 /// Fills each invalid run of a row with the smaller of the valid disparities
