@@ -321,3 +321,66 @@ impl Transport for Fallback {
         )
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::endpoint::Endpoint;
+
+    fn udp() -> Udp {
+        Udp::bind("127.0.0.1:0".parse().unwrap(), None, 100).unwrap()
+    }
+
+    /// The primary carries nothing (its peer is absent), so the sender falls
+    /// back to the secondary; the message stream arrives intact, the switch is
+    /// reported, and the first packet heard on the primary switches back.
+    #[test]
+    fn fallback_switches_to_the_secondary_and_back() {
+        let (dead, mut peer_secondary) = (udp(), udp());
+        let secondary = Udp::bind(
+            "127.0.0.1:0".parse().unwrap(),
+            Some(peer_secondary.local_addr().unwrap()),
+            100,
+        )
+        .unwrap();
+        peer_secondary.peer = Some(secondary.local_addr().unwrap());
+        let fallback = Fallback::new(
+            Box::new(dead),
+            Box::new(secondary),
+            Duration::from_millis(100),
+        );
+        let rx = std::thread::spawn(move || {
+            let mut e = Endpoint::new(Box::new(peer_secondary));
+            let got: Vec<Vec<u8>> = (0..2)
+                .map(|_| e.recv_message(Duration::from_secs(20)).unwrap())
+                .collect();
+            e.linger(Duration::from_millis(300)).unwrap();
+            got
+        });
+        let mut ep = Endpoint::new(Box::new(fallback));
+        let msgs = [vec![7u8; 3000], vec![9u8; 500]];
+        for m in &msgs {
+            ep.send_message(m).unwrap();
+        }
+        assert_eq!(rx.join().unwrap(), msgs.to_vec());
+        // The primary speaks again: one packet there switches traffic back.
+        let primary = udp();
+        let primary_addr = primary.local_addr().unwrap();
+        let mut fb = Fallback::new(
+            Box::new(primary),
+            Box::new(udp()),
+            Duration::from_millis(10),
+        );
+        fb.active = 1;
+        UdpSocket::bind("127.0.0.1:0")
+            .unwrap()
+            .send_to(b"hello", primary_addr)
+            .unwrap();
+        assert_eq!(
+            fb.recv(Duration::from_millis(200)).unwrap(),
+            Some(b"hello".to_vec())
+        );
+        assert_eq!(fb.active(), 0);
+        assert_eq!(fb.switches, vec!["secondary->primary".to_string()]);
+    }
+}

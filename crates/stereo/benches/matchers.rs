@@ -1,0 +1,29 @@
+//! One benchmark per matcher on a deterministic synthetic 320x240 pair, 32 disparities.
+
+use criterion::{criterion_group, criterion_main, Criterion};
+use std::hint::black_box;
+use stereolink_image::synth::{synthesize, SynthSpec};
+use stereolink_stereo::{compute_disparity, Algorithm, MatchSpec, Refinement};
+
+fn matchers(c: &mut Criterion) {
+    let s = synthesize(&SynthSpec {
+        width: 320,
+        height: 240,
+        max_disp: 32,
+        seed: 1,
+    })
+    .unwrap();
+    let mut g = c.benchmark_group("match_320x240_32");
+    g.sample_size(10);
+    for algo in Algorithm::ALL {
+        let mut spec = MatchSpec::new(algo, 0, 31).unwrap();
+        spec.refine = Refinement::NONE;
+        g.bench_function(algo.name(), |b| {
+            b.iter(|| compute_disparity(black_box(&s.left), black_box(&s.right), &spec).unwrap())
+        });
+    }
+    g.finish();
+}
+
+criterion_group!(benches, matchers);
+criterion_main!(benches);
