@@ -99,10 +99,7 @@ struct SweepRow {
 
 /// Runs the test.
 pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
-    let spec: LinkSpec = args
-        .link
-        .parse()
-        .map_err(|e: String| anyhow::anyhow!("{e}"))?;
+    let spec = super::link_spec(&args.link)?;
     match spec {
         LinkSpec::Sim { config, .. } if args.sweep => sweep(config, &args, out),
         LinkSpec::Sim { config, .. } => simulate(config, &args, out),

@@ -32,6 +32,11 @@ pub fn progress(len: u64, what: &str) -> indicatif::ProgressBar {
     bar
 }
 
+/// Parses a link specification (`serial:`, `udp:`, `sim:`, `fallback:`).
+pub fn link_spec(text: &str) -> anyhow::Result<stereolink_link::spec::LinkSpec> {
+    text.parse().map_err(|e: String| anyhow::anyhow!("{e}"))
+}
+
 /// How commands print results.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Output {

@@ -5,7 +5,7 @@ use std::time::Duration;
 use anyhow::Context;
 use stereolink_display::open_sink;
 use stereolink_link::endpoint::{Endpoint, LinkError};
-use stereolink_link::spec::{self, LinkSpec};
+use stereolink_link::spec;
 use stereolink_robot::open_axis;
 use stereolink_robot::policy::MotionPolicy;
 
@@ -59,10 +59,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         "the board matches with wta only (got {})",
         args.matcher
     );
-    let spec: LinkSpec = args
-        .link
-        .parse()
-        .map_err(|e: String| anyhow::anyhow!("{e}"))?;
+    let spec = super::link_spec(&args.link)?;
     let mut ep = Endpoint::new(
         spec::open(&spec).with_context(|| format!("cannot open link {}", args.link))?,
     );

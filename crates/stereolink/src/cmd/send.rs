@@ -6,7 +6,7 @@ use anyhow::Context;
 use serde::Serialize;
 use stereolink_image::{io, Calibration};
 use stereolink_link::endpoint::Endpoint;
-use stereolink_link::spec::{self, LinkSpec};
+use stereolink_link::spec;
 use stereolink_stereo::depth::{LevelSpec, Roi};
 
 use super::matching::MatcherArgs;
@@ -62,10 +62,7 @@ struct Sent {
 
 /// Prepares and sends the pair.
 pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
-    let spec: LinkSpec = args
-        .link
-        .parse()
-        .map_err(|e: String| anyhow::anyhow!("{e}"))?;
+    let spec = super::link_spec(&args.link)?;
     let left = io::read_rgb(&args.left)?;
     let right = io::read_rgb(&args.right)?;
     let calib = Calibration {
