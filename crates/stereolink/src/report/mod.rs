@@ -322,10 +322,7 @@ fn html(r: &Report) -> String {
     let rows: Vec<Vec<String>> = names
         .iter()
         .map(|m| {
-            let ci = paper::METHODS
-                .iter()
-                .position(|x| x == m)
-                .map(|i| paper::REDUCTION_CI[i]);
+            let ci = paper::reduction_ci(m);
             let ours = seg(m, |s| s.psnr_db);
             // Compare like with like: our mean over the scenes the paper reports.
             let ours_common = mean(r.scenes.iter().filter_map(|s| {
@@ -406,24 +403,14 @@ fn html(r: &Report) -> String {
                 "paper CI low".into(),
                 names
                     .iter()
-                    .map(|m| {
-                        paper::METHODS
-                            .iter()
-                            .position(|x| x == m)
-                            .map(|i| paper::REDUCTION_CI[i].0)
-                    })
+                    .map(|m| paper::reduction_ci(m).map(|c| c.0))
                     .collect(),
             ),
             (
                 "paper CI high".into(),
                 names
                     .iter()
-                    .map(|m| {
-                        paper::METHODS
-                            .iter()
-                            .position(|x| x == m)
-                            .map(|i| paper::REDUCTION_CI[i].1)
-                    })
+                    .map(|m| paper::reduction_ci(m).map(|c| c.1))
                     .collect(),
             ),
         ],
@@ -539,9 +526,7 @@ fn html(r: &Report) -> String {
                 page += &fig(&format!("disp-{input}-{a}"), &format!("{a} on {input}"));
             }
         }
-        if r.scenes.iter().any(|x| x.name == s.name)
-            && s.matching["original"]["sgm"].bad1_nonocc.is_some()
-        {
+        if s.matching["original"]["sgm"].bad1_nonocc.is_some() {
             page += &fig("error-sgm", "SGM errors (red: > 1 px)");
         }
         page += "</div>";

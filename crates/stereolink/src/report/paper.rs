@@ -55,6 +55,14 @@ pub const REDUCTION_CI: [(f64, f64); 5] = [
     (79.49, 86.00),
 ];
 
+/// The paper's 95 % confidence interval of the size reduction for a method.
+pub fn reduction_ci(method: &str) -> Option<(f64, f64)> {
+    METHODS
+        .iter()
+        .position(|&x| x == method)
+        .map(|i| REDUCTION_CI[i])
+}
+
 /// The paper's PSNR for a scene and method, if it reported one.
 pub fn psnr(scene: &str, method: &str) -> Option<f64> {
     let m = METHODS.iter().position(|&x| x == method)?;
