@@ -211,19 +211,11 @@ fn encode_view(w: &mut Writer, view: &View, reference: Option<&IndexedImage>) {
         View::Indexed(img) => {
             let n = img.palette().len();
             match reference {
-                Some(r) => {
-                    // Predict through the left labels mapped to this view's labels.
-                    let table = label_table(r, img);
-                    let predicted = r.labels().map(|l| table[l as usize]);
-                    let mut payload: Vec<u8> = table.iter().flat_map(|t| t.to_le_bytes()).collect();
-                    payload.extend(labels::encode(
-                        img.labels(),
-                        n,
-                        Some(&predicted),
-                        SHIFT_SEARCH,
-                    ));
-                    (coding::LABELS_CONDITIONED, img.palette(), payload)
-                }
+                Some(r) => (
+                    coding::LABELS_CONDITIONED,
+                    img.palette(),
+                    conditioned_payload(r, img),
+                ),
                 None => (
                     coding::LABELS,
                     img.palette(),
@@ -240,6 +232,21 @@ fn encode_view(w: &mut Writer, view: &View, reference: Option<&IndexedImage>) {
     }
     w.u32(payload.len() as u32);
     w.bytes(&payload);
+}
+
+/// The payload of a right view coded conditioned on the left: the label
+/// table, then the labels predicted through it.
+pub fn conditioned_payload(left: &IndexedImage, right: &IndexedImage) -> Vec<u8> {
+    let table = label_table(left, right);
+    let predicted = left.labels().map(|l| table[l as usize]);
+    let mut payload: Vec<u8> = table.iter().flat_map(|t| t.to_le_bytes()).collect();
+    payload.extend(labels::encode(
+        right.labels(),
+        right.palette().len(),
+        Some(&predicted),
+        SHIFT_SEARCH,
+    ));
+    payload
 }
 
 /// The map from the left view's labels to the right view's, sent with the

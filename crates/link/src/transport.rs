@@ -186,8 +186,7 @@ impl<P: Read + Write + Send> Transport for Serial<P> {
             match self.port.read(&mut buf) {
                 Ok(0) => {}
                 Ok(n) => {
-                    let chunk = buf[..n].to_vec();
-                    self.feed(&chunk);
+                    self.feed(&buf[..n]);
                     continue;
                 }
                 Err(e)

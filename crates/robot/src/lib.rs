@@ -70,6 +70,18 @@ pub trait Axis: Send {
     fn describe(&self) -> String;
 }
 
+/// Polls `axis` until it is idle (at most `max_polls` times; a GRBL poll is a
+/// serial round trip, a simulated one advances 10 ms) and returns its
+/// position, or `None` if it was still moving.
+pub fn wait_until_idle(axis: &mut dyn Axis, max_polls: usize) -> Result<Option<f64>, AxisError> {
+    for _ in 0..max_polls {
+        if !axis.is_moving()? {
+            return axis.position().map(Some);
+        }
+    }
+    Ok(None)
+}
+
 /// Opens an axis from its spec: `sim` or `grbl:/dev/ttyACM0[?baud=115200]`.
 pub fn open_axis(spec: &str) -> Result<Box<dyn Axis>, AxisError> {
     if spec == "sim" {

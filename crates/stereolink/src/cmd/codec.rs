@@ -6,7 +6,8 @@ use std::time::Instant;
 use anyhow::Context;
 use serde::Serialize;
 use stereolink_codec::{container, labels, Limits, Message, SegmentationKind, StereoFrame, View};
-use stereolink_image::{io, metrics::psnr_rgb, Scene};
+use stereolink_image::metrics::{psnr_rgb, reduction_percent};
+use stereolink_image::{io, Scene};
 
 use super::segment::SegmentArgs;
 
@@ -86,7 +87,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         output: args.output.clone(),
         bytes: bytes.len(),
         original_file_bytes: original,
-        reduction_percent: 100.0 * (1.0 - bytes.len() as f64 / original as f64),
+        reduction_percent: reduction_percent(original as usize, bytes.len()),
         bits_per_pixel: bytes.len() as f64 * 8.0 / (2 * left.len()) as f64,
         psnr_db: psnr,
     };
@@ -236,8 +237,7 @@ pub fn run_bench(args: BenchArgs, out: &super::Output) -> anyhow::Result<()> {
     };
     let msg = Message::StereoFrame(Box::new(frame));
     let bytes = container::encode(&msg, 1, 0);
-    // The conditioned right view is what the frame holds beyond the left view.
-    let right_cond = bytes.len() - container::HEADER_LEN - left_bytes.len() - 3 * (nl + nr) - 32;
+    let right_cond = container::conditioned_payload(l, r).len();
     let (mut enc, mut dec) = (Vec::new(), Vec::new());
     for _ in 0..=args.iters.max(1) {
         let t = Instant::now();

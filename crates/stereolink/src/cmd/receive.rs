@@ -131,12 +131,8 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     // Answer late retransmissions, and let the axis finish its move.
     ep.linger(Duration::from_millis(500))?;
     if let Some(axis) = board.axis.as_mut() {
-        for _ in 0..6000 {
-            if !axis.is_moving()? {
-                break;
-            }
-        }
-        let pos = axis.position()?;
+        let pos = stereolink_robot::wait_until_idle(axis.as_mut(), 6000)?
+            .context("the axis is still moving")?;
         if !out.json {
             println!("axis at {pos:.3} mm");
         }

@@ -165,17 +165,10 @@ pub fn run(cfg: DemoConfig, progress: &dyn Fn(&str)) -> anyhow::Result<DemoRepor
         }
     }
     let axis_final = match board.axis.as_mut() {
-        Some(axis) => {
-            // Let the simulated axis finish its move (it advances 10 ms per query).
-            let mut moving = true;
-            for _ in 0..6000 {
-                moving = axis.is_moving().unwrap_or(false);
-                if !moving {
-                    break;
-                }
-            }
-            (!moving).then(|| axis.position().ok()).flatten()
-        }
+        // Let the simulated axis finish its move (up to 60 s of its time).
+        Some(axis) => stereolink_robot::wait_until_idle(axis.as_mut(), 6000)
+            .ok()
+            .flatten(),
         None => None,
     };
     let (received_left, received_right) = board.pair.clone().context("no frame was received")?;

@@ -15,7 +15,7 @@ use stereolink_codec::{
 };
 use stereolink_image::{metrics::psnr_rgb, Calibration, DisparityMap, RgbImage};
 use stereolink_segment::{segment, Method};
-use stereolink_stereo::depth::{depth_levels, depth_of, region_distance, LevelSpec, Roi};
+use stereolink_stereo::depth::{depth_levels, depth_of, metric, region_distance, LevelSpec, Roi};
 use stereolink_stereo::{compute_disparity, MatchSpec};
 
 /// What the sender does with a pair.
@@ -115,9 +115,11 @@ pub fn prepare(
     let roi = cfg.roi.unwrap_or_else(|| default_roi(w, h));
     let distance = region_distance(&disparity, roi, calib).ok().flatten();
     let levels = depth_levels(&disparity, &cfg.levels_spec);
-    let metric = |d: f32| match (calib.focal_px, calib.baseline_m) {
-        (Some(f), Some(b)) => depth_of(d, f, b, calib.doffs).map_or(f32::NAN, |z| z as f32),
-        _ => f32::NAN,
+    let focal_baseline = metric(calib).ok();
+    let metric = |d: f32| {
+        focal_baseline
+            .and_then(|(f, b)| depth_of(d, f, b, calib.doffs))
+            .map_or(f32::NAN, |z| z as f32)
     };
     let report = DepthReport {
         target_distance_m: distance.map_or(f32::NAN, |d| d as f32),
