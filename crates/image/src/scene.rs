@@ -276,8 +276,10 @@ fn detect(dir: &Path) -> Result<Layout> {
     ))
 }
 
+/// Image size from the header alone.
 fn png_size(path: &Path) -> Result<(usize, usize)> {
-    Ok(io::read_gray(path)?.dims())
+    let (w, h) = image::image_dimensions(path).map_err(|e| Error::decode(path, e.to_string()))?;
+    Ok((w as usize, h as usize))
 }
 
 fn read_gt(path: &Path, scale: f32) -> Result<DisparityMap> {

@@ -13,6 +13,15 @@ use std::time::Duration;
 use common::{finish, free_port, spawn, RadioLink};
 use stereolink_image::io;
 
+/// The number printed right after `word` in `text`.
+fn number_after(text: &str, word: &str) -> f64 {
+    let rest = text
+        .split(word)
+        .nth(1)
+        .unwrap_or_else(|| panic!("no {word:?} in {text}"));
+    rest.split(' ').next().unwrap().parse().unwrap()
+}
+
 fn strings(v: &[&str]) -> Vec<String> {
     v.iter().map(|s| s.to_string()).collect()
 }
@@ -102,24 +111,8 @@ fn run_pair(rx_link: String, tx_link: String) {
         (480, 272)
     );
     // The axis went to the reported distance (clamped to its 1 m travel).
-    let distance: f64 = sent
-        .split("distance ")
-        .nth(1)
-        .unwrap()
-        .split(' ')
-        .next()
-        .unwrap()
-        .parse()
-        .unwrap();
-    let axis: f64 = got
-        .split("axis at ")
-        .nth(1)
-        .unwrap()
-        .split(' ')
-        .next()
-        .unwrap()
-        .parse()
-        .unwrap();
+    let distance = number_after(&sent, "distance ");
+    let axis = number_after(&got, "axis at ");
     let commanded = (distance * 1000.0).min(1000.0);
     assert!(
         (axis - commanded).abs() <= 0.5,
