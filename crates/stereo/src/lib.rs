@@ -30,7 +30,9 @@
 #![deny(missing_docs)]
 
 pub mod depth;
+mod lanes;
 pub mod line_growing;
+mod median;
 pub mod refine;
 pub mod sgm;
 pub mod wta;

@@ -7,6 +7,7 @@
 
 use stereolink_image::{DisparityMap, Plane};
 
+pub use crate::median::median;
 use crate::{Algorithm, MatchSpec};
 
 /// Which refinement steps run, in this order: LR check, median, fill.
@@ -113,39 +114,6 @@ pub fn lr_check(left: &mut DisparityMap, right: &DisparityMap, tol: f32) {
     }
 }
 
-/// Median over the valid pixels of a `size`×`size` window; invalid pixels
-/// stay invalid. Rows run in parallel.
-pub fn median(map: &DisparityMap, size: usize) -> DisparityMap {
-    use rayon::prelude::*;
-    let (w, h) = map.dims();
-    let r = (size / 2) as isize;
-    let mut out = map.clone();
-    out.as_mut_slice()
-        .par_chunks_mut(w.max(1))
-        .enumerate()
-        .for_each(|(y, row)| {
-            let mut window = Vec::with_capacity(size * size);
-            for (x, o) in row.iter_mut().enumerate() {
-                if !o.is_finite() {
-                    continue;
-                }
-                window.clear();
-                for yy in (y as isize - r).max(0)..=(y as isize + r).min(h as isize - 1) {
-                    let src = map.row(yy as usize);
-                    for xx in (x as isize - r).max(0)..=(x as isize + r).min(w as isize - 1) {
-                        let v = src[xx as usize];
-                        if v.is_finite() {
-                            window.push(v);
-                        }
-                    }
-                }
-                let mid = window.len() / 2;
-                *o = *window.select_nth_unstable_by(mid, f32::total_cmp).1;
-            }
-        });
-    out
-}
-
 /// Fills each invalid run of a row with the smaller of the valid disparities
 /// at its two ends (occlusions belong to the background); rows without any
 /// valid pixel take the nearest filled row above or below.
@@ -229,15 +197,5 @@ mod tests {
         fill_holes(&mut m);
         assert_eq!(m.row(0), &[4.0, 4.0, 2.0, 2.0, 2.0]);
         assert_eq!(m.row(1), m.row(0).to_vec().as_slice());
-    }
-
-    #[test]
-    fn median_removes_a_spike_and_keeps_holes() {
-        let mut m = DisparityMap::new(5, 5, 3.0);
-        m.set(2, 2, 40.0);
-        m.set(0, 0, INF);
-        let f = median(&m, 3);
-        assert_eq!(f.get(2, 2), 3.0);
-        assert_eq!(f.get(0, 0), INF);
     }
 }

@@ -9,10 +9,11 @@
 //! `colsum[x][d]` over the window's rows is updated incrementally (add the
 //! entering row, subtract the leaving one) and a horizontal running sum over
 //! the columns gives the window sum. The disparity axis is innermost and
-//! contiguous, so every step is a straight loop over `u16` lanes that the
-//! compiler vectorises; the same source is compiled twice, for AVX2 and
-//! for the baseline, and the AVX2 copy is chosen at run time. Integer
-//! arithmetic makes both copies bit-identical. Row bands run in parallel
+//! contiguous, padded to a whole number of [`LANES`]-wide blocks of `u16`
+//! lanes; the lane operations come in two sets ([`crate::lanes`]), AVX2
+//! intrinsics chosen at run time where the CPU has them and portable Rust
+//! elsewhere, which give bit-identical results (integer arithmetic, the
+//! same tie rule: the smallest disparity wins). Row bands run in parallel
 //! (rayon). Window pixels outside the image replicate the border.
 //!
 //! A match outside the right view (`x − d < 0`) is not considered; pixels
@@ -21,6 +22,7 @@
 use rayon::prelude::*;
 use stereolink_image::{DisparityMap, GrayImage};
 
+use crate::lanes::{LaneOps, Portable, LANES};
 use crate::MatchSpec;
 
 /// Parameters of [`WtaMatcher`].
@@ -71,6 +73,11 @@ pub struct WtaMatcher {
 /// Rows per parallel band: bands re-prime `block` rows, so not too small.
 const BAND_ROWS: usize = 32;
 
+/// Cost lanes per pixel for `ndisp` disparities.
+fn lanes(ndisp: usize) -> usize {
+    ndisp.next_multiple_of(LANES)
+}
+
 impl WtaMatcher {
     /// An empty matcher; buffers grow on first use.
     pub fn new() -> Self {
@@ -96,7 +103,8 @@ impl WtaMatcher {
         if w == 0 || h == 0 {
             return;
         }
-        let stride = w + params.ndisp + params.min_disp;
+        let nl = lanes(params.ndisp);
+        let stride = w + nl + params.min_disp;
         reversed_rows(right, params, &mut self.reversed);
         let n_bands = h.div_ceil(BAND_ROWS);
         self.bands
@@ -115,18 +123,17 @@ impl WtaMatcher {
                     params,
                     y0: i * BAND_ROWS,
                 };
-                band.colsum.resize(w * params.ndisp, 0);
-                band.hsum.resize(params.ndisp, 0);
+                band.colsum.resize(w * nl, 0);
+                band.hsum.resize(nl, 0);
                 if use_avx2 {
                     #[cfg(target_arch = "x86_64")]
                     // SAFETY: only reached when the CPU reports AVX2 (checked in
-                    // `avx2_available`); the function is the same safe code
-                    // compiled with AVX2 enabled.
+                    // `avx2_available`).
                     unsafe {
                         band_avx2(&job, band, rows)
                     }
                 } else {
-                    band_generic(&job, band, rows)
+                    band_portable(&job, band, rows)
                 }
             });
     }
@@ -146,11 +153,11 @@ pub fn avx2_available() -> bool {
 
 /// Fills `buf` with each right row padded on the left by replicating its
 /// first pixel, then reversed, so that for a left column `x` the right pixels
-/// `x − d_min − k` for `k = 0..ndisp` are `buf[row][W + d_min − 1 − x + k]`:
+/// `x − d_min − k` for `k = 0..lanes` are `buf[row][W + d_min − 1 − x + k]`:
 /// contiguous in `k`.
 fn reversed_rows(right: &GrayImage, p: &WtaParams, buf: &mut Vec<u8>) {
     let (w, h) = right.dims();
-    let pad = p.ndisp + p.min_disp;
+    let pad = lanes(p.ndisp) + p.min_disp;
     let stride = w + pad;
     buf.resize(stride * h, 0);
     for (y, dst) in buf.chunks_exact_mut(stride).enumerate() {
@@ -173,126 +180,104 @@ struct Job<'a> {
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 unsafe fn band_avx2(job: &Job, band: &mut Band, out: &mut [f32]) {
-    band_generic(job, band, out)
+    // SAFETY: this function only runs where AVX2 is present.
+    unsafe { band_with::<crate::lanes::Avx2>(job, band, out) }
 }
 
-/// Processes the rows of one band; `out` holds exactly those rows.
+fn band_portable(job: &Job, band: &mut Band, out: &mut [f32]) {
+    // SAFETY: the portable lane operations need no special instructions.
+    unsafe { band_with::<Portable>(job, band, out) }
+}
+
+/// Processes the rows of one band with the lane operations `K`; `out`
+/// holds exactly those rows.
+///
+/// # Safety
+/// The CPU must have the instructions `K` uses.
 #[inline(always)]
-fn band_generic(job: &Job, band: &mut Band, out: &mut [f32]) {
+unsafe fn band_with<K: LaneOps>(job: &Job, band: &mut Band, out: &mut [f32]) {
     let (w, h) = job.left.dims();
     let p = job.params;
-    let (nd, r) = (p.ndisp, p.block / 2);
+    let (nd, r) = (lanes(p.ndisp), p.block as isize / 2);
     let clamp_y = |y: isize| y.clamp(0, h as isize - 1) as usize;
-    let rev_row = |y: usize| &job.reversed[y * job.stride..(y + 1) * job.stride];
-    let rows = out.len() / w;
     let colsum = &mut band.colsum[..w * nd];
     let hsum = &mut band.hsum[..nd];
     // Prime the column sums with the window rows of the band's first row.
     colsum.fill(0);
-    for dy in -(r as isize)..=r as isize {
-        let y = clamp_y(job.y0 as isize + dy);
-        accumulate_rows(colsum, job.left.row(y), rev_row(y), p, None);
+    for dy in -r..=r {
+        // SAFETY: forwarded from this function's contract.
+        unsafe { accumulate_row::<K>(job, colsum, clamp_y(job.y0 as isize + dy), None) };
     }
-    for i in 0..rows {
-        let y = job.y0 + i;
+    for (i, out_row) in out.chunks_exact_mut(w).enumerate() {
+        let y = (job.y0 + i) as isize;
         if i > 0 {
-            let (ya, ys) = (
-                clamp_y(y as isize + r as isize),
-                clamp_y(y as isize - r as isize - 1),
-            );
-            accumulate_rows(
-                colsum,
-                job.left.row(ya),
-                rev_row(ya),
-                p,
-                Some((job.left.row(ys), rev_row(ys))),
-            );
+            let (entering, leaving) = (clamp_y(y + r), clamp_y(y - r - 1));
+            // SAFETY: as above.
+            unsafe { accumulate_row::<K>(job, colsum, entering, Some(leaving)) };
         }
+        let col = |x: isize| {
+            let x = x.clamp(0, w as isize - 1) as usize;
+            &colsum[x * nd..(x + 1) * nd]
+        };
         // Horizontal window sum at x = 0, then slide.
         hsum.fill(0);
-        for dx in -(r as isize)..=r as isize {
-            let x = dx.clamp(0, w as isize - 1) as usize;
-            add_lanes(hsum, &colsum[x * nd..(x + 1) * nd]);
+        for dx in -r..=r {
+            // SAFETY: as above.
+            unsafe { K::add_sub(hsum, col(dx), None) };
         }
-        let out_row = &mut out[i * w..(i + 1) * w];
-        for x in 0..w {
+        for (x, d) in out_row.iter_mut().enumerate() {
             if x > 0 {
-                let xa = (x + r).min(w - 1);
-                let xs = (x as isize - r as isize - 1).max(0) as usize;
-                add_sub_lanes(
-                    hsum,
-                    &colsum[xa * nd..(xa + 1) * nd],
-                    &colsum[xs * nd..(xs + 1) * nd],
-                );
+                let x = x as isize;
+                // SAFETY: as above.
+                unsafe { K::add_sub(hsum, col(x + r), Some(col(x - r - 1))) };
             }
-            out_row[x] = if x < p.min_disp {
+            *d = if x < p.min_disp {
                 f32::INFINITY
             } else {
-                winner(&hsum[..nd.min(x - p.min_disp + 1)], p)
+                let valid = p.ndisp.min(x - p.min_disp + 1);
+                // SAFETY: as above.
+                winner(hsum, valid, unsafe { K::argmin(hsum, valid) }, p)
             };
         }
     }
 }
 
-/// Adds the absolute differences of one row (and subtracts those of a
-/// leaving row) to every column sum: `colsum[x][k] += |L(x) − R(x − d_min − k)|`.
+/// Adds the absolute differences of row `y` to every column sum, and
+/// subtracts those of row `leaving` when given:
+/// `colsum[x][k] += |L(x, y) − R(x − d_min − k, y)|`.
+///
+/// # Safety
+/// The CPU must have the instructions `K` uses.
 #[inline(always)]
-fn accumulate_rows(
+unsafe fn accumulate_row<K: LaneOps>(
+    job: &Job,
     colsum: &mut [u16],
-    left: &[u8],
-    rev: &[u8],
-    p: &WtaParams,
-    leaving: Option<(&[u8], &[u8])>,
+    y: usize,
+    leaving: Option<usize>,
 ) {
-    let (w, nd) = (left.len(), p.ndisp);
-    for x in 0..w {
-        let base = w + p.min_disp - 1 - x;
-        let col = &mut colsum[x * nd..(x + 1) * nd];
-        let (l, r) = (left[x], &rev[base..base + nd]);
-        match leaving {
-            None => {
-                for (c, &rv) in col.iter_mut().zip(r) {
-                    *c = c.wrapping_add(l.abs_diff(rv) as u16);
-                }
-            }
-            Some((sl, srev)) => {
-                let (ls, rs) = (sl[x], &srev[base..base + nd]);
-                for ((c, &rv), &sv) in col.iter_mut().zip(r).zip(rs) {
-                    *c = c
-                        .wrapping_add(l.abs_diff(rv) as u16)
-                        .wrapping_sub(ls.abs_diff(sv) as u16);
-                }
-            }
-        }
+    let w = job.left.width();
+    let nd = lanes(job.params.ndisp);
+    // The right pixels `x − d_min − k`, k = 0..nd, of left column `x` in row `y`.
+    let right_of = |y: usize, x: usize| {
+        let base = y * job.stride + w + job.params.min_disp - 1 - x;
+        &job.reversed[base..base + nd]
+    };
+    let left = job.left.row(y);
+    let gone_left = leaving.map(|s| job.left.row(s));
+    for (x, col) in colsum.chunks_exact_mut(nd).enumerate() {
+        let gone = leaving.zip(gone_left).map(|(s, l)| (l[x], right_of(s, x)));
+        // SAFETY: forwarded from this function's contract.
+        unsafe { K::accumulate(col, left[x], right_of(y, x), gone) };
     }
 }
 
+/// The winning disparity among the first `valid` of `costs`, given the
+/// index `k` of their smallest cost (index `k` is disparity `d_min + k`):
+/// applies the uniqueness test and the subpixel fit.
 #[inline(always)]
-fn add_lanes(acc: &mut [u16], a: &[u16]) {
-    for (s, &v) in acc.iter_mut().zip(a) {
-        *s = s.wrapping_add(v);
-    }
-}
-
-#[inline(always)]
-fn add_sub_lanes(acc: &mut [u16], a: &[u16], s: &[u16]) {
-    for ((h, &av), &sv) in acc.iter_mut().zip(a).zip(s) {
-        *h = h.wrapping_add(av).wrapping_sub(sv);
-    }
-}
-
-/// The winning disparity among `costs` (index `k` is disparity `d_min + k`).
-#[inline(always)]
-fn winner(costs: &[u16], p: &WtaParams) -> f32 {
-    // Cost in the high half, index in the low half: one vectorisable minimum
-    // gives the smallest cost and, among equal costs, the smallest disparity.
-    let packed = costs
-        .iter()
-        .zip(0u32..)
-        .map(|(&c, k)| (c as u32) << 16 | k)
-        .min()
-        .expect("at least one disparity");
-    let (best, k) = ((packed >> 16) as u16, (packed & 0xFFFF) as usize);
+fn winner(costs: &[u16], valid: usize, k: usize, p: &WtaParams) -> f32 {
+    let costs = &costs[..valid];
+    let best = costs[k];
     if p.uniqueness > 0 {
         let limit = best as u32 * (100 + p.uniqueness);
         let ambiguous = costs
@@ -341,7 +326,8 @@ pub(crate) fn reference(left: &GrayImage, right: &GrayImage, p: &WtaParams) -> D
                 s as u16
             })
             .collect();
-        winner(&costs, p)
+        let k = (0..costs.len()).min_by_key(|&k| (costs[k], k)).unwrap();
+        winner(&costs, costs.len(), k, p)
     })
 }
 

@@ -1,0 +1,219 @@
+//! The vector operations of the WTA band loop, once portably and once with
+//! AVX2 intrinsics.
+//!
+//! A pixel's costs are `u16` lanes, one per disparity, padded to a whole
+//! number of [`LANES`]-wide blocks. LLVM does not reliably vectorise these
+//! short loops once they are inlined into the band loop (it fully unrolls
+//! them into scalar code), so the AVX2 set is written with intrinsics. Both
+//! sets use the same wrapping integer arithmetic and the same tie rule, so
+//! they give bit-identical results; the tests check that.
+
+/// Disparities per vector block (one AVX2 register of `u16`).
+pub const LANES: usize = 16;
+
+/// One implementation of the lane operations.
+///
+/// # Safety
+/// Every method may use the instruction set the implementation is named
+/// after: call them only when the CPU has it.
+pub(crate) trait LaneOps {
+    /// `col[k] += |l − r[k]|`, and `−= |ls − rs[k]|` for a leaving row.
+    unsafe fn accumulate(col: &mut [u16], l: u8, r: &[u8], leaving: Option<(u8, &[u8])>);
+    /// `acc[k] += a[k]`, and `−= s[k]` when given.
+    unsafe fn add_sub(acc: &mut [u16], a: &[u16], s: Option<&[u16]>);
+    /// Index of the smallest of `costs[..valid]` (`valid ≥ 1`); the lowest
+    /// index wins ties.
+    unsafe fn argmin(costs: &[u16], valid: usize) -> usize;
+}
+
+/// Plain Rust, for every CPU.
+pub(crate) struct Portable;
+
+impl LaneOps for Portable {
+    #[inline(always)]
+    unsafe fn accumulate(col: &mut [u16], l: u8, r: &[u8], leaving: Option<(u8, &[u8])>) {
+        match leaving {
+            None => {
+                for (c, &rv) in col.iter_mut().zip(r) {
+                    *c = c.wrapping_add(l.abs_diff(rv) as u16);
+                }
+            }
+            Some((ls, rs)) => {
+                for ((c, &rv), &sv) in col.iter_mut().zip(r).zip(rs) {
+                    *c = c
+                        .wrapping_add(l.abs_diff(rv) as u16)
+                        .wrapping_sub(ls.abs_diff(sv) as u16);
+                }
+            }
+        }
+    }
+
+    #[inline(always)]
+    unsafe fn add_sub(acc: &mut [u16], a: &[u16], s: Option<&[u16]>) {
+        match s {
+            None => acc
+                .iter_mut()
+                .zip(a)
+                .for_each(|(h, &v)| *h = h.wrapping_add(v)),
+            Some(s) => {
+                for ((h, &av), &sv) in acc.iter_mut().zip(a).zip(s) {
+                    *h = h.wrapping_add(av).wrapping_sub(sv);
+                }
+            }
+        }
+    }
+
+    #[inline(always)]
+    unsafe fn argmin(costs: &[u16], valid: usize) -> usize {
+        // Cost in the high half, index in the low half: the smallest packed
+        // value is the smallest cost at the smallest index.
+        let packed = costs[..valid]
+            .iter()
+            .zip(0u32..)
+            .map(|(&c, k)| (c as u32) << 16 | k)
+            .min()
+            .expect("at least one valid lane");
+        (packed & 0xFFFF) as usize
+    }
+}
+
+/// AVX2 intrinsics (x86-64 only).
+#[cfg(target_arch = "x86_64")]
+pub(crate) struct Avx2;
+
+#[cfg(target_arch = "x86_64")]
+impl LaneOps for Avx2 {
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn accumulate(col: &mut [u16], l: u8, r: &[u8], leaving: Option<(u8, &[u8])>) {
+        use std::arch::x86_64::*;
+        let absdiff = |a: __m128i, b: __m128i| {
+            _mm256_cvtepu8_epi16(_mm_or_si128(_mm_subs_epu8(a, b), _mm_subs_epu8(b, a)))
+        };
+        let lv = _mm_set1_epi8(l as i8);
+        let cols = col.chunks_exact_mut(LANES);
+        let rs = r.chunks_exact(LANES);
+        match leaving {
+            None => {
+                for (c, r) in cols.zip(rs) {
+                    let p = c.as_mut_ptr().cast::<__m256i>();
+                    let d = absdiff(lv, _mm_loadu_si128(r.as_ptr().cast()));
+                    _mm256_storeu_si256(p, _mm256_add_epi16(_mm256_loadu_si256(p), d));
+                }
+            }
+            Some((ls, srs)) => {
+                let sv = _mm_set1_epi8(ls as i8);
+                for ((c, r), s) in cols.zip(rs).zip(srs.chunks_exact(LANES)) {
+                    let p = c.as_mut_ptr().cast::<__m256i>();
+                    let d = absdiff(lv, _mm_loadu_si128(r.as_ptr().cast()));
+                    let e = absdiff(sv, _mm_loadu_si128(s.as_ptr().cast()));
+                    let v = _mm256_sub_epi16(_mm256_add_epi16(_mm256_loadu_si256(p), d), e);
+                    _mm256_storeu_si256(p, v);
+                }
+            }
+        }
+    }
+
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn add_sub(acc: &mut [u16], a: &[u16], s: Option<&[u16]>) {
+        use std::arch::x86_64::*;
+        let load = |b: &[u16]| _mm256_loadu_si256(b.as_ptr().cast());
+        let accs = acc.chunks_exact_mut(LANES);
+        let adds = a.chunks_exact(LANES);
+        match s {
+            None => {
+                for (h, a) in accs.zip(adds) {
+                    let p = h.as_mut_ptr().cast::<__m256i>();
+                    _mm256_storeu_si256(p, _mm256_add_epi16(_mm256_loadu_si256(p), load(a)));
+                }
+            }
+            Some(s) => {
+                for ((h, a), s) in accs.zip(adds).zip(s.chunks_exact(LANES)) {
+                    let p = h.as_mut_ptr().cast::<__m256i>();
+                    let v = _mm256_add_epi16(_mm256_loadu_si256(p), load(a));
+                    _mm256_storeu_si256(p, _mm256_sub_epi16(v, load(s)));
+                }
+            }
+        }
+    }
+
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn argmin(costs: &[u16], valid: usize) -> usize {
+        use std::arch::x86_64::*;
+        let iota = _mm256_setr_epi16(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+        let ones = _mm256_set1_epi16(-1);
+        let blocks = valid.div_ceil(LANES);
+        // Lanes past `valid` read as the largest cost, so they never win
+        // against a valid lane of equal cost (lower index first).
+        let block = |b: usize| {
+            let v = _mm256_loadu_si256(costs[b * LANES..(b + 1) * LANES].as_ptr().cast());
+            let left = (valid - b * LANES).min(LANES) as i16;
+            let inside = _mm256_cmpgt_epi16(_mm256_set1_epi16(left), iota);
+            _mm256_or_si256(v, _mm256_andnot_si256(inside, ones))
+        };
+        let mut m = block(0);
+        for b in 1..blocks {
+            m = _mm256_min_epu16(m, block(b));
+        }
+        let half = _mm_min_epu16(_mm256_castsi256_si128(m), _mm256_extracti128_si256(m, 1));
+        let best = _mm_extract_epi16(_mm_minpos_epu16(half), 0) as i16;
+        let target = _mm256_set1_epi16(best);
+        for b in 0..blocks {
+            let hit = _mm256_movemask_epi8(_mm256_cmpeq_epi16(block(b), target)) as u32;
+            if hit != 0 {
+                return b * LANES + hit.trailing_zeros() as usize / 2;
+            }
+        }
+        unreachable!("the minimum is one of the lanes")
+    }
+}
+
+#[cfg(all(test, target_arch = "x86_64"))]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn avx2() -> bool {
+        std::is_x86_feature_detected!("avx2")
+    }
+
+    proptest! {
+        #[test]
+        fn avx2_equals_portable(
+            blocks in 1usize..5,
+            seed in any::<u64>(),
+            l in any::<u8>(), ls in any::<u8>(),
+            leave in any::<bool>(),
+            valid_frac in 0.0f64..1.0,
+        ) {
+            if !avx2() {
+                return Ok(());
+            }
+            let n = blocks * LANES;
+            let mut s = seed | 1;
+            let mut next = || { s ^= s << 13; s ^= s >> 7; s ^= s << 17; s };
+            let r: Vec<u8> = (0..n).map(|_| next() as u8).collect();
+            let rs: Vec<u8> = (0..n).map(|_| next() as u8).collect();
+            // Small costs so ties are frequent.
+            let col: Vec<u16> = (0..n).map(|_| (next() % 8) as u16).collect();
+            let leaving = leave.then_some((ls, rs.as_slice()));
+            let (mut a, mut b) = (col.clone(), col.clone());
+            // SAFETY: AVX2 was detected above; Portable needs nothing.
+            unsafe {
+                Portable::accumulate(&mut a, l, &r, leaving);
+                Avx2::accumulate(&mut b, l, &r, leaving);
+                prop_assert_eq!(&a, &b);
+                let sub = leave.then_some(col.as_slice());
+                Portable::add_sub(&mut a, &col, sub);
+                Avx2::add_sub(&mut b, &col, sub);
+                prop_assert_eq!(&a, &b);
+                let valid = 1 + ((n - 1) as f64 * valid_frac) as usize;
+                let ties: Vec<u16> = col.iter().map(|c| c % 3).collect();
+                prop_assert_eq!(Portable::argmin(&ties, valid), Avx2::argmin(&ties, valid));
+                prop_assert_eq!(Portable::argmin(&a, valid), Avx2::argmin(&a, valid));
+            }
+        }
+    }
+}

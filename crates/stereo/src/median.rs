@@ -1,0 +1,321 @@
+//! The refinement's median filter over the valid pixels of a square window.
+//!
+//! Sorting each window costs a few hundred nanoseconds per pixel, more than
+//! the whole WTA matcher. Instead the median is taken by a selection
+//! network: Batcher's odd–even merge sort for the window's pixel count,
+//! pruned to the comparators the middle output depends on (113 for 5×5),
+//! run on [`CHUNK`] neighbouring pixels at once so that every comparator is
+//! one vector `min` and `max`. Disparities are compared as integer keys in
+//! [`f32::total_cmp`] order; invalid pixels and pixels outside the image
+//! become the smallest or largest key in equal numbers (see [`gather`]),
+//! which makes the network's middle output the median of the valid pixels
+//! exactly, as a sort would give it.
+
+use rayon::prelude::*;
+use stereolink_image::DisparityMap;
+
+/// Pixels filtered together by the network (one AVX2 register of `u32`).
+const CHUNK: usize = 8;
+
+/// Median over the valid pixels of a `size`×`size` window (`size` is made
+/// odd by rounding down to `2·(size/2) + 1`); for an even count of valid
+/// pixels the upper of the two middle values. Invalid pixels stay invalid.
+/// Rows run in parallel.
+pub fn median(map: &DisparityMap, size: usize) -> DisparityMap {
+    let (w, h) = map.dims();
+    let r = size / 2;
+    let mut out = map.clone();
+    if r == 0 || w == 0 {
+        return out;
+    }
+    let n = 2 * r + 1;
+    let network = selection_network(n * n, n * n / 2);
+    let keys: Vec<u32> = map
+        .as_slice()
+        .iter()
+        .map(|&v| if v.is_finite() { order_key(v) } else { HOLE })
+        .collect();
+    let avx2 = crate::wta::avx2_available();
+    out.as_mut_slice()
+        .par_chunks_mut(w)
+        .enumerate()
+        .for_each(|(y, row)| {
+            let job = RowJob {
+                keys: &keys,
+                dims: (w, h),
+                y,
+                r,
+                network: &network,
+            };
+            if avx2 {
+                #[cfg(target_arch = "x86_64")]
+                // SAFETY: AVX2 was detected at run time.
+                unsafe {
+                    filter_row_avx2(&job, row)
+                }
+            } else {
+                filter_row(&job, row)
+            }
+        });
+    out
+}
+
+/// What filtering one row needs.
+struct RowJob<'a> {
+    keys: &'a [u32],
+    dims: (usize, usize),
+    y: usize,
+    r: usize,
+    network: &'a [(usize, usize)],
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn filter_row_avx2(job: &RowJob, row: &mut [f32]) {
+    filter_row(job, row)
+}
+
+/// Replaces the valid pixels of `row` by their window medians.
+#[inline(always)]
+fn filter_row(job: &RowJob, row: &mut [f32]) {
+    let n = 2 * job.r + 1;
+    let mut lanes = vec![[0u32; CHUNK]; n * n];
+    for x in (0..job.dims.0).step_by(CHUNK) {
+        gather(job.keys, job.dims, (x, job.y), job.r, &mut lanes);
+        apply(job.network, &mut lanes);
+        let row = &mut row[x..(x + CHUNK).min(job.dims.0)];
+        for (o, &key) in row.iter_mut().zip(&lanes[n * n / 2]) {
+            if o.is_finite() {
+                *o = from_order_key(key);
+            }
+        }
+    }
+}
+
+/// The key of an invalid pixel (above every finite value's key).
+const HOLE: u32 = u32::MAX;
+
+/// Loads the windows of the pixels `x..x + CHUNK` of row `y` into `lanes`
+/// (lane `l` of `lanes[k]` is element `k` of window `l`).
+#[inline(always)]
+///
+/// A window with `m` invalid or outside pixels gets `⌊m/2⌋` of them as the
+/// smallest key and the rest as the largest: the middle of all `n²` keys is
+/// then element `⌊(n² − m)/2⌋` of the valid ones, the upper median.
+fn gather(
+    keys: &[u32],
+    (w, h): (usize, usize),
+    (x, y): (usize, usize),
+    r: usize,
+    lanes: &mut [[u32; CHUNK]],
+) {
+    let n = 2 * r + 1;
+    let inside = y >= r && y + r < h && x >= r && x + CHUNK + r <= w;
+    let mut holes = [0u32; CHUNK];
+    for (k, lane) in lanes.iter_mut().enumerate() {
+        if inside {
+            let start = (y + k / n - r) * w + x + k % n - r;
+            lane.copy_from_slice(&keys[start..start + CHUNK]);
+        } else {
+            let yy = (y + k / n).checked_sub(r).filter(|&yy| yy < h);
+            for (l, v) in lane.iter_mut().enumerate() {
+                let xx = (x + l + k % n).checked_sub(r).filter(|&xx| xx < w);
+                *v = match (xx, yy) {
+                    (Some(xx), Some(yy)) => keys[yy * w + xx],
+                    _ => HOLE,
+                };
+            }
+        }
+        for (m, &v) in holes.iter_mut().zip(lane.iter()) {
+            *m += u32::from(v == HOLE);
+        }
+    }
+    if holes == [0; CHUNK] {
+        return;
+    }
+    // Lane-wise and branch-free, so it vectorises like the network.
+    let low = holes.map(|m| m / 2);
+    let mut seen = [0u32; CHUNK];
+    for lane in lanes.iter_mut() {
+        for l in 0..CHUNK {
+            let hole = lane[l] == HOLE;
+            if hole && seen[l] < low[l] {
+                lane[l] = 0;
+            }
+            seen[l] += u32::from(hole);
+        }
+    }
+}
+
+/// A `u32` whose unsigned order is [`f32::total_cmp`]'s order of `v`.
+fn order_key(v: f32) -> u32 {
+    let bits = v.to_bits();
+    if bits >> 31 == 1 {
+        !bits
+    } else {
+        bits | 1 << 31
+    }
+}
+
+/// The inverse of [`order_key`].
+fn from_order_key(key: u32) -> f32 {
+    f32::from_bits(if key >> 31 == 1 {
+        key & !(1 << 31)
+    } else {
+        !key
+    })
+}
+
+/// The comparators `(i, j)`, `i < j`, of Batcher's odd–even merge sort of
+/// `n` values that output `out` of the sorted order depends on.
+///
+/// The sort is built for the next power of two; the missing inputs act as
+/// `+∞` at the top indices, where every comparator touching them is a no-op,
+/// so those comparators are dropped. Walking backwards from `out` then keeps
+/// only comparators that feed it.
+fn selection_network(n: usize, out: usize) -> Vec<(usize, usize)> {
+    let size = n.next_power_of_two();
+    let mut sort = Vec::new();
+    let mut p = 1;
+    while p < size {
+        let mut k = p;
+        while k >= 1 {
+            for j in (k % p..size - k).step_by(2 * k) {
+                for i in 0..k.min(size - j - k) {
+                    let (a, b) = (i + j, i + j + k);
+                    if a / (2 * p) == b / (2 * p) && b < n {
+                        sort.push((a, b));
+                    }
+                }
+            }
+            k /= 2;
+        }
+        p *= 2;
+    }
+    let mut needed = vec![false; n];
+    needed[out] = true;
+    let mut kept: Vec<_> = sort
+        .into_iter()
+        .rev()
+        .filter(|&(a, b)| {
+            let keep = needed[a] || needed[b];
+            needed[a] |= keep;
+            needed[b] |= keep;
+            keep
+        })
+        .collect();
+    kept.reverse();
+    kept
+}
+
+/// Runs the comparators on [`CHUNK`] windows at once: lane `l` of every
+/// `lanes[k]` is element `k` of window `l`.
+#[inline(always)]
+fn apply(network: &[(usize, usize)], lanes: &mut [[u32; CHUNK]]) {
+    for &(i, j) in network {
+        let (a, b) = (lanes[i], lanes[j]);
+        for l in 0..CHUNK {
+            lanes[i][l] = a[l].min(b[l]);
+            lanes[j][l] = a[l].max(b[l]);
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    /// The median of the valid pixels of the window of radius `r` at `(x, y)`,
+    /// clipped to the image, by selection; `window` is scratch.
+    fn median_at(map: &DisparityMap, x: usize, y: usize, r: usize, window: &mut Vec<f32>) -> f32 {
+        let (w, h) = map.dims();
+        window.clear();
+        for yy in y.saturating_sub(r)..(y + r + 1).min(h) {
+            let src = &map.row(yy)[x.saturating_sub(r)..(x + r + 1).min(w)];
+            window.extend(src.iter().filter(|v| v.is_finite()));
+        }
+        let mid = window.len() / 2;
+        *window.select_nth_unstable_by(mid, f32::total_cmp).1
+    }
+
+    /// By the 0/1 principle a comparator network selects output `out`
+    /// correctly iff it does so for every input of zeros and ones.
+    #[test]
+    fn every_output_of_the_pruned_networks_is_right() {
+        for n in [1, 2, 3, 9, 10, 13] {
+            for out in 0..n {
+                let net = selection_network(n, out);
+                for bits in 0u32..1 << n {
+                    let mut lanes: Vec<[u32; CHUNK]> =
+                        (0..n).map(|k| [bits >> k & 1; CHUNK]).collect();
+                    apply(&net, &mut lanes);
+                    let zeros = n - bits.count_ones() as usize;
+                    assert_eq!(lanes[out][0], u32::from(out >= zeros), "n {n} out {out}");
+                }
+            }
+        }
+        assert_eq!(selection_network(25, 12).len(), 113);
+    }
+
+    #[test]
+    fn order_keys_follow_total_cmp() {
+        let vals = [
+            -3.5f32,
+            -0.0,
+            0.0,
+            1e-30,
+            2.25,
+            7.0,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+        ];
+        for &a in &vals {
+            assert_eq!(from_order_key(order_key(a)).to_bits(), a.to_bits());
+            for &b in &vals {
+                assert_eq!(order_key(a).cmp(&order_key(b)), a.total_cmp(&b));
+            }
+        }
+    }
+
+    #[test]
+    fn median_removes_a_spike_and_keeps_holes() {
+        let mut m = DisparityMap::new(5, 5, 3.0);
+        m.set(2, 2, 40.0);
+        m.set(0, 0, f32::INFINITY);
+        let f = median(&m, 3);
+        assert_eq!(f.get(2, 2), 3.0);
+        assert_eq!(f.get(0, 0), f32::INFINITY);
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(256))]
+        /// The network, holes and borders included, equals per-pixel selection.
+        #[test]
+        fn network_equals_selection(
+            w in 1usize..40, h in 1usize..20, size in 1usize..8,
+            seed in any::<u64>(), holes in 0u32..60,
+        ) {
+            let mut s = seed | 1;
+            let mut next = || { s ^= s << 13; s ^= s >> 7; s ^= s << 17; s };
+            let map = DisparityMap::from_fn(w, h, |_, _| {
+                let v = next();
+                // A few holes, and subpixel values with frequent ties.
+                if (v % 100) < holes as u64 { f32::INFINITY } else { (v >> 40) as f32 % 16.0 * 0.25 }
+            });
+            let fast = median(&map, size);
+            let r = size / 2;
+            let mut window = Vec::new();
+            for y in 0..h {
+                for x in 0..w {
+                    let want = if map.get(x, y).is_finite() && r > 0 {
+                        median_at(&map, x, y, r, &mut window)
+                    } else {
+                        map.get(x, y)
+                    };
+                    prop_assert_eq!(fast.get(x, y).to_bits(), want.to_bits(), "({}, {})", x, y);
+                }
+            }
+        }
+    }
+}
