@@ -68,6 +68,8 @@ pub struct WtaMatcher {
     /// Each right row, border-padded and reversed (see [`reversed_rows`]).
     reversed: Vec<u8>,
     bands: Vec<Band>,
+    /// Never use the AVX2 kernel (to test or measure the portable one).
+    portable: bool,
 }
 
 /// Rows per parallel band: bands re-prime `block` rows, so not too small.
@@ -82,6 +84,15 @@ impl WtaMatcher {
     /// An empty matcher; buffers grow on first use.
     pub fn new() -> Self {
         Self::default()
+    }
+
+    /// A matcher that always runs the portable kernel, as on a CPU without
+    /// SIMD (the embedded board): same results, for testing and measuring.
+    pub fn portable() -> Self {
+        WtaMatcher {
+            portable: true,
+            ..Self::default()
+        }
     }
 
     /// Matches `left` against `right` (same size, checked by the caller) and
@@ -110,7 +121,7 @@ impl WtaMatcher {
         self.bands
             .resize_with(n_bands.max(self.bands.len()), Band::default);
         let reversed = &self.reversed;
-        let use_avx2 = avx2_available();
+        let use_avx2 = !self.portable && avx2_available();
         out.as_mut_slice()
             .par_chunks_mut(w * BAND_ROWS)
             .zip(self.bands.par_iter_mut())
@@ -386,7 +397,7 @@ mod tests {
 
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(48))]
-        /// The fast path (AVX2 where present) equals the naive definition.
+        /// Both kernels (AVX2 where present, and portable) equal the naive definition.
         #[test]
         fn fast_equals_reference(
             w in 1usize..40, h in 1usize..40, seed in any::<u64>(),
@@ -395,11 +406,13 @@ mod tests {
         ) {
             let (l, r) = (image(w, h, seed), image(w, h, seed ^ 0xABCD));
             let p = WtaParams { min_disp, ndisp, block: 2 * half + 1, uniqueness, subpixel };
-            let mut fast = DisparityMap::new(w, h, 0.0);
-            WtaMatcher::new().compute_into(&l, &r, &p, &mut fast);
             let slow = reference(&l, &r, &p);
             let bits = |m: &DisparityMap| m.as_slice().iter().map(|v| v.to_bits()).collect::<Vec<_>>();
-            prop_assert_eq!(bits(&fast), bits(&slow));
+            for mut matcher in [WtaMatcher::new(), WtaMatcher::portable()] {
+                let mut fast = DisparityMap::new(w, h, 0.0);
+                matcher.compute_into(&l, &r, &p, &mut fast);
+                prop_assert_eq!(bits(&fast), bits(&slow));
+            }
         }
     }
 }
