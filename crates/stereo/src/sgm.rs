@@ -13,11 +13,12 @@
 //! * **Disparity**: winner-take-all on `S`, with a parabola fit; the right
 //!   view's map comes from the same `S` for the left-right check.
 //!
-//! Memory is the `u16` sum volume `W·H·D` plus a few rows of path costs:
-//! about 132 MiB for a 722×480 Middlebury 2014 scene at 190 disparities.
+//! Memory is the `u8` cost volume (census costs computed once for all
+//! paths) and the `u16` sum volume, `3·W·H·D` bytes, plus a few rows of path
+//! costs: 211 MiB peak for the 741×497 Motorcycle scene at 190 disparities.
 //! Horizontal paths run in parallel over rows; vertical and diagonal paths
 //! run row by row, in parallel over column chunks. Inner loops run along the
-//! disparity axis and are compiled for AVX2 when the CPU has it.
+//! disparity axis and are compiled for AVX2 and POPCNT when the CPU has them.
 
 use rayon::prelude::*;
 use stereolink_image::{DisparityMap, GrayImage};
@@ -72,31 +73,57 @@ impl SgmParams {
     }
 }
 
-/// 9×7 census transform: bit set where the neighbour is darker than the centre.
+/// 9×7 census transform: bit set where the neighbour is darker than the
+/// centre; outside pixels replicate the border.
 pub fn census(img: &GrayImage) -> Vec<u64> {
     let (w, h) = img.dims();
     let mut out = vec![0u64; w * h];
+    let avx2 = crate::wta::avx2_available();
     out.par_chunks_mut(w.max(1))
         .enumerate()
         .for_each(|(y, row)| {
-            for (x, v) in row.iter_mut().enumerate() {
-                let c = img.get(x, y);
-                let mut bits = 0u64;
-                for dy in -3isize..=3 {
-                    let yy = (y as isize + dy).clamp(0, h as isize - 1) as usize;
-                    let line = img.row(yy);
-                    for dx in -4isize..=4 {
-                        if dx == 0 && dy == 0 {
-                            continue;
-                        }
-                        let xx = (x as isize + dx).clamp(0, w as isize - 1) as usize;
-                        bits = (bits << 1) | (line[xx] < c) as u64;
-                    }
+            if avx2 {
+                #[cfg(target_arch = "x86_64")]
+                // SAFETY: AVX2 presence was checked at run time; same safe code.
+                unsafe {
+                    census_row_avx2(img, y, row)
                 }
-                *v = bits;
+            } else {
+                census_row(img, y, row)
             }
         });
     out
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,popcnt")]
+unsafe fn census_row_avx2(img: &GrayImage, y: usize, out: &mut [u64]) {
+    census_row(img, y, out)
+}
+
+/// The census of row `y`, one neighbour offset at a time along the whole
+/// row so that the inner loop is a straight vector loop.
+#[inline(always)]
+fn census_row(img: &GrayImage, y: usize, out: &mut [u64]) {
+    let (w, h) = img.dims();
+    let centre = img.row(y);
+    let mut padded = vec![0u8; w + 8];
+    out.fill(0);
+    for dy in -3isize..=3 {
+        let line = img.row((y as isize + dy).clamp(0, h as isize - 1) as usize);
+        for (i, p) in padded.iter_mut().enumerate() {
+            *p = line[i.saturating_sub(4).min(w - 1)];
+        }
+        for dx in 0..9 {
+            if dx == 4 && dy == 0 {
+                continue;
+            }
+            let shifted = &padded[dx..dx + w];
+            for ((v, &n), &c) in out.iter_mut().zip(shifted).zip(centre) {
+                *v = (*v << 1) | u64::from(n < c);
+            }
+        }
+    }
 }
 
 struct Volume<'a> {
@@ -104,41 +131,99 @@ struct Volume<'a> {
     h: usize,
     nd: usize,
     min_disp: usize,
-    cl: &'a [u64],
-    cr: &'a [u64],
+    /// `C(x, y, d_min + k)` at `((y·W + x)·nd + k)`.
+    cost: &'a [u8],
     img: &'a GrayImage,
     p: SgmParams,
+    /// `P2` by intensity step `|I(p) − I(p−r)|`.
+    p2_by_step: [u16; 256],
 }
 
 impl Volume<'_> {
-    /// Matching costs of pixel (x, y) for every disparity.
+    /// Matching costs of pixel (x, y), one per disparity.
     #[inline(always)]
-    fn costs(&self, x: usize, y: usize, out: &mut [u16]) {
-        let l = self.cl[y * self.w + x];
-        let row = &self.cr[y * self.w..(y + 1) * self.w];
-        for (k, c) in out.iter_mut().enumerate() {
-            let d = self.min_disp + k;
-            *c = if d <= x {
-                (l ^ row[x - d]).count_ones() as u16
-            } else {
-                OUTSIDE_COST
-            };
-        }
+    fn costs(&self, x: usize, y: usize) -> &[u8] {
+        let at = (y * self.w + x) * self.nd;
+        &self.cost[at..at + self.nd]
     }
 
     #[inline(always)]
     fn p2(&self, a: u8, b: u8) -> u16 {
-        let g = self.p.p2_gamma as u32;
-        ((self.p.p2 as u32 * g / (g + a.abs_diff(b) as u32)) as u16).max(self.p.p1 + 1)
+        self.p2_by_step[a.abs_diff(b) as usize]
     }
 }
 
-/// One path step: `cur[k] = C[k] + min(prev[k], prev[k±1] + P1, min_prev + P2) − min_prev`.
-/// `prev` and `cur` carry a sentinel at both ends (length `nd + 2`). Returns `min_k cur`.
+/// The adaptive `P2` for every intensity step (see the module doc).
+fn p2_table(p: &SgmParams) -> [u16; 256] {
+    let g = p.p2_gamma as u32;
+    std::array::from_fn(|step| ((p.p2 as u32 * g / (g + step as u32)) as u16).max(p.p1 + 1))
+}
+
+/// The census Hamming costs of every pixel and disparity, `u8`, computed
+/// once for all paths.
+fn cost_volume(cl: &[u64], cr: &[u64], w: usize, nd: usize, min_disp: usize) -> Vec<u8> {
+    let mut cost = vec![0u8; cl.len() * nd];
+    let avx2 = crate::wta::avx2_available();
+    cost.par_chunks_mut(w * nd)
+        .zip(cl.par_chunks(w).zip(cr.par_chunks(w)))
+        .for_each(|(out, (l, r))| {
+            if avx2 {
+                #[cfg(target_arch = "x86_64")]
+                // SAFETY: AVX2 and POPCNT presence was checked at run time.
+                unsafe {
+                    cost_row_popcnt(l, r, min_disp, out)
+                }
+            } else {
+                cost_row(l, r, min_disp, out)
+            }
+        });
+    cost
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,popcnt")]
+unsafe fn cost_row_popcnt(l: &[u64], r: &[u64], min_disp: usize, out: &mut [u8]) {
+    cost_row(l, r, min_disp, out)
+}
+
 #[inline(always)]
-fn step(prev: &[u16], cost: &[u16], cur: &mut [u16], p1: u16, p2: u16) -> u16 {
+fn cost_row(l: &[u64], r: &[u64], min_disp: usize, out: &mut [u8]) {
+    let nd = out.len() / l.len();
+    for (x, (&c, costs)) in l.iter().zip(out.chunks_exact_mut(nd)).enumerate() {
+        for (k, v) in costs.iter_mut().enumerate() {
+            let d = min_disp + k;
+            *v = if d <= x {
+                (c ^ r[x - d]).count_ones() as u8
+            } else {
+                OUTSIDE_COST as u8
+            };
+        }
+    }
+}
+
+/// Values per pixel and path: `[SENTINEL, L(d_min)..L(d_max), SENTINEL, min_k L]`.
+/// The sentinels stand for the missing neighbours `d_min − 1` and
+/// `d_max + 1`; the minimum is kept so the next step need not search it.
+const fn cell(nd: usize) -> usize {
+    nd + 3
+}
+
+/// Starts a path at pixel costs `cost` (no predecessor): `L = C`.
+#[inline(always)]
+fn start(cost: &[u8], cur: &mut [u16]) {
     let nd = cost.len();
-    let min_prev = prev[1..=nd].iter().copied().min().unwrap_or(0);
+    widen(&mut cur[1..=nd], cost);
+    cur[0] = SENTINEL;
+    cur[nd + 1] = SENTINEL;
+    cur[nd + 2] = cost.iter().copied().min().map_or(0, u16::from);
+}
+
+/// One path step: `cur[k] = C[k] + min(prev[k], prev[k±1] + P1, min_prev + P2) − min_prev`,
+/// on cells laid out as [`cell`] describes.
+#[inline(always)]
+fn step(prev: &[u16], cost: &[u8], cur: &mut [u16], p1: u16, p2: u16) {
+    let nd = cost.len();
+    let min_prev = prev[nd + 2];
     let jump = min_prev + p2;
     let mut min_cur = u16::MAX;
     for k in 0..nd {
@@ -146,26 +231,36 @@ fn step(prev: &[u16], cost: &[u16], cur: &mut [u16], p1: u16, p2: u16) -> u16 {
             .min(prev[k] + p1)
             .min(prev[k + 2] + p1)
             .min(jump);
-        let v = cost[k] + best - min_prev;
+        let v = u16::from(cost[k]) + best - min_prev;
         cur[k + 1] = v;
         min_cur = min_cur.min(v);
     }
-    min_cur
+    cur[nd + 2] = min_cur;
+}
+
+/// `dst[k] = src[k]`, widened.
+#[inline(always)]
+fn widen(dst: &mut [u16], src: &[u8]) {
+    dst.iter_mut()
+        .zip(src)
+        .for_each(|(d, &s)| *d = u16::from(s));
 }
 
 /// Computes the raw SGM disparity (and the right view's map) of gray views.
 pub fn sgm(left: &GrayImage, right: &GrayImage, spec: &MatchSpec) -> Raw {
     let (w, h) = left.dims();
     let (cl, cr) = rayon::join(|| census(left), || census(right));
+    let cost = cost_volume(&cl, &cr, w, spec.ndisp(), spec.min_disp);
+    drop((cl, cr));
     let vol = Volume {
         w,
         h,
         nd: spec.ndisp(),
         min_disp: spec.min_disp,
-        cl: &cl,
-        cr: &cr,
+        cost: &cost,
         img: left,
         p: spec.sgm,
+        p2_by_step: p2_table(&spec.sgm),
     };
     let use_avx2 = crate::wta::avx2_available();
     let mut sum = vec![0u16; w * h * vol.nd];
@@ -189,7 +284,7 @@ pub fn sgm(left: &GrayImage, right: &GrayImage, spec: &MatchSpec) -> Raw {
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
+#[target_feature(enable = "avx2,popcnt")]
 unsafe fn horizontal_avx2(vol: &Volume, y: usize, s: &mut [u16]) {
     horizontal(vol, y, s)
 }
@@ -198,23 +293,28 @@ unsafe fn horizontal_avx2(vol: &Volume, y: usize, s: &mut [u16]) {
 #[inline(always)]
 fn horizontal(vol: &Volume, y: usize, s: &mut [u16]) {
     let (w, nd) = (vol.w, vol.nd);
-    let mut cost = vec![0u16; nd];
-    let mut prev = vec![SENTINEL; nd + 2];
-    let mut cur = vec![SENTINEL; nd + 2];
+    let mut prev = vec![SENTINEL; cell(nd)];
+    let mut cur = vec![SENTINEL; cell(nd)];
     let row = vol.img.row(y);
     for forward in [true, false] {
         for i in 0..w {
             let x = if forward { i } else { w - 1 - i };
-            vol.costs(x, y, &mut cost);
+            let cost = vol.costs(x, y);
             if i == 0 {
-                cur[1..=nd].copy_from_slice(&cost);
+                start(cost, &mut cur);
             } else {
                 let xp = if forward { x - 1 } else { x + 1 };
-                step(&prev, &cost, &mut cur, vol.p.p1, vol.p2(row[x], row[xp]));
+                step(&prev, cost, &mut cur, vol.p.p1, vol.p2(row[x], row[xp]));
             }
             let acc = &mut s[x * nd..(x + 1) * nd];
-            for (a, &c) in acc.iter_mut().zip(&cur[1..=nd]) {
-                *a += c;
+            if forward {
+                // The first path written into a fresh sum row: storing
+                // instead of adding never reads the untouched zero pages.
+                acc.copy_from_slice(&cur[1..=nd]);
+            } else {
+                for (a, &c) in acc.iter_mut().zip(&cur[1..=nd]) {
+                    *a += c;
+                }
             }
             std::mem::swap(&mut prev, &mut cur);
         }
@@ -225,8 +325,8 @@ fn horizontal(vol: &Volume, y: usize, s: &mut [u16]) {
 fn vertical(vol: &Volume, sum: &mut [u16], upward: bool, use_avx2: bool) {
     let (w, h, nd) = (vol.w, vol.h, vol.nd);
     let n_paths = if vol.p.paths == 8 { 3 } else { 1 };
-    let stride = nd + 2;
-    // prev/cur rows: for each path, w pixels of `nd + 2` values.
+    let stride = cell(nd);
+    // prev/cur rows: for each path, w cells.
     let mut prev = vec![SENTINEL; n_paths * w * stride];
     let mut cur = vec![SENTINEL; n_paths * w * stride];
     let chunk = w.div_ceil(rayon::current_num_threads().max(1) * 2).max(16);
@@ -294,7 +394,7 @@ struct VerticalRow<'a> {
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
+#[target_feature(enable = "avx2,popcnt")]
 unsafe fn vertical_chunk_avx2(ctx: &VerticalRow, parts: &mut [&mut [u16]], s: &mut [u16]) {
     vertical_chunk(ctx, parts, s)
 }
@@ -305,28 +405,25 @@ unsafe fn vertical_chunk_avx2(ctx: &VerticalRow, parts: &mut [&mut [u16]], s: &m
 fn vertical_chunk(ctx: &VerticalRow, parts: &mut [&mut [u16]], s: &mut [u16]) {
     let vol = ctx.vol;
     let (w, nd) = (vol.w, vol.nd);
-    let stride = nd + 2;
-    let mut cost = vec![0u16; nd];
+    let stride = cell(nd);
     let n = s.len() / nd;
     // Diagonals lean one column left or right in the direction of travel.
     let leans: &[isize] = if parts.len() == 3 { &[0, -1, 1] } else { &[0] };
     for j in 0..n {
         let x = ctx.x0 + j;
-        vol.costs(x, ctx.y, &mut cost);
+        let cost = vol.costs(x, ctx.y);
         let acc = &mut s[j * nd..(j + 1) * nd];
         for (path, &lean) in leans.iter().enumerate() {
             let cur = &mut parts[path][j * stride..(j + 1) * stride];
             let xp = x as isize + if ctx.upward { -lean } else { lean };
             if ctx.first || xp < 0 || xp >= w as isize {
-                cur[1..=nd].copy_from_slice(&cost);
-                cur[0] = SENTINEL;
-                cur[nd + 1] = SENTINEL;
+                start(cost, cur);
             } else {
                 let xp = xp as usize;
                 let base = (path * w + xp) * stride;
                 let prev = &ctx.prev[base..base + stride];
                 let p2 = vol.p2(vol.img.get(x, ctx.y), vol.img.get(xp, ctx.yp));
-                step(prev, &cost, cur, vol.p.p1, p2);
+                step(prev, cost, cur, vol.p.p1, p2);
             }
             for (a, &c) in acc.iter_mut().zip(&cur[1..=nd]) {
                 *a += c;
@@ -351,8 +448,13 @@ fn select(vol: &Volume, sum: &[u16], subpixel: bool) -> Raw {
                     continue;
                 }
                 let costs = &s_row[x * nd..x * nd + nd.min(x - vol.min_disp + 1)];
-                let best = *costs.iter().min().expect("non-empty");
-                let k = costs.iter().position(|&c| c == best).expect("exists");
+                // Cost high, index low: one vectorisable minimum gives the
+                // smallest cost at the smallest disparity.
+                let packed = (costs.iter().zip(0u32..))
+                    .map(|(&c, k)| u32::from(c) << 16 | k)
+                    .min()
+                    .expect("non-empty");
+                let (best, k) = ((packed >> 16) as u16, (packed & 0xFFFF) as usize);
                 let mut d = (vol.min_disp + k) as f32;
                 if subpixel && k > 0 && k + 1 < costs.len() {
                     d += parabola(costs[k - 1] as f32, best as f32, costs[k + 1] as f32);
@@ -387,6 +489,30 @@ mod tests {
     use super::*;
 
     #[test]
+    fn census_matches_its_definition_at_borders_too() {
+        let mut s = 0x9E37_79B9u32;
+        let img = GrayImage::from_fn(23, 11, |_, _| {
+            s = s.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            (s >> 24) as u8
+        });
+        let c = census(&img);
+        let at = |x: isize, y: isize| img.get(x.clamp(0, 22) as usize, y.clamp(0, 10) as usize);
+        for y in 0..11isize {
+            for x in 0..23isize {
+                let mut bits = 0u64;
+                for dy in -3..=3 {
+                    for dx in -4..=4 {
+                        if (dx, dy) != (0, 0) {
+                            bits = bits << 1 | u64::from(at(x + dx, y + dy) < at(x, y));
+                        }
+                    }
+                }
+                assert_eq!(c[y as usize * 23 + x as usize], bits, "({x}, {y})");
+            }
+        }
+    }
+
+    #[test]
     fn census_of_a_ramp() {
         let img = GrayImage::from_fn(12, 9, |x, _| (x * 10) as u8);
         let c = census(&img);
@@ -396,13 +522,14 @@ mod tests {
 
     #[test]
     fn step_follows_the_recurrence() {
-        let prev = [SENTINEL, 5, 0, 9, SENTINEL];
+        let mut prev = [0; cell(3)];
+        start(&[5, 0, 9], &mut prev);
+        assert_eq!(prev, [SENTINEL, 5, 0, 9, SENTINEL, 0]);
         let cost = [3, 3, 3];
-        let mut cur = [SENTINEL; 5];
-        let m = step(&prev, &cost, &mut cur, 2, 6);
+        let mut cur = [0; cell(3)];
+        step(&prev, &cost, &mut cur, 2, 6);
         // min_prev 0: k0 min(5, 0+2, jump 6) = 2 → 3+2; k1: 0 → 3; k2: min(9, 0+2) = 2 → 5.
-        assert_eq!(&cur[1..4], &[5, 3, 5]);
-        assert_eq!(m, 3);
+        assert_eq!(cur, [0, 5, 3, 5, 0, 3]);
     }
 
     #[test]
