@@ -226,13 +226,16 @@ fn step(prev: &[u16], cost: &[u8], cur: &mut [u16], p1: u16, p2: u16) {
     let min_prev = prev[nd + 2];
     let jump = min_prev + p2;
     let mut min_cur = u16::MAX;
-    for k in 0..nd {
-        let best = prev[k + 1]
-            .min(prev[k] + p1)
-            .min(prev[k + 2] + p1)
-            .min(jump);
-        let v = u16::from(cost[k]) + best - min_prev;
-        cur[k + 1] = v;
+    // Zipped slices (no indexing) so that the loop compiles to vector code.
+    let (below, same, above) = (&prev[..nd], &prev[1..=nd], &prev[2..nd + 2]);
+    let lanes = cur[1..=nd]
+        .iter_mut()
+        .zip(cost)
+        .zip(below.iter().zip(same).zip(above));
+    for ((out, &c), ((&b, &s), &a)) in lanes {
+        let best = s.min(b + p1).min(a + p1).min(jump);
+        let v = u16::from(c) + best - min_prev;
+        *out = v;
         min_cur = min_cur.min(v);
     }
     cur[nd + 2] = min_cur;
@@ -265,17 +268,17 @@ pub fn sgm(left: &GrayImage, right: &GrayImage, spec: &MatchSpec) -> Raw {
     let use_avx2 = crate::wta::avx2_available();
     let mut sum = vec![0u16; w * h * vol.nd];
     // Horizontal paths: rows are independent.
-    sum.par_chunks_mut(w * vol.nd)
+    sum.par_chunks_mut(w * vol.nd * ROW_GROUP)
         .enumerate()
-        .for_each(|(y, s)| {
+        .for_each(|(g, s)| {
             if use_avx2 {
                 #[cfg(target_arch = "x86_64")]
                 // SAFETY: AVX2 presence was checked at run time; same safe code.
                 unsafe {
-                    horizontal_avx2(&vol, y, s)
+                    horizontal_avx2(&vol, g * ROW_GROUP, s)
                 }
             } else {
-                horizontal(&vol, y, s)
+                horizontal(&vol, g * ROW_GROUP, s)
             }
         });
     vertical(&vol, &mut sum, false, use_avx2);
@@ -285,35 +288,47 @@ pub fn sgm(left: &GrayImage, right: &GrayImage, spec: &MatchSpec) -> Raw {
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,popcnt")]
-unsafe fn horizontal_avx2(vol: &Volume, y: usize, s: &mut [u16]) {
-    horizontal(vol, y, s)
+unsafe fn horizontal_avx2(vol: &Volume, y0: usize, s: &mut [u16]) {
+    horizontal(vol, y0, s)
 }
 
-/// Left-to-right and right-to-left paths of row `y`, written into its sum row.
+/// Rows whose horizontal paths advance in lockstep: each step waits for the
+/// previous pixel's, so one row alone leaves the CPU idle on latency.
+const ROW_GROUP: usize = 4;
+
+/// Left-to-right and right-to-left paths of the rows from `y0` that `s`
+/// (their sum rows) covers, written into `s`.
 #[inline(always)]
-fn horizontal(vol: &Volume, y: usize, s: &mut [u16]) {
+fn horizontal(vol: &Volume, y0: usize, s: &mut [u16]) {
     let (w, nd) = (vol.w, vol.nd);
-    let mut prev = vec![SENTINEL; cell(nd)];
-    let mut cur = vec![SENTINEL; cell(nd)];
-    let row = vol.img.row(y);
+    let rows = s.len() / (w * nd);
+    let mut prev = vec![SENTINEL; rows * cell(nd)];
+    let mut cur = vec![SENTINEL; rows * cell(nd)];
     for forward in [true, false] {
         for i in 0..w {
             let x = if forward { i } else { w - 1 - i };
-            let cost = vol.costs(x, y);
-            if i == 0 {
-                start(cost, &mut cur);
-            } else {
-                let xp = if forward { x - 1 } else { x + 1 };
-                step(&prev, cost, &mut cur, vol.p.p1, vol.p2(row[x], row[xp]));
-            }
-            let acc = &mut s[x * nd..(x + 1) * nd];
-            if forward {
-                // The first path written into a fresh sum row: storing
-                // instead of adding never reads the untouched zero pages.
-                acc.copy_from_slice(&cur[1..=nd]);
-            } else {
-                for (a, &c) in acc.iter_mut().zip(&cur[1..=nd]) {
-                    *a += c;
+            let xp = if forward { x.wrapping_sub(1) } else { x + 1 };
+            let cells = prev
+                .chunks_exact(cell(nd))
+                .zip(cur.chunks_exact_mut(cell(nd)));
+            for (r, (prev, cur)) in cells.enumerate() {
+                let y = y0 + r;
+                let cost = vol.costs(x, y);
+                if i == 0 {
+                    start(cost, cur);
+                } else {
+                    let row = vol.img.row(y);
+                    step(prev, cost, cur, vol.p.p1, vol.p2(row[x], row[xp]));
+                }
+                let acc = &mut s[(r * w + x) * nd..(r * w + x + 1) * nd];
+                if forward {
+                    // The first path written into a fresh sum row: storing
+                    // instead of adding never reads the untouched zero pages.
+                    acc.copy_from_slice(&cur[1..=nd]);
+                } else {
+                    for (a, &c) in acc.iter_mut().zip(&cur[1..=nd]) {
+                        *a += c;
+                    }
                 }
             }
             std::mem::swap(&mut prev, &mut cur);
