@@ -24,6 +24,10 @@ pub(crate) trait LaneOps {
     /// Index of the smallest of `costs[..valid]` (`valid ≥ 1`); the lowest
     /// index wins ties.
     unsafe fn argmin(costs: &[u16], valid: usize) -> usize;
+    /// For every lane `i` with `i < valid`: if `costs[i] < best[i]`, then
+    /// `best[i] = costs[i]` and `which[i] = i` (an earlier smaller or equal
+    /// cost stays).
+    unsafe fn min_update(best: &mut [u16], which: &mut [u16], costs: &[u16], valid: usize);
 }
 
 /// Plain Rust, for every CPU.
@@ -74,6 +78,16 @@ impl LaneOps for Portable {
             .min()
             .expect("at least one valid lane");
         (packed & 0xFFFF) as usize
+    }
+
+    #[inline(always)]
+    unsafe fn min_update(best: &mut [u16], which: &mut [u16], costs: &[u16], valid: usize) {
+        let lanes = best.iter_mut().zip(which.iter_mut()).zip(&costs[..valid]);
+        for (((b, w), &c), i) in lanes.zip(0u16..) {
+            if c < *b {
+                (*b, *w) = (c, i);
+            }
+        }
     }
 }
 
@@ -168,6 +182,38 @@ impl LaneOps for Avx2 {
         }
         unreachable!("the minimum is one of the lanes")
     }
+
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn min_update(best: &mut [u16], which: &mut [u16], costs: &[u16], valid: usize) {
+        use std::arch::x86_64::*;
+        let iota = _mm256_setr_epi16(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+        let (ones, sign) = (_mm256_set1_epi16(-1), _mm256_set1_epi16(i16::MIN));
+        let blocks = best
+            .chunks_exact_mut(LANES)
+            .zip(which.chunks_exact_mut(LANES));
+        for (b, ((best, which), cost)) in blocks.zip(costs.chunks_exact(LANES)).enumerate() {
+            if b * LANES >= valid {
+                break;
+            }
+            let left = (valid - b * LANES).min(LANES) as i16;
+            let inside = _mm256_cmpgt_epi16(_mm256_set1_epi16(left), iota);
+            // Lanes past `valid` become the largest cost, which never wins.
+            let c = _mm256_loadu_si256(cost.as_ptr().cast());
+            let c = _mm256_or_si256(c, _mm256_andnot_si256(inside, ones));
+            let (bp, wp) = (
+                best.as_mut_ptr().cast::<__m256i>(),
+                which.as_mut_ptr().cast(),
+            );
+            let old = _mm256_loadu_si256(bp);
+            // Unsigned c < old, as a signed comparison of sign-flipped values.
+            let less = _mm256_cmpgt_epi16(_mm256_xor_si256(old, sign), _mm256_xor_si256(c, sign));
+            let index = _mm256_add_epi16(iota, _mm256_set1_epi16((b * LANES) as i16));
+            _mm256_storeu_si256(bp, _mm256_min_epu16(old, c));
+            let w = _mm256_blendv_epi8(_mm256_loadu_si256(wp), index, less);
+            _mm256_storeu_si256(wp, w);
+        }
+    }
 }
 
 #[cfg(all(test, target_arch = "x86_64"))]
@@ -213,6 +259,11 @@ mod tests {
                 let ties: Vec<u16> = col.iter().map(|c| c % 3).collect();
                 prop_assert_eq!(Portable::argmin(&ties, valid), Avx2::argmin(&ties, valid));
                 prop_assert_eq!(Portable::argmin(&a, valid), Avx2::argmin(&a, valid));
+                let (mut best_p, mut which_p) = (ties.clone(), vec![99u16; n]);
+                let (mut best_a, mut which_a) = (ties.clone(), vec![99u16; n]);
+                Portable::min_update(&mut best_p, &mut which_p, &col, valid);
+                Avx2::min_update(&mut best_a, &mut which_a, &col, valid);
+                prop_assert_eq!((best_p, which_p), (best_a, which_a));
             }
         }
     }

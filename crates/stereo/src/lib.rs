@@ -234,19 +234,24 @@ pub fn compute_disparity(
     Ok(refine::postprocess(raw, spec))
 }
 
-/// WTA on gray views, with the left-right check run here when asked for
-/// (it needs the right view's own disparity map).
+/// WTA on gray views, with the right view's map for the left-right check
+/// when it is asked for (from the same pass).
 fn wta_with_check(left: &GrayImage, right: &GrayImage, spec: &MatchSpec) -> refine::Raw {
     let mut matcher = wta::WtaMatcher::new();
     let params = wta::WtaParams::from_spec(spec);
-    let mut disp = DisparityMap::new(left.width(), left.height(), f32::INFINITY);
-    matcher.compute_into(left, right, &params, &mut disp);
-    let right_disp = spec.refine.lr_check.map(|_| {
-        let (fl, fr) = (refine::flip(right), refine::flip(left));
-        let mut d = DisparityMap::new(left.width(), left.height(), f32::INFINITY);
-        matcher.compute_into(&fl, &fr, &params, &mut d);
-        refine::flip(&d)
-    });
+    let new_map = || DisparityMap::new(left.width(), left.height(), f32::INFINITY);
+    let mut disp = new_map();
+    let right_disp = match spec.refine.lr_check {
+        Some(_) => {
+            let mut r = new_map();
+            matcher.compute_both_into(left, right, &params, &mut disp, &mut r);
+            Some(r)
+        }
+        None => {
+            matcher.compute_into(left, right, &params, &mut disp);
+            None
+        }
+    };
     refine::Raw {
         disparity: disp,
         right: right_disp,

@@ -59,6 +59,10 @@ impl WtaParams {
 struct Band {
     colsum: Vec<u16>,
     hsum: Vec<u16>,
+    /// Per right pixel `xr` of the current row, at `W − 1 − xr`: the
+    /// smallest cost seen so far and its lane (for the right view's map).
+    right_best: Vec<u16>,
+    right_lane: Vec<u16>,
 }
 
 /// A WTA-SAD matcher that keeps its buffers from one frame to the next, so
@@ -107,6 +111,40 @@ impl WtaMatcher {
         params: &WtaParams,
         out: &mut DisparityMap,
     ) {
+        self.compute(left, right, params, out, None);
+    }
+
+    /// As [`compute_into`](Self::compute_into), and also writes the right
+    /// view's integer disparity map (right `(x, y)` matches left
+    /// `(x + d, y)`, the left-right check's input) into `right_out`.
+    ///
+    /// The right view's costs are the same window sums: the right pixel
+    /// `x − d` at disparity `d` costs what the left pixel `x` does, so both
+    /// maps come from one pass (a running minimum per right pixel, the
+    /// smallest disparity winning ties). The windows are the left pixel's,
+    /// so near the image's left and right borders the right map can differ
+    /// from matching the mirrored pair.
+    pub fn compute_both_into(
+        &mut self,
+        left: &GrayImage,
+        right: &GrayImage,
+        params: &WtaParams,
+        out: &mut DisparityMap,
+        right_out: &mut DisparityMap,
+    ) {
+        assert_eq!(left.dims(), right_out.dims());
+        self.compute(left, right, params, out, Some(right_out));
+    }
+
+    fn compute(
+        &mut self,
+        left: &GrayImage,
+        right: &GrayImage,
+        params: &WtaParams,
+        out: &mut DisparityMap,
+        right_out: Option<&mut DisparityMap>,
+    ) {
+        use rayon::iter::Either;
         assert_eq!(left.dims(), right.dims());
         assert_eq!(left.dims(), out.dims());
         assert!(params.block % 2 == 1 && params.block <= 15 && params.ndisp > 0);
@@ -122,11 +160,16 @@ impl WtaMatcher {
             .resize_with(n_bands.max(self.bands.len()), Band::default);
         let reversed = &self.reversed;
         let use_avx2 = !self.portable && avx2_available();
+        let right_rows = match right_out {
+            Some(r) => Either::Left(r.as_mut_slice().par_chunks_mut(w * BAND_ROWS).map(Some)),
+            None => Either::Right((0..n_bands).into_par_iter().map(|_| None)),
+        };
         out.as_mut_slice()
             .par_chunks_mut(w * BAND_ROWS)
+            .zip(right_rows)
             .zip(self.bands.par_iter_mut())
             .enumerate()
-            .for_each(|(i, (rows, band))| {
+            .for_each(|(i, ((rows, right_rows), band))| {
                 let job = Job {
                     left,
                     reversed,
@@ -136,15 +179,19 @@ impl WtaMatcher {
                 };
                 band.colsum.resize(w * nl, 0);
                 band.hsum.resize(nl, 0);
+                if right_rows.is_some() {
+                    band.right_best.resize(w + nl, 0);
+                    band.right_lane.resize(w + nl, 0);
+                }
                 if use_avx2 {
                     #[cfg(target_arch = "x86_64")]
                     // SAFETY: only reached when the CPU reports AVX2 (checked in
                     // `avx2_available`).
                     unsafe {
-                        band_avx2(&job, band, rows)
+                        band_avx2(&job, band, rows, right_rows)
                     }
                 } else {
-                    band_portable(&job, band, rows)
+                    band_portable(&job, band, rows, right_rows)
                 }
             });
     }
@@ -191,29 +238,36 @@ struct Job<'a> {
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn band_avx2(job: &Job, band: &mut Band, out: &mut [f32]) {
+unsafe fn band_avx2(job: &Job, band: &mut Band, out: &mut [f32], right: Option<&mut [f32]>) {
     // SAFETY: this function only runs where AVX2 is present.
-    unsafe { band_with::<crate::lanes::Avx2>(job, band, out) }
+    unsafe { band_with::<crate::lanes::Avx2>(job, band, out, right) }
 }
 
-fn band_portable(job: &Job, band: &mut Band, out: &mut [f32]) {
+fn band_portable(job: &Job, band: &mut Band, out: &mut [f32], right: Option<&mut [f32]>) {
     // SAFETY: the portable lane operations need no special instructions.
-    unsafe { band_with::<Portable>(job, band, out) }
+    unsafe { band_with::<Portable>(job, band, out, right) }
 }
 
 /// Processes the rows of one band with the lane operations `K`; `out`
-/// holds exactly those rows.
+/// (and `right`, the right view's map, when asked for) holds exactly those
+/// rows.
 ///
 /// # Safety
 /// The CPU must have the instructions `K` uses.
 #[inline(always)]
-unsafe fn band_with<K: LaneOps>(job: &Job, band: &mut Band, out: &mut [f32]) {
+unsafe fn band_with<K: LaneOps>(
+    job: &Job,
+    band: &mut Band,
+    out: &mut [f32],
+    mut right: Option<&mut [f32]>,
+) {
     let (w, h) = job.left.dims();
     let p = job.params;
     let (nd, r) = (lanes(p.ndisp), p.block as isize / 2);
     let clamp_y = |y: isize| y.clamp(0, h as isize - 1) as usize;
     let colsum = &mut band.colsum[..w * nd];
     let hsum = &mut band.hsum[..nd];
+    let (right_best, right_lane) = (&mut band.right_best, &mut band.right_lane);
     // Prime the column sums with the window rows of the band's first row.
     colsum.fill(0);
     for dy in -r..=r {
@@ -237,19 +291,38 @@ unsafe fn band_with<K: LaneOps>(job: &Job, band: &mut Band, out: &mut [f32]) {
             // SAFETY: as above.
             unsafe { K::add_sub(hsum, col(dx), None) };
         }
+        right_best.fill(u16::MAX);
         for (x, d) in out_row.iter_mut().enumerate() {
             if x > 0 {
                 let x = x as isize;
                 // SAFETY: as above.
                 unsafe { K::add_sub(hsum, col(x + r), Some(col(x - r - 1))) };
             }
-            *d = if x < p.min_disp {
-                f32::INFINITY
-            } else {
-                let valid = p.ndisp.min(x - p.min_disp + 1);
+            if x < p.min_disp {
+                *d = f32::INFINITY;
+                continue;
+            }
+            let valid = p.ndisp.min(x - p.min_disp + 1);
+            // SAFETY: as above.
+            *d = winner(hsum, valid, unsafe { K::argmin(hsum, valid) }, p);
+            if right.is_some() {
+                // Lane k is the right pixel x − d_min − k, at W − 1 − that.
+                let at = w - 1 - (x - p.min_disp);
+                let (best, lane) = (&mut right_best[at..at + nd], &mut right_lane[at..at + nd]);
                 // SAFETY: as above.
-                winner(hsum, valid, unsafe { K::argmin(hsum, valid) }, p)
-            };
+                unsafe { K::min_update(best, lane, hsum, valid) };
+            }
+        }
+        if let Some(right) = right.as_deref_mut() {
+            let row = &mut right[i * w..(i + 1) * w];
+            for (xr, d) in row.iter_mut().enumerate() {
+                let at = w - 1 - xr;
+                *d = if right_best[at] == u16::MAX {
+                    f32::INFINITY
+                } else {
+                    (p.min_disp + right_lane[at] as usize) as f32
+                };
+            }
         }
     }
 }
@@ -394,6 +467,41 @@ mod tests {
         m.compute_into(&l, &r, &p, &mut a);
         m.compute_into(&l, &r, &p, &mut b);
         assert_eq!(a, b);
+    }
+
+    #[test]
+    fn right_map_equals_matching_the_mirrored_pair_inside() {
+        let (w, h) = (90, 30);
+        let right = image(w, h, 3);
+        let left = GrayImage::from_fn(w, h, |x, y| right.get(x.saturating_sub(5 + y % 3), y));
+        let p = WtaParams {
+            min_disp: 1,
+            ndisp: 20,
+            block: 5,
+            uniqueness: 0,
+            subpixel: false,
+        };
+        let mirrored = {
+            let (fl, fr) = (crate::refine::flip(&right), crate::refine::flip(&left));
+            let mut d = DisparityMap::new(w, h, 0.0);
+            WtaMatcher::new().compute_into(&fl, &fr, &p, &mut d);
+            crate::refine::flip(&d)
+        };
+        for mut matcher in [WtaMatcher::new(), WtaMatcher::portable()] {
+            let (mut l, mut r) = (DisparityMap::new(w, h, 0.0), DisparityMap::new(w, h, 0.0));
+            matcher.compute_both_into(&left, &right, &p, &mut l, &mut r);
+            let mut plain = DisparityMap::new(w, h, 0.0);
+            matcher.compute_into(&left, &right, &p, &mut plain);
+            assert_eq!(l, plain);
+            // Windows that stay inside both views on both sides agree.
+            for y in 0..h {
+                for x in 3..w - 3 - 21 {
+                    assert_eq!(r.get(x, y), mirrored.get(x, y), "({x}, {y})");
+                }
+                // No left pixel lies right of the last right columns' match.
+                assert_eq!(r.get(w - 1, y), f32::INFINITY);
+            }
+        }
     }
 
     proptest! {
