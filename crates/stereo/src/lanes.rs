@@ -83,10 +83,10 @@ impl LaneOps for Portable {
     #[inline(always)]
     unsafe fn min_update(best: &mut [u16], which: &mut [u16], costs: &[u16], valid: usize) {
         let lanes = best.iter_mut().zip(which.iter_mut()).zip(&costs[..valid]);
+        // Unconditional stores of selected values, so that it vectorises.
         for (((b, w), &c), i) in lanes.zip(0u16..) {
-            if c < *b {
-                (*b, *w) = (c, i);
-            }
+            let take = c < *b;
+            (*b, *w) = if take { (c, i) } else { (*b, *w) };
         }
     }
 }

@@ -23,6 +23,7 @@
 use rayon::prelude::*;
 use stereolink_image::{DisparityMap, GrayImage};
 
+use crate::lanes::{LaneOps, Portable};
 use crate::refine::{parabola, Raw};
 use crate::{MatchSpec, StereoError};
 
@@ -511,20 +512,23 @@ fn select(vol: &Volume, sum: &[u16], subpixel: bool) -> Raw {
                 }
                 *out = d;
             }
-            for (xr, out) in rrow.iter_mut().enumerate() {
-                let mut best = (u16::MAX, usize::MAX);
-                for k in 0..nd {
-                    let x = xr + vol.min_disp + k;
-                    if x >= w {
-                        break;
-                    }
-                    let c = s_row[x * nd + k];
-                    if c < best.0 {
-                        best = (c, k);
-                    }
+            // The right pixel x − d_min − k costs what left x does at lane
+            // k: a running minimum per right pixel, kept at W − 1 − xr so
+            // that the lanes of one left pixel are contiguous.
+            let (mut best, mut lane) = (vec![u16::MAX; w + nd], vec![0u16; w + nd]);
+            for x in vol.min_disp..w {
+                let at = w - 1 - (x - vol.min_disp);
+                let costs = &s_row[x * nd..(x + 1) * nd];
+                let valid = nd.min(x - vol.min_disp + 1);
+                // SAFETY: the portable lane operations need no special instructions.
+                unsafe {
+                    Portable::min_update(&mut best[at..], &mut lane[at..], costs, valid);
                 }
-                if best.1 != usize::MAX {
-                    *out = (vol.min_disp + best.1) as f32;
+            }
+            for (xr, out) in rrow.iter_mut().enumerate() {
+                let at = w - 1 - xr;
+                if best[at] != u16::MAX {
+                    *out = (vol.min_disp + lane[at] as usize) as f32;
                 }
             }
         });
