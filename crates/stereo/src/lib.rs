@@ -190,6 +190,12 @@ impl MatchSpec {
         if height == 0 {
             return Err(StereoError::Parameter("the image has no rows".into()));
         }
+        if self.refine.median > 15 {
+            return Err(StereoError::Parameter(format!(
+                "median filter size {} is larger than 15",
+                self.refine.median
+            )));
+        }
         self.sgm.validate()?;
         self.line_growing.validate()
     }
@@ -309,6 +315,12 @@ mod tests {
             compute_disparity(&s.left, &s.right, &spec),
             Err(StereoError::BlockSize(0))
         );
+        spec.block = 5;
+        spec.refine.median = 17;
+        assert!(matches!(
+            compute_disparity(&s.left, &s.right, &spec),
+            Err(StereoError::Parameter(_))
+        ));
         let spec = MatchSpec::new(Algorithm::Sgm, 0, 200).unwrap();
         assert!(matches!(
             compute_disparity(&s.left, &s.right, &spec),

@@ -21,6 +21,9 @@ const CHUNK: usize = 8;
 /// odd by rounding down to `2·(size/2) + 1`); for an even count of valid
 /// pixels the upper of the two middle values. Invalid pixels stay invalid.
 /// Rows run in parallel.
+///
+/// # Panics
+/// If `size` is larger than 15 (checked by [`crate::MatchSpec::validate`]).
 pub fn median(map: &DisparityMap, size: usize) -> DisparityMap {
     let (w, h) = map.dims();
     let r = size / 2;
@@ -29,7 +32,14 @@ pub fn median(map: &DisparityMap, size: usize) -> DisparityMap {
         return out;
     }
     let n = 2 * r + 1;
-    let network = selection_network(n * n, n * n / 2);
+    assert!(n <= 15, "median window {size} is larger than 15");
+    let built;
+    let network = if n == 5 {
+        &MEDIAN_5X5
+    } else {
+        built = Box::new(selection_network(n * n, n * n / 2));
+        &*built
+    };
     let keys: Vec<u32> = map
         .as_slice()
         .iter()
@@ -45,7 +55,7 @@ pub fn median(map: &DisparityMap, size: usize) -> DisparityMap {
                 dims: (w, h),
                 y,
                 r,
-                network: &network,
+                network,
             };
             if avx2 {
                 #[cfg(target_arch = "x86_64")]
@@ -66,7 +76,7 @@ struct RowJob<'a> {
     dims: (usize, usize),
     y: usize,
     r: usize,
-    network: &'a [(usize, usize)],
+    network: &'a Network,
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -78,13 +88,28 @@ unsafe fn filter_row_avx2(job: &RowJob, row: &mut [f32]) {
 /// Replaces the valid pixels of `row` by their window medians.
 #[inline(always)]
 fn filter_row(job: &RowJob, row: &mut [f32]) {
-    let n = 2 * job.r + 1;
-    let mut lanes = vec![[0u32; CHUNK]; n * n];
+    if job.r == 2 {
+        // Constant network and size: unrolled, indices resolved.
+        filter_row_with(job, row, MEDIAN_5X5.pairs(), &mut [[0; CHUNK]; 25]);
+    } else {
+        let n = 2 * job.r + 1;
+        filter_row_with(job, row, job.network.pairs(), &mut vec![[0; CHUNK]; n * n]);
+    }
+}
+
+#[inline(always)]
+fn filter_row_with(
+    job: &RowJob,
+    row: &mut [f32],
+    network: &[(u8, u8)],
+    lanes: &mut [[u32; CHUNK]],
+) {
+    let middle = lanes.len() / 2;
     for x in (0..job.dims.0).step_by(CHUNK) {
-        gather(job.keys, job.dims, (x, job.y), job.r, &mut lanes);
-        apply(job.network, &mut lanes);
+        gather(job.keys, job.dims, (x, job.y), job.r, lanes);
+        apply(network, lanes);
         let row = &mut row[x..(x + CHUNK).min(job.dims.0)];
-        for (o, &key) in row.iter_mut().zip(&lanes[n * n / 2]) {
+        for (o, &key) in row.iter_mut().zip(&lanes[middle]) {
             if o.is_finite() {
                 *o = from_order_key(key);
             }
@@ -166,53 +191,93 @@ fn from_order_key(key: u32) -> f32 {
     })
 }
 
-/// The comparators `(i, j)`, `i < j`, of Batcher's odd–even merge sort of
-/// `n` values that output `out` of the sorted order depends on.
+/// Room for the comparators of any window up to 15×15 (Batcher's sort of
+/// 256 inputs has 3839).
+const MAX_COMPARATORS: usize = 4096;
+
+/// A comparator network: pairs `(i, j)`, `i < j`, each putting the smaller
+/// of elements `i` and `j` at `i`.
+pub(crate) struct Network {
+    pairs: [(u8, u8); MAX_COMPARATORS],
+    len: usize,
+}
+
+impl Network {
+    fn pairs(&self) -> &[(u8, u8)] {
+        &self.pairs[..self.len]
+    }
+}
+
+/// The selection network of the 5×5 median, built at compile time so that
+/// the compiler can unroll it into straight register code.
+static MEDIAN_5X5: Network = selection_network(25, 12);
+
+/// The comparators of Batcher's odd–even merge sort of `n ≤ 256` values
+/// that output `out` of the sorted order depends on.
 ///
 /// The sort is built for the next power of two; the missing inputs act as
 /// `+∞` at the top indices, where every comparator touching them is a no-op,
 /// so those comparators are dropped. Walking backwards from `out` then keeps
-/// only comparators that feed it.
-fn selection_network(n: usize, out: usize) -> Vec<(usize, usize)> {
+/// only comparators that feed it. (A `const fn`, hence the plain loops.)
+const fn selection_network(n: usize, out: usize) -> Network {
+    assert!(n <= 256 && out < n);
     let size = n.next_power_of_two();
-    let mut sort = Vec::new();
+    let mut sort = [(0u8, 0u8); MAX_COMPARATORS];
+    let mut len = 0;
     let mut p = 1;
     while p < size {
         let mut k = p;
         while k >= 1 {
-            for j in (k % p..size - k).step_by(2 * k) {
-                for i in 0..k.min(size - j - k) {
+            let mut j = k % p;
+            while j + k < size {
+                let mut i = 0;
+                while i < k && i + j + k < size {
                     let (a, b) = (i + j, i + j + k);
                     if a / (2 * p) == b / (2 * p) && b < n {
-                        sort.push((a, b));
+                        sort[len] = (a as u8, b as u8);
+                        len += 1;
                     }
+                    i += 1;
                 }
+                j += 2 * k;
             }
             k /= 2;
         }
         p *= 2;
     }
-    let mut needed = vec![false; n];
+    let mut needed = [false; 256];
     needed[out] = true;
-    let mut kept: Vec<_> = sort
-        .into_iter()
-        .rev()
-        .filter(|&(a, b)| {
-            let keep = needed[a] || needed[b];
-            needed[a] |= keep;
-            needed[b] |= keep;
-            keep
-        })
-        .collect();
-    kept.reverse();
-    kept
+    let mut net = Network {
+        pairs: [(0, 0); MAX_COMPARATORS],
+        len: 0,
+    };
+    // Backwards, keeping what feeds a needed output; then reversed in place.
+    while len > 0 {
+        len -= 1;
+        let (a, b) = sort[len];
+        if needed[a as usize] || needed[b as usize] {
+            needed[a as usize] = true;
+            needed[b as usize] = true;
+            net.pairs[net.len] = (a, b);
+            net.len += 1;
+        }
+    }
+    let mut i = 0;
+    while i < net.len / 2 {
+        let t = net.pairs[i];
+        net.pairs[i] = net.pairs[net.len - 1 - i];
+        net.pairs[net.len - 1 - i] = t;
+        i += 1;
+    }
+    net
 }
 
 /// Runs the comparators on [`CHUNK`] windows at once: lane `l` of every
 /// `lanes[k]` is element `k` of window `l`.
 #[inline(always)]
-fn apply(network: &[(usize, usize)], lanes: &mut [[u32; CHUNK]]) {
+fn apply(network: &[(u8, u8)], lanes: &mut [[u32; CHUNK]]) {
     for &(i, j) in network {
+        let (i, j) = (i as usize, j as usize);
         let (a, b) = (lanes[i], lanes[j]);
         for l in 0..CHUNK {
             lanes[i][l] = a[l].min(b[l]);
@@ -246,16 +311,17 @@ mod tests {
         for n in [1, 2, 3, 9, 10, 13] {
             for out in 0..n {
                 let net = selection_network(n, out);
+                let net = net.pairs();
                 for bits in 0u32..1 << n {
                     let mut lanes: Vec<[u32; CHUNK]> =
                         (0..n).map(|k| [bits >> k & 1; CHUNK]).collect();
-                    apply(&net, &mut lanes);
+                    apply(net, &mut lanes);
                     let zeros = n - bits.count_ones() as usize;
                     assert_eq!(lanes[out][0], u32::from(out >= zeros), "n {n} out {out}");
                 }
             }
         }
-        assert_eq!(selection_network(25, 12).len(), 113);
+        assert_eq!(MEDIAN_5X5.pairs().len(), 113);
     }
 
     #[test]
