@@ -77,10 +77,17 @@ fn candidates(
     (list, n, pattern)
 }
 
+/// How many more pixels a new shift must predict than the block's current
+/// one to be worth its side information (a new shift costs about nine bits).
+const SHIFT_CHANGE_GAIN: usize = 3;
+
 /// Per-block shifts that best predict row `y` of `map` from `reference`.
-/// A block keeps the shift of the block above unless another shift predicts
-/// at least two more pixels, so flat areas (where every shift ties) cost
-/// one cheap "same shift" decision per block.
+///
+/// Only pixels that the causal neighbours do not already give (different
+/// from W or from N) count: elsewhere every shift is as good. A block keeps
+/// the shift of the block above unless another predicts more than
+/// [`SHIFT_CHANGE_GAIN`] more of those pixels, so the shifts change only
+/// where it pays.
 fn best_shifts(
     map: &LabelMap,
     reference: &LabelMap,
@@ -91,20 +98,30 @@ fn best_shifts(
 ) {
     let w = map.width();
     let (row, refrow) = (map.row(y), reference.row(y));
+    let up = (y > 0).then(|| map.row(y - 1));
+    let surprising: Vec<usize> = (0..w)
+        .filter(|&x| (x > 0 && row[x] != row[x - 1]) || up.is_some_and(|u| u[x] != row[x]))
+        .collect();
     out.clear();
-    let hits = |x0: usize, x1: usize, s: usize| {
-        (x0..x1)
-            .filter(|&x| x + s < w && row[x] == refrow[x + s])
-            .count()
-    };
     for (b, x0) in (0..w).step_by(BLOCK).enumerate() {
         let x1 = (x0 + BLOCK).min(w);
+        let lo = surprising.partition_point(|&x| x < x0);
+        let hi = surprising.partition_point(|&x| x < x1);
+        let pixels = &surprising[lo..hi];
+        let hits = |s: usize| {
+            pixels
+                .iter()
+                .filter(|&&x| x + s < w && row[x] == refrow[x + s])
+                .count()
+        };
         let keep = above.get(b).map_or(0, |&s| s as usize);
-        let mut best = (hits(x0, x1, keep), keep);
-        for s in 0..=max_shift.min(w - 1) {
-            let h = hits(x0, x1, s);
-            if h > best.0 + 1 {
-                best = (h, s);
+        let mut best = (hits(keep), keep);
+        if !pixels.is_empty() {
+            for s in 0..=max_shift.min(w - 1) {
+                let h = hits(s);
+                if h > best.0 + SHIFT_CHANGE_GAIN {
+                    best = (h, s);
+                }
             }
         }
         out.push(best.1 as u8);
