@@ -87,7 +87,7 @@ const SHIFT_CHANGE_GAIN: usize = 3;
 /// from W or from N) count: elsewhere every shift is as good. A block keeps
 /// the shift of the block above unless another predicts more than
 /// [`SHIFT_CHANGE_GAIN`] more of those pixels, so the shifts change only
-/// where it pays.
+/// where it pays; the first row takes the best shift of each block.
 fn best_shifts(
     map: &LabelMap,
     reference: &LabelMap,
@@ -114,17 +114,19 @@ fn best_shifts(
                 .filter(|&&x| x + s < w && row[x] == refrow[x + s])
                 .count()
         };
-        let keep = above.get(b).map_or(0, |&s| s as usize);
-        let mut best = (hits(keep), keep);
-        if !pixels.is_empty() {
-            for s in 0..=max_shift.min(w - 1) {
-                let h = hits(s);
-                if h > best.0 + SHIFT_CHANGE_GAIN {
-                    best = (h, s);
-                }
-            }
-        }
-        out.push(best.1 as u8);
+        // Without a block above (the first row) every shift is sent anyway.
+        let (keep, margin) = match above.get(b) {
+            Some(&s) => (s as usize, SHIFT_CHANGE_GAIN),
+            None => (0, 0),
+        };
+        let kept = hits(keep);
+        // The best shift (the smallest among equals) replaces the kept one
+        // only if it predicts enough more.
+        let best = (0..=max_shift.min(w - 1))
+            .map(|s| (hits(s), s))
+            .max_by_key(|&(h, s)| (h, std::cmp::Reverse(s)))
+            .filter(|&(h, _)| h > kept + margin);
+        out.push(best.map_or(keep, |(_, s)| s) as u8);
     }
 }
 
