@@ -8,7 +8,7 @@
 //!  +------+---+---+------+----------+------------------+----------+----------+------ ...
 //! ```
 
-use stereolink_image::{Calibration, IndexedImage, Rgb};
+use stereolink_image::{Calibration, IndexedImage, LabelMap, Rgb, RgbImage};
 
 use crate::{
     labels, rgb, CodecError, DepthReport, Limits, Message, ReportLevel, SegmentationKind,
@@ -317,6 +317,32 @@ pub fn decode_header(bytes: &[u8]) -> Result<Header, CodecError> {
 
 /// Decodes one message; the bytes must hold exactly one header and its body.
 pub fn decode(bytes: &[u8], limits: &Limits) -> Result<(Header, Message), CodecError> {
+    let (header, body) = parse(bytes, limits)?;
+    let msg = match body {
+        Body::StereoFrame(f) => Message::StereoFrame(Box::new(f.decode()?)),
+        Body::DepthReport(r) => Message::DepthReport(r),
+        Body::Control(c) => Message::Control(c.to_vec()),
+    };
+    Ok((header, msg))
+}
+
+/// A message checked and parsed, its views not yet decoded (they borrow
+/// the message bytes).
+#[derive(Debug)]
+pub enum Body<'a> {
+    /// A stereo pair; decode its views with [`FrameRef::decode`] or, into
+    /// buffers kept from frame to frame, [`FrameDecoder`].
+    StereoFrame(FrameRef<'a>),
+    /// A depth report.
+    DepthReport(DepthReport),
+    /// A control message's bytes.
+    Control(&'a [u8]),
+}
+
+/// Checks a message (header, limits, CRC, structure) and parses its body
+/// without decoding the views: every check of [`decode`] except those of
+/// the coded views, which happen when they are decoded.
+pub fn parse<'a>(bytes: &'a [u8], limits: &Limits) -> Result<(Header, Body<'a>), CodecError> {
     let header = decode_header(bytes)?;
     check("body length", header.body_len as usize, limits.max_body)?;
     let crc = u32::from_le_bytes(
@@ -343,19 +369,69 @@ pub fn decode(bytes: &[u8], limits: &Limits) -> Result<(Header, Message), CodecE
         return Err(CodecError::Crc);
     }
     let mut r = Reader { data: body, pos: 0 };
-    let msg = match header.kind {
-        kind::STEREO_FRAME => Message::StereoFrame(Box::new(decode_frame(&mut r, limits)?)),
-        kind::DEPTH_REPORT => Message::DepthReport(decode_report(&mut r, limits)?),
-        kind::CONTROL => Message::Control(body.to_vec()),
+    let parsed = match header.kind {
+        kind::STEREO_FRAME => Body::StereoFrame(parse_frame(&mut r, limits)?),
+        kind::DEPTH_REPORT => Body::DepthReport(decode_report(&mut r, limits)?),
+        kind::CONTROL => return Ok((header, Body::Control(body))),
         other => return Err(CodecError::UnknownType(other)),
     };
-    if header.kind != kind::CONTROL && r.pos != body.len() {
+    if r.pos != body.len() {
         return Err(CodecError::Invalid("trailing bytes in the body".into()));
     }
-    Ok((header, msg))
+    Ok((header, parsed))
 }
 
-fn decode_frame(r: &mut Reader, limits: &Limits) -> Result<StereoFrame, CodecError> {
+/// A stereo frame parsed but not decoded: its fields, and each view's
+/// palette and coded payload as slices of the message.
+#[derive(Clone, Debug)]
+pub struct FrameRef<'a> {
+    /// View width.
+    pub width: usize,
+    /// View height.
+    pub height: usize,
+    /// Segmentation method.
+    pub kind: SegmentationKind,
+    /// Levels (classes) requested.
+    pub levels: u8,
+    /// The method's parameters.
+    pub params: &'a str,
+    /// Per-channel thresholds, for the thresholding methods.
+    pub thresholds: Option<[&'a [u8]; 3]>,
+    /// Calibration of the camera pair.
+    pub calibration: Option<Calibration>,
+    /// Left view.
+    pub left: ViewRef<'a>,
+    /// Right view.
+    pub right: ViewRef<'a>,
+}
+
+/// One coded view: how it is coded, its palette and its payload.
+#[derive(Clone, Copy, Debug)]
+pub struct ViewRef<'a> {
+    coding: u8,
+    /// The palette, three bytes (R, G, B) per colour.
+    palette: &'a [u8],
+    payload: &'a [u8],
+}
+
+impl ViewRef<'_> {
+    /// Number of palette colours (0 for an RGB view).
+    pub fn colours(&self) -> usize {
+        self.palette.len() / 3
+    }
+
+    /// Colour `i` of the palette.
+    fn colour(&self, i: u16) -> Rgb {
+        let c = &self.palette[3 * i as usize..3 * i as usize + 3];
+        [c[0], c[1], c[2]]
+    }
+
+    fn palette(&self) -> Vec<Rgb> {
+        (0..self.colours() as u16).map(|i| self.colour(i)).collect()
+    }
+}
+
+fn parse_frame<'a>(r: &mut Reader<'a>, limits: &Limits) -> Result<FrameRef<'a>, CodecError> {
     let (w, h) = (r.u16("frame size")? as usize, r.u16("frame size")? as usize);
     check("view size (pixels)", w * h, limits.max_pixels)?;
     let kind = r.u8("segmentation kind")?;
@@ -363,15 +439,15 @@ fn decode_frame(r: &mut Reader, limits: &Limits) -> Result<StereoFrame, CodecErr
         .ok_or_else(|| CodecError::Invalid(format!("segmentation kind {kind}")))?;
     let levels = r.u8("levels")?;
     let n = r.u8("params")? as usize;
-    let params = String::from_utf8(r.take(n, "params")?.to_vec())
+    let params = std::str::from_utf8(r.take(n, "params")?)
         .map_err(|_| CodecError::Invalid("params are not UTF-8".into()))?;
     let thresholds = match r.u8("thresholds flag")? {
         0 => None,
         1 => {
-            let mut t: [Vec<u8>; 3] = Default::default();
+            let mut t: [&[u8]; 3] = [&[]; 3];
             for ch in &mut t {
                 let n = r.u8("thresholds")? as usize;
-                *ch = r.take(n, "thresholds")?.to_vec();
+                *ch = r.take(n, "thresholds")?;
             }
             Some(t)
         }
@@ -390,13 +466,16 @@ fn decode_frame(r: &mut Reader, limits: &Limits) -> Result<StereoFrame, CodecErr
         }
         f => return Err(CodecError::Invalid(format!("calibration flag {f}"))),
     };
-    let left = decode_view(r, w, h, None, limits)?;
-    let reference = match &left {
-        View::Indexed(l) => Some(l.clone()),
-        View::Rgb(_) => None,
-    };
-    let right = decode_view(r, w, h, reference.as_ref(), limits)?;
-    Ok(StereoFrame {
+    let left = parse_view(r, limits)?;
+    let right = parse_view(r, limits)?;
+    if right.coding == coding::LABELS_CONDITIONED && left.coding == coding::RGB {
+        return Err(CodecError::Invalid(
+            "conditioned view without an indexed left view".into(),
+        ));
+    }
+    Ok(FrameRef {
+        width: w,
+        height: h,
         kind,
         levels,
         params,
@@ -407,61 +486,138 @@ fn decode_frame(r: &mut Reader, limits: &Limits) -> Result<StereoFrame, CodecErr
     })
 }
 
-fn decode_view(
-    r: &mut Reader,
-    w: usize,
-    h: usize,
-    left: Option<&IndexedImage>,
-    limits: &Limits,
-) -> Result<View, CodecError> {
+fn parse_view<'a>(r: &mut Reader<'a>, limits: &Limits) -> Result<ViewRef<'a>, CodecError> {
     let code = r.u8("view coding")?;
     let n = r.u32("palette")? as usize;
     check("palette", n, limits.max_palette)?;
-    let palette: Vec<Rgb> = r
-        .take(n * 3, "palette")?
-        .chunks_exact(3)
-        .map(|c| [c[0], c[1], c[2]])
-        .collect();
+    let palette = r.take(n * 3, "palette")?;
     let len = r.u32("view payload")? as usize;
     let payload = r.take(len, "view payload")?;
-    let indexed = |labels| {
-        IndexedImage::new(labels, palette.clone()).map_err(|e| CodecError::Invalid(e.to_string()))
-    };
     match code {
-        coding::LABELS if n > 0 => Ok(View::Indexed(indexed(labels::decode(
-            payload, w, h, n, None,
-        )?)?)),
-        coding::LABELS_CONDITIONED if n > 0 => {
-            let left = left.ok_or_else(|| {
-                CodecError::Invalid("conditioned view without an indexed left view".into())
-            })?;
-            // The label table: one u16 per left label, each below this view's palette size.
-            let (table, coded) = payload
-                .split_at_checked(2 * left.palette().len())
-                .ok_or(CodecError::Truncated("label table"))?;
-            let table: Vec<u16> = table
-                .chunks_exact(2)
-                .map(|c| u16::from_le_bytes([c[0], c[1]]))
-                .collect();
-            if let Some(&bad) = table.iter().find(|&&t| t as usize >= n) {
-                return Err(CodecError::LabelOutOfRange {
-                    label: bad as u32,
-                    labels: n,
-                });
-            }
-            let predicted = left.labels().map(|l| table[l as usize]);
-            Ok(View::Indexed(indexed(labels::decode(
-                coded,
-                w,
-                h,
-                n,
-                Some(&predicted),
-            )?)?))
+        coding::LABELS | coding::LABELS_CONDITIONED if n > 0 => {}
+        coding::RGB => {}
+        other => {
+            return Err(CodecError::Invalid(format!(
+                "view coding {other} with a palette of {n}"
+            )))
         }
-        coding::RGB => Ok(View::Rgb(rgb::decode(payload, w, h)?)),
-        other => Err(CodecError::Invalid(format!(
-            "view coding {other} with a palette of {n}"
-        ))),
+    }
+    Ok(ViewRef {
+        coding: code,
+        palette,
+        payload,
+    })
+}
+
+impl FrameRef<'_> {
+    /// Decodes both views into an owned [`StereoFrame`].
+    pub fn decode(&self) -> Result<StereoFrame, CodecError> {
+        let mut d = FrameDecoder::default();
+        d.decode_labels(self)?;
+        let view = |v: &ViewRef, labels: LabelMap, rgb: RgbImage| -> Result<View, CodecError> {
+            Ok(match v.coding {
+                coding::RGB => View::Rgb(rgb),
+                _ => View::Indexed(
+                    IndexedImage::new(labels, v.palette())
+                        .map_err(|e| CodecError::Invalid(e.to_string()))?,
+                ),
+            })
+        };
+        Ok(StereoFrame {
+            kind: self.kind,
+            levels: self.levels,
+            params: self.params.to_owned(),
+            thresholds: self.thresholds.map(|t| t.map(<[u8]>::to_vec)),
+            calibration: self.calibration,
+            left: view(&self.left, d.labels.0, d.rgb.0)?,
+            right: view(&self.right, d.labels.1, d.rgb.1)?,
+        })
+    }
+}
+
+/// Decodes frame after frame into buffers it keeps: the label maps, the
+/// RGB views, the stereo prediction and the models. After the first frame
+/// of a size it allocates nothing.
+#[derive(Default)]
+pub struct FrameDecoder {
+    labels: (LabelMap, LabelMap),
+    rgb: (RgbImage, RgbImage),
+    predicted: LabelMap,
+    label_decoder: labels::LabelDecoder,
+    rgb_decoder: rgb::RgbDecoder,
+}
+
+impl FrameDecoder {
+    /// Decodes both views of `frame` as RGB images, then in [`views`](Self::views).
+    pub fn decode_rgb(&mut self, frame: &FrameRef) -> Result<(), CodecError> {
+        self.decode_labels(frame)?;
+        for (view, labels, rgb) in [
+            (&frame.left, &self.labels.0, &mut self.rgb.0),
+            (&frame.right, &self.labels.1, &mut self.rgb.1),
+        ] {
+            if view.coding != coding::RGB {
+                labels.map_into(rgb, |l| view.colour(l));
+            }
+        }
+        Ok(())
+    }
+
+    /// The views of the last frame [`decode_rgb`](Self::decode_rgb) decoded.
+    pub fn views(&self) -> (&RgbImage, &RgbImage) {
+        (&self.rgb.0, &self.rgb.1)
+    }
+
+    /// Decodes each view: indexed views into the label maps, RGB views into
+    /// the RGB images.
+    fn decode_labels(&mut self, frame: &FrameRef) -> Result<(), CodecError> {
+        let (w, h) = (frame.width, frame.height);
+        for (i, view) in [frame.left, frame.right].iter().enumerate() {
+            let (labels, rgb) = if i == 0 {
+                (&mut self.labels.0, &mut self.rgb.0)
+            } else {
+                (&mut self.labels.1, &mut self.rgb.1)
+            };
+            let n = view.colours();
+            match view.coding {
+                coding::RGB => {
+                    rgb.reset(w, h, [0; 3]);
+                    self.rgb_decoder.decode_into(view.payload, rgb)?;
+                }
+                coding::LABELS => {
+                    labels.reset(w, h, 0);
+                    self.label_decoder
+                        .decode_into(view.payload, n, None, labels)?;
+                }
+                _ => {
+                    // Conditioned: the label table (one u16 per left label,
+                    // each below this view's palette size), then the labels
+                    // predicted through it from the left view.
+                    let (table, coded) = view
+                        .payload
+                        .split_at_checked(2 * frame.left.colours())
+                        .ok_or(CodecError::Truncated("label table"))?;
+                    let entry = |l: u16| {
+                        let at = 2 * l as usize;
+                        u16::from_le_bytes([table[at], table[at + 1]])
+                    };
+                    if let Some(bad) = (0..frame.left.colours() as u16)
+                        .map(entry)
+                        .find(|&t| t as usize >= n)
+                    {
+                        return Err(CodecError::LabelOutOfRange {
+                            label: bad as u32,
+                            labels: n,
+                        });
+                    }
+                    self.labels.0.map_into(&mut self.predicted, entry);
+                    let right = &mut self.labels.1;
+                    right.reset(w, h, 0);
+                    self.label_decoder
+                        .decode_into(coded, n, Some(&self.predicted), right)?;
+                }
+            }
+        }
+        Ok(())
     }
 }
 

@@ -34,15 +34,29 @@ struct Model {
 
 impl Model {
     fn new(n_labels: usize) -> Self {
-        let bits = usize::BITS - (n_labels.max(1) - 1).leading_zeros();
-        Model {
-            flags: vec![Prob::default(); CANDIDATES * PATTERNS],
-            explicit: BitTree::new(bits),
+        let mut model = Model {
+            flags: Vec::new(),
+            explicit: BitTree::new(0),
             same_shift: Prob::default(),
             shift: BitTree::new(8),
-        }
+        };
+        model.reset(n_labels);
+        model
+    }
+
+    /// Back to the initial state for `n_labels` labels, reusing the storage.
+    fn reset(&mut self, n_labels: usize) {
+        let bits = usize::BITS - (n_labels.max(1) - 1).leading_zeros();
+        self.flags.clear();
+        self.flags.resize(CANDIDATES * PATTERNS, Prob::default());
+        self.explicit.reset(bits);
+        self.same_shift = Prob::default();
+        self.shift.reset(8);
     }
 }
+
+/// Stands for a neighbour outside the map (or no prediction).
+const NONE: u32 = u32::MAX;
 
 /// The candidates of pixel (x, y), in coding order, and the context pattern.
 #[inline(always)]
@@ -53,24 +67,36 @@ fn candidates(
     y: usize,
     predicted: Option<u16>,
 ) -> ([u16; CANDIDATES], usize, usize) {
-    let at = |dx: isize, dy: isize| {
-        let (xx, yy) = (x as isize + dx, y as isize + dy);
-        (xx >= 0 && yy >= 0 && (xx as usize) < w).then(|| map[yy as usize * w + xx as usize])
+    let (wv, nv, nw, ne) = if y > 0 && x > 0 && x + 1 < w {
+        // Inside: direct reads (most pixels).
+        let up = &map[(y - 1) * w + x - 1..(y - 1) * w + x + 2];
+        let [nw, nv, ne] = [up[0], up[1], up[2]].map(u32::from);
+        (u32::from(map[y * w + x - 1]), nv, nw, ne)
+    } else {
+        let at = |dx: isize, dy: isize| {
+            let (xx, yy) = (x as isize + dx, y as isize + dy);
+            if xx >= 0 && yy >= 0 && (xx as usize) < w {
+                u32::from(map[yy as usize * w + xx as usize])
+            } else {
+                NONE
+            }
+        };
+        (at(-1, 0), at(0, -1), at(-1, -1), at(1, -1))
     };
-    let (wv, nv, nw, ne) = (at(-1, 0), at(0, -1), at(-1, -1), at(1, -1));
-    let eq = |a: Option<u16>, b: Option<u16>| (a.is_some() && a == b) as usize;
+    let p = predicted.map_or(NONE, u32::from);
+    let eq = |a: u32, b: u32| (a == b && a != NONE) as usize;
     let pattern = eq(wv, nv)
         | eq(nv, ne) << 1
         | eq(wv, nw) << 2
         | eq(nv, nw) << 3
-        | (predicted.is_some() as usize) << 4
-        | eq(predicted, wv) << 5
-        | eq(predicted, nv) << 6;
+        | ((p != NONE) as usize) << 4
+        | eq(p, wv) << 5
+        | eq(p, nv) << 6;
     let mut list = [0u16; CANDIDATES];
     let mut n = 0;
-    for c in [wv, predicted, nv, ne, nw].into_iter().flatten() {
-        if !list[..n].contains(&c) {
-            list[n] = c;
+    for c in [wv, p, nv, ne, nw] {
+        if c != NONE && !list[..n].contains(&(c as u16)) {
+            list[n] = c as u16;
             n += 1;
         }
     }
@@ -195,65 +221,96 @@ pub fn decode(
     Ok(out)
 }
 
-/// [`decode`] into a caller-provided map (its size gives `w`×`h`), so a
-/// receiver decoding frame after frame allocates nothing per pixel.
+/// [`decode`] into a caller-provided map (its size gives `w`×`h`).
 pub fn decode_into(
     bytes: &[u8],
     n_labels: usize,
     reference: Option<&LabelMap>,
     out: &mut LabelMap,
 ) -> Result<(), CodecError> {
-    let (w, h) = out.dims();
-    if let Some(r) = reference {
-        if r.dims() != (w, h) {
-            return Err(CodecError::Invalid("reference view size differs".into()));
+    LabelDecoder::default().decode_into(bytes, n_labels, reference, out)
+}
+
+/// Decodes map after map with one model and buffers, so that a receiver
+/// decoding frame after frame allocates nothing once they have grown.
+pub struct LabelDecoder {
+    model: Model,
+    shifts: Vec<u8>,
+}
+
+impl Default for LabelDecoder {
+    fn default() -> Self {
+        LabelDecoder {
+            model: Model::new(1),
+            shifts: Vec::new(),
         }
     }
-    let mut model = Model::new(n_labels);
-    let mut dec = Decoder::new(bytes);
-    let mut shifts = vec![0u8; w.div_ceil(BLOCK)];
-    let data = out.as_mut_slice();
-    for y in 0..h {
-        if reference.is_some() {
-            for s in shifts.iter_mut() {
-                if !dec.bit(&mut model.same_shift) {
-                    *s = model.shift.decode(&mut dec) as u8;
-                }
+}
+
+impl LabelDecoder {
+    /// [`decode`] into a caller-provided map (its size gives `w`×`h`).
+    pub fn decode_into(
+        &mut self,
+        bytes: &[u8],
+        n_labels: usize,
+        reference: Option<&LabelMap>,
+        out: &mut LabelMap,
+    ) -> Result<(), CodecError> {
+        let (w, h) = out.dims();
+        if let Some(r) = reference {
+            if r.dims() != (w, h) {
+                return Err(CodecError::Invalid("reference view size differs".into()));
             }
         }
-        for x in 0..w {
-            let predicted = reference.and_then(|r| {
-                let xs = x + shifts[x / BLOCK] as usize;
-                (xs < w).then(|| r.get(xs, y))
-            });
-            let (list, n, pattern) = candidates(data, w, x, y, predicted);
-            let mut value = None;
-            for (i, &c) in list[..n].iter().enumerate() {
-                if dec.bit(&mut model.flags[i * PATTERNS + pattern]) {
-                    value = Some(c);
-                    break;
-                }
-            }
-            let v = match value {
-                Some(v) => v,
-                None => {
-                    let v = model.explicit.decode(&mut dec);
-                    if v as usize >= n_labels {
-                        return Err(CodecError::LabelOutOfRange {
-                            label: v,
-                            labels: n_labels,
-                        });
+        let model = &mut self.model;
+        model.reset(n_labels);
+        let mut dec = Decoder::new(bytes);
+        let shifts = &mut self.shifts;
+        shifts.clear();
+        shifts.resize(w.div_ceil(BLOCK), 0);
+        let data = out.as_mut_slice();
+        for y in 0..h {
+            if reference.is_some() {
+                for s in shifts.iter_mut() {
+                    if !dec.bit(&mut model.same_shift) {
+                        *s = model.shift.decode(&mut dec) as u8;
                     }
-                    v as u16
                 }
-            };
-            data[y * w + x] = v;
+            }
+            for x in 0..w {
+                let predicted = reference.and_then(|r| {
+                    let xs = x + shifts[x / BLOCK] as usize;
+                    (xs < w).then(|| r.get(xs, y))
+                });
+                let (list, n, pattern) = candidates(data, w, x, y, predicted);
+                let mut value = None;
+                for (i, &c) in list[..n].iter().enumerate() {
+                    if dec.bit(&mut model.flags[i * PATTERNS + pattern]) {
+                        value = Some(c);
+                        break;
+                    }
+                }
+                let v = match value {
+                    Some(v) => v,
+                    None => {
+                        let v = model.explicit.decode(&mut dec);
+                        if v as usize >= n_labels {
+                            return Err(CodecError::LabelOutOfRange {
+                                label: v,
+                                labels: n_labels,
+                            });
+                        }
+                        v as u16
+                    }
+                };
+                data[y * w + x] = v;
+            }
+            if dec.overrun() {
+                return Err(CodecError::Truncated("label stream"));
+            }
         }
-        if dec.overrun() {
-            return Err(CodecError::Truncated("label stream"));
-        }
+        Ok(())
     }
-    Ok(())
 }
 
 #[cfg(test)]

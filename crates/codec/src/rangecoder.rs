@@ -199,6 +199,13 @@ impl BitTree {
         }
     }
 
+    /// Back to the state of [`BitTree::new`]`(bits)`, reusing the storage.
+    pub fn reset(&mut self, bits: u32) {
+        self.bits = bits;
+        self.probs.clear();
+        self.probs.resize(1 << bits, Prob::default());
+    }
+
     /// Encodes `value`.
     pub fn encode(&mut self, enc: &mut Encoder, value: u32) {
         let mut node = 1usize;

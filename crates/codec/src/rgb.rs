@@ -43,6 +43,13 @@ impl Model {
             magnitude: vec![BitTree::new(7); 3 * BUCKETS],
         }
     }
+
+    /// Back to the state of [`Model::new`], reusing the storage.
+    fn reset(&mut self) {
+        self.zero.fill(Prob::default());
+        self.sign.fill(Prob::default());
+        self.magnitude.iter_mut().for_each(|t| t.reset(7));
+    }
 }
 
 fn neighbours(img: &[[u8; 3]], w: usize, x: usize, y: usize, ch: usize) -> (u8, u8, u8) {
@@ -81,7 +88,39 @@ pub fn encode(img: &RgbImage) -> Vec<u8> {
 /// Decodes a `w`×`h` image written by [`encode`].
 pub fn decode(bytes: &[u8], w: usize, h: usize) -> Result<RgbImage, CodecError> {
     let mut out = RgbImage::new(w, h, [0; 3]);
-    let mut m = Model::new();
+    decode_into(bytes, &mut out)?;
+    Ok(out)
+}
+
+/// [`decode`] into a caller-provided image (its size gives `w`×`h`).
+pub fn decode_into(bytes: &[u8], out: &mut RgbImage) -> Result<(), CodecError> {
+    RgbDecoder::default().decode_into(bytes, out)
+}
+
+/// Decodes image after image with one model, so that a receiver decoding
+/// frame after frame allocates nothing.
+pub struct RgbDecoder {
+    model: Model,
+}
+
+impl Default for RgbDecoder {
+    fn default() -> Self {
+        RgbDecoder {
+            model: Model::new(),
+        }
+    }
+}
+
+impl RgbDecoder {
+    /// [`decode`] into a caller-provided image (its size gives `w`×`h`).
+    pub fn decode_into(&mut self, bytes: &[u8], out: &mut RgbImage) -> Result<(), CodecError> {
+        self.model.reset();
+        decode_with(&mut self.model, bytes, out)
+    }
+}
+
+fn decode_with(m: &mut Model, bytes: &[u8], out: &mut RgbImage) -> Result<(), CodecError> {
+    let (w, h) = out.dims();
     let mut dec = Decoder::new(bytes);
     for y in 0..h {
         for x in 0..w {
@@ -106,7 +145,7 @@ pub fn decode(bytes: &[u8], w: usize, h: usize) -> Result<RgbImage, CodecError> 
             return Err(CodecError::Truncated("image stream"));
         }
     }
-    Ok(out)
+    Ok(())
 }
 
 #[cfg(test)]

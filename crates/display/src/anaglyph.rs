@@ -8,7 +8,7 @@
 
 use std::str::FromStr;
 
-use stereolink_image::{color::luma, Plane, RgbImage};
+use stereolink_image::{color::luma, Plane, Rgb, RgbImage};
 
 /// Anaglyph modes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
@@ -77,10 +77,31 @@ pub fn anaglyph_pixel(l: [u8; 3], r: [u8; 3], mode: Anaglyph) -> [u8; 3] {
 /// # Panics
 /// If the views differ in size.
 pub fn anaglyph(left: &RgbImage, right: &RgbImage, mode: Anaglyph) -> RgbImage {
+    let mut out = RgbImage::default();
+    anaglyph_into(left, right, mode, &mut out);
+    out
+}
+
+/// [`anaglyph`] into `out` (resized, storage reused).
+///
+/// # Panics
+/// If the views differ in size.
+pub fn anaglyph_into(left: &RgbImage, right: &RgbImage, mode: Anaglyph, out: &mut RgbImage) {
     assert_eq!(left.dims(), right.dims(), "views differ in size");
-    Plane::from_fn(left.width(), left.height(), |x, y| {
-        anaglyph_pixel(left.get(x, y), right.get(x, y), mode)
-    })
+    out.reset(left.width(), left.height(), [0; 3]);
+    let pixels = left.as_slice().iter().zip(right.as_slice());
+    // Segmented views repeat colour pairs along their rows: reuse the last.
+    let mut last: Option<(Rgb, Rgb, Rgb)> = None;
+    for (o, (&l, &r)) in out.as_mut_slice().iter_mut().zip(pixels) {
+        *o = match last {
+            Some((pl, pr, v)) if (pl, pr) == (l, r) => v,
+            _ => {
+                let v = anaglyph_pixel(l, r, mode);
+                last = Some((l, r, v));
+                v
+            }
+        };
+    }
 }
 
 /// The two views next to each other (left, then right), as the paper concatenates them.

@@ -6,6 +6,8 @@
 //! nothing once the first frame is drawn.
 
 use serde::Serialize;
+use std::fmt::Write;
+
 use stereolink_image::{colormap, DisparityMap, Rgb, RgbImage};
 
 use crate::font::{draw_text, text_width, GLYPH_H};
@@ -41,6 +43,8 @@ pub struct ScreenStatus {
 pub struct Screen {
     image: RgbImage,
     colour: RgbImage,
+    /// Scratch for the text drawn, so rendering allocates nothing.
+    text: String,
 }
 
 impl Default for Screen {
@@ -48,6 +52,7 @@ impl Default for Screen {
         Screen {
             image: RgbImage::new(SCREEN_WIDTH, SCREEN_HEIGHT, BACKGROUND),
             colour: RgbImage::new(0, 0, BACKGROUND),
+            text: String::new(),
         }
     }
 }
@@ -96,7 +101,8 @@ impl Screen {
         status: &ScreenStatus,
     ) -> &RgbImage {
         if self.colour.dims() != disparity.dims() {
-            self.colour = RgbImage::new(disparity.width(), disparity.height(), BACKGROUND);
+            self.colour
+                .reset(disparity.width(), disparity.height(), BACKGROUND);
         }
         let span = (dmax - dmin).max(f32::EPSILON);
         for (c, &d) in self
@@ -106,7 +112,7 @@ impl Screen {
             .zip(disparity.as_slice())
         {
             *c = if d.is_finite() {
-                colormap::turbo((d - dmin) / span)
+                colormap::turbo_lookup((d - dmin) / span)
             } else {
                 colormap::INVALID
             };
@@ -130,31 +136,45 @@ impl Screen {
         for y in 0..PANEL_H {
             let t = 1.0 - y as f32 / (PANEL_H - 1) as f32;
             for x in bx..bx + BAR_W {
-                img.set(x, top + y, colormap::turbo(t));
+                img.set(x, top + y, colormap::turbo_lookup(t));
             }
         }
-        let label = |v: f32| format!("{v:.0}");
-        let hi = label(dmax);
-        draw_text(img, SCREEN_WIDTH - MARGIN - text_width(&hi), top, &hi, TEXT);
-        let lo = label(dmin);
+        let text = &mut self.text;
+        text.clear();
+        let _ = write!(text, "{dmax:.0}");
         draw_text(
             img,
-            SCREEN_WIDTH - MARGIN - text_width(&lo),
+            SCREEN_WIDTH - MARGIN - text_width(text),
+            top,
+            text,
+            TEXT,
+        );
+        text.clear();
+        let _ = write!(text, "{dmin:.0}");
+        draw_text(
+            img,
+            SCREEN_WIDTH - MARGIN - text_width(text),
             top + PANEL_H - GLYPH_H,
-            &lo,
+            text,
             TEXT,
         );
         // Status area.
         let sy = top + PANEL_H + 6;
-        let opt = |v: Option<f64>, f: &dyn Fn(f64) -> String| v.map_or("--".to_string(), f);
-        let line1 = format!(
-            "FRAME {}   LINK {}   DIST {}   AXIS {}",
-            status.frame_id,
-            opt(status.link_quality, &|q| format!("{:.0}%", q * 100.0)),
-            opt(status.distance_m, &|d| format!("{d:.3} M")),
-            opt(status.axis_mm, &|a| format!("{a:.1} MM")),
-        );
-        draw_text(img, MARGIN + 2, sy, &line1, TEXT);
+        text.clear();
+        let _ = write!(text, "FRAME {}   LINK ", status.frame_id);
+        let _ = match status.link_quality {
+            Some(q) => write!(text, "{:.0}%", q * 100.0),
+            None => write!(text, "--"),
+        };
+        let _ = match status.distance_m {
+            Some(d) => write!(text, "   DIST {d:.3} M"),
+            None => write!(text, "   DIST --"),
+        };
+        let _ = match status.axis_mm {
+            Some(a) => write!(text, "   AXIS {a:.1} MM"),
+            None => write!(text, "   AXIS --"),
+        };
+        draw_text(img, MARGIN + 2, sy, text, TEXT);
         draw_text(
             img,
             MARGIN + 2,

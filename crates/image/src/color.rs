@@ -16,6 +16,11 @@ pub fn rgb_to_gray(img: &RgbImage) -> GrayImage {
     img.map(luma)
 }
 
+/// [`rgb_to_gray`] into `out` (resized, storage reused).
+pub fn rgb_to_gray_into(img: &RgbImage, out: &mut GrayImage) {
+    img.map_into(out, luma);
+}
+
 /// Replicates a gray image into three equal channels.
 pub fn gray_to_rgb(img: &GrayImage) -> RgbImage {
     img.map(|g| [g, g, g])

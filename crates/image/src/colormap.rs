@@ -22,6 +22,20 @@ pub fn turbo(t: f32) -> Rgb {
     [r, g, b].map(|c| (c.clamp(0.0, 1.0) * 255.0).round() as u8)
 }
 
+/// [`turbo`] at 256 steps (entry `i` is `turbo(i / 255)`), computed once:
+/// a table for painting many pixels (the receiver's screen) cheaply.
+pub fn turbo_table() -> &'static [Rgb; 256] {
+    static TABLE: std::sync::OnceLock<[Rgb; 256]> = std::sync::OnceLock::new();
+    TABLE.get_or_init(|| std::array::from_fn(|i| turbo(i as f32 / 255.0)))
+}
+
+/// The [`turbo_table`] entry nearest to `t` (clamped to `[0, 1]`; NaN is 0).
+#[inline]
+pub fn turbo_lookup(t: f32) -> Rgb {
+    // `as` saturates: negative and NaN give 0.
+    turbo_table()[((t * 255.0 + 0.5) as usize).min(255)]
+}
+
 /// Paints a disparity map with [`turbo`] over `[min, max]`; invalid pixels are [`INVALID`].
 pub fn colorize(map: &DisparityMap, min: f32, max: f32) -> RgbImage {
     let span = (max - min).max(f32::EPSILON);
@@ -80,6 +94,10 @@ mod tests {
         assert!(lo[2] > lo[0], "{lo:?}");
         assert!(hi[0] > hi[2], "{hi:?}");
         assert_eq!(turbo(f32::NAN), turbo(0.0));
+        assert_eq!(turbo_lookup(f32::NAN), turbo(0.0));
+        assert_eq!(turbo_lookup(-3.0), turbo(0.0));
+        assert_eq!(turbo_lookup(7.0), turbo(1.0));
+        assert_eq!(turbo_lookup(0.5), turbo(128.0 / 255.0));
     }
 
     #[test]

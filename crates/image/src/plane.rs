@@ -27,6 +27,17 @@ pub type LabelMap = Plane<u16>;
 /// A boolean mask (for example the non-occluded pixels of a scene).
 pub type Mask = Plane<bool>;
 
+/// The empty (0×0) plane, a buffer to fill with the `_into` functions.
+impl<T> Default for Plane<T> {
+    fn default() -> Self {
+        Plane {
+            width: 0,
+            height: 0,
+            data: Vec::new(),
+        }
+    }
+}
+
 impl<T: Copy> Plane<T> {
     /// A `width`×`height` plane filled with `value`.
     pub fn new(width: usize, height: usize, value: T) -> Self {
@@ -153,6 +164,24 @@ impl<T: Copy> Plane<T> {
         }
     }
 
+    /// [`map`](Self::map) into `out`, which takes this plane's size and
+    /// reuses its storage (no allocation once it is large enough).
+    pub fn map_into<U: Copy>(&self, out: &mut Plane<U>, mut f: impl FnMut(T) -> U) {
+        out.width = self.width;
+        out.height = self.height;
+        out.data.clear();
+        out.data.extend(self.data.iter().map(|&v| f(v)));
+    }
+
+    /// Makes this a `width`×`height` plane filled with `value`, reusing the
+    /// storage (no allocation once it is large enough).
+    pub fn reset(&mut self, width: usize, height: usize, value: T) {
+        self.width = width;
+        self.height = height;
+        self.data.clear();
+        self.data.resize(width * height, value);
+    }
+
     /// Fails with [`Error::SizeMismatch`] unless `other` has the same size;
     /// `what` names `other` in the message.
     pub fn check_same_size<U>(&self, other: &Plane<U>, what: &str) -> Result<()> {
@@ -208,6 +237,11 @@ impl IndexedImage {
     /// The RGB image the labels and palette describe.
     pub fn to_rgb(&self) -> RgbImage {
         self.labels.map(|l| self.palette[l as usize])
+    }
+
+    /// [`to_rgb`](Self::to_rgb) into `out` (resized, storage reused).
+    pub fn to_rgb_into(&self, out: &mut RgbImage) {
+        self.labels.map_into(out, |l| self.palette[l as usize]);
     }
 
     /// Splits into label map and palette.

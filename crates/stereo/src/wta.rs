@@ -76,8 +76,8 @@ pub struct WtaMatcher {
     portable: bool,
 }
 
-/// Rows per parallel band: bands re-prime `block` rows, so not too small.
-const BAND_ROWS: usize = 32;
+/// Fewest rows per parallel band: each band re-primes `block` rows.
+const MIN_BAND_ROWS: usize = 32;
 
 /// Cost lanes per pixel for `ndisp` disparities.
 fn lanes(ndisp: usize) -> usize {
@@ -155,17 +155,23 @@ impl WtaMatcher {
         let nl = lanes(params.ndisp);
         let stride = w + nl + params.min_disp;
         reversed_rows(right, params, &mut self.reversed);
-        let n_bands = h.div_ceil(BAND_ROWS);
+        // Two bands per worker balance the load; one worker (the embedded
+        // board) gets one band and primes the window once.
+        let band_rows = match rayon::current_num_threads() {
+            1 => h,
+            n => h.div_ceil(2 * n).max(MIN_BAND_ROWS),
+        };
+        let n_bands = h.div_ceil(band_rows);
         self.bands
             .resize_with(n_bands.max(self.bands.len()), Band::default);
         let reversed = &self.reversed;
         let use_avx2 = !self.portable && avx2_available();
         let right_rows = match right_out {
-            Some(r) => Either::Left(r.as_mut_slice().par_chunks_mut(w * BAND_ROWS).map(Some)),
+            Some(r) => Either::Left(r.as_mut_slice().par_chunks_mut(w * band_rows).map(Some)),
             None => Either::Right((0..n_bands).into_par_iter().map(|_| None)),
         };
         out.as_mut_slice()
-            .par_chunks_mut(w * BAND_ROWS)
+            .par_chunks_mut(w * band_rows)
             .zip(right_rows)
             .zip(self.bands.par_iter_mut())
             .enumerate()
@@ -175,7 +181,7 @@ impl WtaMatcher {
                     reversed,
                     stride,
                     params,
-                    y0: i * BAND_ROWS,
+                    y0: i * band_rows,
                 };
                 band.colsum.resize(w * nl, 0);
                 band.hsum.resize(nl, 0);

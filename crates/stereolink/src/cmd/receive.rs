@@ -85,7 +85,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
             Err(e) => return Err(e).context("receiving"),
         };
         let event = board.handle(&msg);
-        if let (Some(dir), Event::Frame { .. }, Some((l, r))) = (&args.save, &event, &board.pair) {
+        if let (Some(dir), Event::Frame { .. }, Some((l, r))) = (&args.save, &event, board.pair()) {
             std::fs::create_dir_all(dir)
                 .with_context(|| format!("cannot create {}", dir.display()))?;
             stereolink_image::io::write_rgb(dir.join("received-left.png"), l)?;

@@ -171,7 +171,10 @@ pub fn run(cfg: DemoConfig, progress: &dyn Fn(&str)) -> anyhow::Result<DemoRepor
             .flatten(),
         None => None,
     };
-    let (received_left, received_right) = board.pair.clone().context("no frame was received")?;
+    let (received_left, received_right) = board
+        .pair()
+        .map(|(l, r)| (l.clone(), r.clone()))
+        .context("no frame was received")?;
     write_png(&cfg.out, "received/left.png", &received_left)?;
     write_png(&cfg.out, "received/right.png", &received_right)?;
     write_png(

@@ -9,8 +9,11 @@
 
 use std::time::Instant;
 
-use stereolink_codec::{container, CodecError, Limits, Message, StereoFrame};
-use stereolink_display::{anaglyph, Anaglyph, Screen, ScreenStatus, Sink};
+use std::fmt::Write;
+
+use stereolink_codec::container::{self, Body, FrameDecoder, FrameRef};
+use stereolink_codec::{CodecError, Limits};
+use stereolink_display::{anaglyph_into, Anaglyph, Screen, ScreenStatus, Sink};
 use stereolink_image::{color, DisparityMap, GrayImage, RgbImage};
 use stereolink_robot::policy::{MotionPolicy, ValidatedDistance, Watchdog};
 use stereolink_robot::Axis;
@@ -41,8 +44,10 @@ pub enum Event {
     Rejected(String),
 }
 
-/// The receiver and its buffers.
+/// The receiver and its buffers: after the first frame of a size, a frame
+/// is decoded, matched and rendered without allocating.
 pub struct BoardReceiver {
+    decoder: FrameDecoder,
     matcher: WtaMatcher,
     params: WtaParams,
     gray: (GrayImage, GrayImage),
@@ -50,10 +55,10 @@ pub struct BoardReceiver {
     screen: Screen,
     mode: Anaglyph,
     limits: Limits,
-    /// The last rebuilt pair.
-    pub pair: Option<(RgbImage, RgbImage)>,
     /// The last 3-D view, kept to redraw the screen when the status changes.
-    view: Option<RgbImage>,
+    view: RgbImage,
+    /// Whether a frame was shown (the decoder's views and `view` hold it).
+    shown: bool,
     /// The display, if any.
     pub sink: Option<Box<dyn Sink>>,
     /// The axis, if any.
@@ -70,6 +75,7 @@ impl BoardReceiver {
     /// A receiver matching up to `max_disp` disparities with a `block`×`block` window.
     pub fn new(max_disp: usize, block: usize, watchdog: std::time::Duration) -> Self {
         BoardReceiver {
+            decoder: FrameDecoder::default(),
             matcher: WtaMatcher::new(),
             params: WtaParams {
                 min_disp: 0,
@@ -78,19 +84,24 @@ impl BoardReceiver {
                 uniqueness: 0,
                 subpixel: false,
             },
-            gray: (GrayImage::new(0, 0, 0), GrayImage::new(0, 0, 0)),
-            disparity: DisparityMap::new(0, 0, 0.0),
+            gray: Default::default(),
+            disparity: DisparityMap::default(),
             screen: Screen::new(),
             mode: Anaglyph::Dubois,
             limits: Limits::default(),
-            pair: None,
-            view: None,
+            view: RgbImage::default(),
+            shown: false,
             sink: None,
             axis: None,
             policy: MotionPolicy::default(),
             watchdog: Watchdog::new(watchdog),
             status: ScreenStatus::default(),
         }
+    }
+
+    /// The last rebuilt pair, once a frame was shown.
+    pub fn pair(&self) -> Option<(&RgbImage, &RgbImage)> {
+        self.shown.then(|| self.decoder.views())
     }
 
     /// The last disparity map computed on the board.
@@ -106,9 +117,9 @@ impl BoardReceiver {
     /// Handles one message from the link.
     pub fn handle(&mut self, bytes: &[u8]) -> Event {
         let start = Instant::now();
-        match container::decode(bytes, &self.limits) {
+        match container::parse(bytes, &self.limits) {
             Err(e) => Event::Rejected(format!("message rejected: {e}")),
-            Ok((header, Message::StereoFrame(frame))) => {
+            Ok((header, Body::StereoFrame(frame))) => {
                 match self.show_frame(header.frame_id, &frame) {
                     Ok(()) => Event::Frame {
                         frame_id: header.frame_id,
@@ -118,7 +129,7 @@ impl BoardReceiver {
                     Err(e) => Event::Rejected(format!("frame {} rejected: {e}", header.frame_id)),
                 }
             }
-            Ok((header, Message::DepthReport(report))) => {
+            Ok((header, Body::DepthReport(report))) => {
                 let d = report.target_distance_m;
                 self.status.distance_m = d.is_finite().then_some(d as f64);
                 let commanded = ValidatedDistance::new(d as f64).map(|v| self.policy.plan(v));
@@ -136,23 +147,25 @@ impl BoardReceiver {
                     commanded_mm: commanded.map(|m| m.position_mm),
                 }
             }
-            Ok((_, Message::Control(_))) => {
+            Ok((_, Body::Control(_))) => {
                 Event::Rejected("control messages are not used by this receiver".into())
             }
         }
     }
 
-    fn show_frame(&mut self, frame_id: u32, frame: &StereoFrame) -> Result<(), CodecError> {
-        let (left, right) = (frame.left.to_rgb(), frame.right.to_rgb());
-        let (w, h) = left.dims();
+    fn show_frame(&mut self, frame_id: u32, frame: &FrameRef) -> Result<(), CodecError> {
+        let (w, h) = (frame.width, frame.height);
         if self.params.ndisp > w {
             return Err(CodecError::Invalid(format!(
                 "a {w} px wide frame is narrower than the disparity range"
             )));
         }
-        self.gray = (color::rgb_to_gray(&left), color::rgb_to_gray(&right));
+        self.decoder.decode_rgb(frame)?;
+        let (left, right) = self.decoder.views();
+        color::rgb_to_gray_into(left, &mut self.gray.0);
+        color::rgb_to_gray_into(right, &mut self.gray.1);
         if self.disparity.dims() != (w, h) {
-            self.disparity = DisparityMap::new(w, h, 0.0);
+            self.disparity.reset(w, h, 0.0);
         }
         self.matcher.compute_into(
             &self.gray.0,
@@ -160,26 +173,32 @@ impl BoardReceiver {
             &self.params,
             &mut self.disparity,
         );
-        let view = anaglyph(&left, &right, self.mode);
+        anaglyph_into(left, right, self.mode, &mut self.view);
+        self.shown = true;
         self.status.frame_id = frame_id;
-        self.status.message = format!("{} PAIR {}X{}", frame.kind.name(), w, h);
+        self.status.message.clear();
+        let _ = write!(
+            self.status.message,
+            "{} PAIR {}X{}",
+            frame.kind.name(),
+            w,
+            h
+        );
         if let Some(axis) = self.axis.as_mut() {
             self.status.axis_mm = axis.position().ok();
         }
-        self.view = Some(view);
-        self.pair = Some((left, right));
         self.refresh()
             .map_err(|e| CodecError::Invalid(format!("display: {e}")))
     }
 
     /// Redraws the screen with the current status (distance, axis, link) and shows it.
     pub fn refresh(&mut self) -> std::io::Result<()> {
-        let Some(view) = &self.view else {
+        if !self.shown {
             return Ok(());
-        };
+        }
         let max = (self.params.min_disp + self.params.ndisp - 1) as f32;
         let screen = self.screen.render(
-            view,
+            &self.view,
             &self.disparity,
             self.params.min_disp as f32,
             max,

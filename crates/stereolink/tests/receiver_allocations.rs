@@ -1,0 +1,82 @@
+//! The board's receiver keeps fixed buffers: once it has shown a frame of a
+//! size, decoding, matching and rendering the next ones allocates nothing.
+//! Counted by a global allocator, in a test binary of its own so that no
+//! other test allocates meanwhile.
+
+use std::alloc::{GlobalAlloc, Layout, System};
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::time::Duration;
+
+use stereolink::pipeline::receiver::{BoardReceiver, Event};
+use stereolink_codec::{container, Message, SegmentationKind, StereoFrame, View};
+use stereolink_image::synth::{synthesize, SynthSpec};
+use stereolink_segment::segment;
+
+struct Counting;
+
+static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
+
+// SAFETY: forwards to the system allocator, only counting.
+unsafe impl GlobalAlloc for Counting {
+    unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
+        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        // SAFETY: the caller's contract, forwarded.
+        unsafe { System.alloc(layout) }
+    }
+
+    unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        // SAFETY: the caller's contract, forwarded.
+        unsafe { System.dealloc(ptr, layout) }
+    }
+
+    unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
+        ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        // SAFETY: the caller's contract, forwarded.
+        unsafe { System.realloc(ptr, layout, new_size) }
+    }
+}
+
+#[global_allocator]
+static ALLOCATOR: Counting = Counting;
+
+#[test]
+fn frames_after_the_first_allocate_nothing() {
+    let scene = synthesize(&SynthSpec {
+        width: 480,
+        height: 272,
+        max_disp: 32,
+        seed: 4,
+    })
+    .unwrap();
+    let method = "kmeans".parse().unwrap();
+    let view = |img| View::Indexed(segment(img, &method, 3, 1).unwrap().image);
+    let frame = StereoFrame {
+        kind: SegmentationKind::KMeans,
+        levels: 3,
+        params: "seed=1".into(),
+        thresholds: None,
+        calibration: None,
+        left: view(&scene.left),
+        right: view(&scene.right),
+    };
+    let bytes = container::encode(&Message::StereoFrame(Box::new(frame)), 1, 0);
+    let mut board = BoardReceiver::new(31, 9, Duration::from_secs(10));
+    let shown = |e: Event| matches!(e, Event::Frame { .. });
+    let start = ALLOCATIONS.load(Ordering::Relaxed);
+    assert!(shown(board.handle(&bytes)), "the first frame is shown");
+    let before = ALLOCATIONS.load(Ordering::Relaxed);
+    // The counter counts: the first frame sizes the buffers.
+    assert!(before > start);
+    for _ in 0..3 {
+        assert!(shown(board.handle(&bytes)));
+    }
+    let after = ALLOCATIONS.load(Ordering::Relaxed);
+    assert_eq!(
+        after - before,
+        0,
+        "allocations in three frames after the first"
+    );
+    // And the frame shown is the one sent.
+    let (left, _) = board.pair().unwrap();
+    assert_eq!(left.dims(), (480, 272));
+}
