@@ -67,11 +67,27 @@ fn candidates(
     y: usize,
     predicted: Option<u16>,
 ) -> ([u16; CANDIDATES], usize, usize) {
+    let p = predicted.map_or(NONE, u32::from);
     let (wv, nv, nw, ne) = if y > 0 && x > 0 && x + 1 < w {
         // Inside: direct reads (most pixels).
         let up = &map[(y - 1) * w + x - 1..(y - 1) * w + x + 2];
         let [nw, nv, ne] = [up[0], up[1], up[2]].map(u32::from);
-        (u32::from(map[y * w + x - 1]), nv, nw, ne)
+        let wv = u32::from(map[y * w + x - 1]);
+        if wv == nv && nv == nw && nv == ne {
+            // Flat (most of a segmented map): what the general case below
+            // gives, without its work.
+            let same = (p == wv) as usize;
+            let pattern = 0b1111 | ((p != NONE) as usize) << 4 | same << 5 | same << 6;
+            let mut list = [wv as u16; CANDIDATES];
+            let n = if p != NONE && same == 0 {
+                list[1] = p as u16;
+                2
+            } else {
+                1
+            };
+            return (list, n, pattern);
+        }
+        (wv, nv, nw, ne)
     } else {
         let at = |dx: isize, dy: isize| {
             let (xx, yy) = (x as isize + dx, y as isize + dy);
@@ -83,7 +99,6 @@ fn candidates(
         };
         (at(-1, 0), at(0, -1), at(-1, -1), at(1, -1))
     };
-    let p = predicted.map_or(NONE, u32::from);
     let eq = |a: u32, b: u32| (a == b && a != NONE) as usize;
     let pattern = eq(wv, nv)
         | eq(nv, ne) << 1

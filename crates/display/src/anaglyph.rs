@@ -90,18 +90,27 @@ pub fn anaglyph_into(left: &RgbImage, right: &RgbImage, mode: Anaglyph, out: &mu
     assert_eq!(left.dims(), right.dims(), "views differ in size");
     out.reset(left.width(), left.height(), [0; 3]);
     let pixels = left.as_slice().iter().zip(right.as_slice());
-    // Segmented views repeat colour pairs along their rows: reuse the last.
-    let mut last: Option<(Rgb, Rgb, Rgb)> = None;
+    // A segmented pair has few distinct colour pairs: remember them in a
+    // small direct-mapped cache (exact: a miss computes the pixel).
+    let mut cache: [Option<(Rgb, Rgb, Rgb)>; 64] = [None; 64];
     for (o, (&l, &r)) in out.as_mut_slice().iter_mut().zip(pixels) {
-        *o = match last {
-            Some((pl, pr, v)) if (pl, pr) == (l, r) => v,
+        let slot = &mut cache[colour_pair_hash(l, r)];
+        *o = match *slot {
+            Some((cl, cr, v)) if (cl, cr) == (l, r) => v,
             _ => {
                 let v = anaglyph_pixel(l, r, mode);
-                last = Some((l, r, v));
+                *slot = Some((l, r, v));
                 v
             }
         };
     }
+}
+
+/// A slot in `0..64` for a colour pair.
+#[inline]
+fn colour_pair_hash(l: Rgb, r: Rgb) -> usize {
+    let key = u64::from_le_bytes([l[0], l[1], l[2], r[0], r[1], r[2], 0, 0]);
+    (key.wrapping_mul(0x9E37_79B9_7F4A_7C15) >> 58) as usize
 }
 
 /// The two views next to each other (left, then right), as the paper concatenates them.

@@ -105,6 +105,8 @@ impl Screen {
                 .reset(disparity.width(), disparity.height(), BACKGROUND);
         }
         let span = (dmax - dmin).max(f32::EPSILON);
+        let turbo = colormap::turbo_table();
+        let paint = |t: f32| turbo[colormap::turbo_index(t)];
         for (c, &d) in self
             .colour
             .as_mut_slice()
@@ -112,7 +114,7 @@ impl Screen {
             .zip(disparity.as_slice())
         {
             *c = if d.is_finite() {
-                colormap::turbo_lookup((d - dmin) / span)
+                paint((d - dmin) / span)
             } else {
                 colormap::INVALID
             };
@@ -136,7 +138,7 @@ impl Screen {
         for y in 0..PANEL_H {
             let t = 1.0 - y as f32 / (PANEL_H - 1) as f32;
             for x in bx..bx + BAR_W {
-                img.set(x, top + y, colormap::turbo_lookup(t));
+                img.set(x, top + y, paint(t));
             }
         }
         let text = &mut self.text;

@@ -29,11 +29,12 @@ pub fn turbo_table() -> &'static [Rgb; 256] {
     TABLE.get_or_init(|| std::array::from_fn(|i| turbo(i as f32 / 255.0)))
 }
 
-/// The [`turbo_table`] entry nearest to `t` (clamped to `[0, 1]`; NaN is 0).
+/// The index of the [`turbo_table`] entry nearest to `t` (clamped to
+/// `[0, 1]`; NaN is 0).
 #[inline]
-pub fn turbo_lookup(t: f32) -> Rgb {
+pub fn turbo_index(t: f32) -> usize {
     // `as` saturates: negative and NaN give 0.
-    turbo_table()[((t * 255.0 + 0.5) as usize).min(255)]
+    ((t * 255.0 + 0.5) as usize).min(255)
 }
 
 /// Paints a disparity map with [`turbo`] over `[min, max]`; invalid pixels are [`INVALID`].
@@ -94,10 +95,11 @@ mod tests {
         assert!(lo[2] > lo[0], "{lo:?}");
         assert!(hi[0] > hi[2], "{hi:?}");
         assert_eq!(turbo(f32::NAN), turbo(0.0));
-        assert_eq!(turbo_lookup(f32::NAN), turbo(0.0));
-        assert_eq!(turbo_lookup(-3.0), turbo(0.0));
-        assert_eq!(turbo_lookup(7.0), turbo(1.0));
-        assert_eq!(turbo_lookup(0.5), turbo(128.0 / 255.0));
+        let table = turbo_table();
+        assert_eq!(table[turbo_index(f32::NAN)], turbo(0.0));
+        assert_eq!(table[turbo_index(-3.0)], turbo(0.0));
+        assert_eq!(table[turbo_index(7.0)], turbo(1.0));
+        assert_eq!(table[turbo_index(0.5)], turbo(128.0 / 255.0));
     }
 
     #[test]

@@ -156,26 +156,29 @@ impl LaneOps for Avx2 {
     #[target_feature(enable = "avx2")]
     unsafe fn argmin(costs: &[u16], valid: usize) -> usize {
         use std::arch::x86_64::*;
-        let iota = _mm256_setr_epi16(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
-        let ones = _mm256_set1_epi16(-1);
-        let blocks = valid.div_ceil(LANES);
-        // Lanes past `valid` read as the largest cost, so they never win
-        // against a valid lane of equal cost (lower index first).
-        let block = |b: usize| {
-            let v = _mm256_loadu_si256(costs[b * LANES..(b + 1) * LANES].as_ptr().cast());
-            let left = (valid - b * LANES).min(LANES) as i16;
-            let inside = _mm256_cmpgt_epi16(_mm256_set1_epi16(left), iota);
-            _mm256_or_si256(v, _mm256_andnot_si256(inside, ones))
-        };
-        let mut m = block(0);
-        for b in 1..blocks {
-            m = _mm256_min_epu16(m, block(b));
+        let load = |b: usize| _mm256_loadu_si256(costs[b * LANES..(b + 1) * LANES].as_ptr().cast());
+        let (full, rest) = (valid / LANES, valid % LANES);
+        let mut m = _mm256_set1_epi16(-1);
+        for b in 0..full {
+            m = _mm256_min_epu16(m, load(b));
+        }
+        if rest > 0 {
+            // Lanes past `valid` read as the largest cost, which never wins.
+            let iota = _mm256_setr_epi16(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+            let inside = _mm256_cmpgt_epi16(_mm256_set1_epi16(rest as i16), iota);
+            let tail = _mm256_or_si256(
+                load(full),
+                _mm256_andnot_si256(inside, _mm256_set1_epi16(-1)),
+            );
+            m = _mm256_min_epu16(m, tail);
         }
         let half = _mm_min_epu16(_mm256_castsi256_si128(m), _mm256_extracti128_si256(m, 1));
         let best = _mm_extract_epi16(_mm_minpos_epu16(half), 0) as i16;
         let target = _mm256_set1_epi16(best);
-        for b in 0..blocks {
-            let hit = _mm256_movemask_epi8(_mm256_cmpeq_epi16(block(b), target)) as u32;
+        // The first lane equal to the minimum is a valid one: lanes past
+        // `valid` come after every valid lane.
+        for b in 0..valid.div_ceil(LANES) {
+            let hit = _mm256_movemask_epi8(_mm256_cmpeq_epi16(load(b), target)) as u32;
             if hit != 0 {
                 return b * LANES + hit.trailing_zeros() as usize / 2;
             }

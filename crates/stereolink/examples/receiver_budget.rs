@@ -1,8 +1,9 @@
 //! The board's per-frame cost: decode a 480x272 StereoFrame, WTA-match it
 //! with 32 disparities (one thread, as on the ARM9) and render the screen,
-//! `FRAMES` times (argument 1, default 1). Run it under callgrind twice, with
-//! 1 and with 11 frames, and divide the difference by 10 to get the cost of
-//! one frame after the first:
+//! `FRAMES` times (argument 1, default 1; add `portable` as argument 2 to
+//! match with the portable kernel, as a CPU without SIMD does). Run it under
+//! callgrind twice, with 1 and with 11 frames, and divide the difference by
+//! 10 to get the cost of one frame after the first:
 //!
 //! ```sh
 //! cargo build --release --example receiver_budget
@@ -46,6 +47,9 @@ fn main() {
     };
     let bytes = container::encode(&Message::StereoFrame(Box::new(frame)), 1, 0);
     let mut board = BoardReceiver::new(31, 9, Duration::from_secs(10));
+    if std::env::args().nth(2).as_deref() == Some("portable") {
+        board = board.portable_kernel();
+    }
     for _ in 0..frames {
         match board.handle(&bytes) {
             Event::Frame { .. } => {}

@@ -99,6 +99,13 @@ impl BoardReceiver {
         }
     }
 
+    /// Matches with the portable kernel only, as a CPU without SIMD (the
+    /// ARM9 board) does: same results, to measure what the board executes.
+    pub fn portable_kernel(mut self) -> Self {
+        self.matcher = WtaMatcher::portable();
+        self
+    }
+
     /// The last rebuilt pair, once a frame was shown.
     pub fn pair(&self) -> Option<(&RgbImage, &RgbImage)> {
         self.shown.then(|| self.decoder.views())
