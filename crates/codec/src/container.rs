@@ -654,6 +654,7 @@ fn decode_report(r: &mut Reader, limits: &Limits) -> Result<DepthReport, CodecEr
 #[cfg(test)]
 mod tests {
     use super::*;
+    use proptest::prelude::*;
     use stereolink_image::{LabelMap, RgbImage};
 
     fn frame(w: usize, h: usize) -> StereoFrame {
@@ -765,5 +766,41 @@ mod tests {
              0000003f01000200030004000100000040\
              0000803f0000003f0100000007000000"
         );
+    }
+
+    proptest! {
+        /// Corrupted bodies with a correct CRC reach every body parser and
+        /// the view decoders: a typed error or a message, never a panic;
+        /// the owning decode and the reusing decoder agree.
+        #[test]
+        fn corrupt_bodies_are_errors_or_messages(
+            flips in proptest::collection::vec((any::<usize>(), any::<u8>()), 1..8),
+            cut in any::<usize>(),
+        ) {
+            let f = frame(21, 9);
+            let mut bytes = encode(&Message::StereoFrame(Box::new(f)), 1, 2);
+            for (at, x) in flips {
+                let i = HEADER_LEN + at % (bytes.len() - HEADER_LEN);
+                bytes[i] ^= x | 1;
+            }
+            bytes.truncate(HEADER_LEN + cut % (bytes.len() - HEADER_LEN + 1));
+            let body_len = (bytes.len() - HEADER_LEN) as u32;
+            bytes[20..24].copy_from_slice(&body_len.to_le_bytes());
+            let crc = crc32fast::hash(&bytes[HEADER_LEN..]);
+            bytes[24..28].copy_from_slice(&crc.to_le_bytes());
+            let owned = decode(&bytes, &Limits::default());
+            if let Ok((_, Body::StereoFrame(f))) = parse(&bytes, &Limits::default()) {
+                let mut decoder = FrameDecoder::default();
+                let reused = decoder.decode_rgb(&f).map(|()| decoder.views());
+                match (&owned, reused) {
+                    (Ok((_, Message::StereoFrame(m))), Ok((l, r))) => {
+                        prop_assert_eq!(&m.left.to_rgb(), l);
+                        prop_assert_eq!(&m.right.to_rgb(), r);
+                    }
+                    (Err(_), Err(_)) => {}
+                    (a, b) => prop_assert!(false, "owned {:?} but reused {:?}", a.is_ok(), b.is_ok()),
+                }
+            }
+        }
     }
 }
