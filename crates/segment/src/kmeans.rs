@@ -48,7 +48,7 @@ fn colour_counts(image: &RgbImage) -> Vec<([f64; 3], f64)> {
         .iter()
         .map(|p| u32::from_be_bytes([0, p[0], p[1], p[2]]))
         .collect();
-    packed.sort_unstable();
+    packed.par_sort_unstable();
     let mut out: Vec<([f64; 3], f64)> = Vec::new();
     for chunk in packed.chunk_by(|a, b| a == b) {
         let [_, r, g, b] = chunk[0].to_be_bytes();
@@ -145,7 +145,12 @@ pub fn cluster(image: &RgbImage, k: usize, seed: u64) -> Result<KMeans, SegmentE
 /// Segments into `k` clusters coloured by their rounded centres.
 pub fn kmeans(image: &RgbImage, k: usize, seed: u64) -> Result<Segmentation, SegmentError> {
     let km = cluster(image, k, seed)?;
-    let labels: Plane<u32> = image.map(|p| nearest(p.map(f64::from), &km.centroids).0 as u32);
+    let data: Vec<u32> = image
+        .as_slice()
+        .par_iter()
+        .map(|p| nearest(p.map(f64::from), &km.centroids).0 as u32)
+        .collect();
+    let labels = Plane::from_vec(image.width(), image.height(), data).expect("one label per pixel");
     let image = compact(labels, |l| {
         km.centroids[l as usize].map(|v| v.round().clamp(0.0, 255.0) as u8)
     })?;

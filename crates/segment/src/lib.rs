@@ -240,18 +240,26 @@ pub(crate) fn compact(
     labels: Plane<u32>,
     colours: impl Fn(u32) -> Rgb,
 ) -> Result<IndexedImage, SegmentError> {
-    let mut map = std::collections::HashMap::new();
+    // Labels are small (classes) or pixel indices (regions): a table by
+    // label, in order of first appearance, instead of hashing every pixel.
+    const UNSEEN: u32 = u32::MAX;
+    let top = labels
+        .as_slice()
+        .iter()
+        .copied()
+        .max()
+        .map_or(0, |m| m as usize + 1);
+    let mut slot = vec![UNSEEN; top];
     let mut palette = Vec::new();
     let mut overflow = false;
     let out = labels.map(|l| {
-        let next = map.len();
-        *map.entry(l).or_insert_with(|| {
-            if next > u16::MAX as usize {
-                overflow = true;
-            }
+        let s = &mut slot[l as usize];
+        if *s == UNSEEN {
+            overflow |= palette.len() > u16::MAX as usize;
+            *s = palette.len() as u32;
             palette.push(colours(l));
-            next as u16
-        })
+        }
+        *s as u16
     });
     if overflow {
         return Err(SegmentError::Parameter("more than 65536 segments".into()));
