@@ -28,16 +28,42 @@ pub struct KMeans {
 }
 
 fn dist2(a: [f64; 3], b: [f64; 3]) -> f64 {
-    (a[0] - b[0]).powi(2) + (a[1] - b[1]).powi(2) + (a[2] - b[2]).powi(2)
+    let d = [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
+    d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
 }
 
+/// The nearest centroid and its squared distance (the first on ties).
 fn nearest(c: [f64; 3], centroids: &[[f64; 3]]) -> (usize, f64) {
-    centroids
-        .iter()
-        .enumerate()
-        .map(|(i, &m)| (i, dist2(c, m)))
-        .min_by(|a, b| a.1.total_cmp(&b.1))
-        .expect("at least one centroid")
+    let mut best = (0, dist2(c, centroids[0]));
+    for (i, &m) in centroids.iter().enumerate().skip(1) {
+        let d = dist2(c, m);
+        if d < best.1 {
+            best = (i, d);
+        }
+    }
+    best
+}
+
+/// Sorts values below 2²⁴ (packed RGB): three stable counting passes, one
+/// per byte, from the lowest.
+fn radix_sort_24(values: &mut Vec<u32>) {
+    let mut other = vec![0u32; values.len()];
+    for shift in [0, 8, 16] {
+        let mut start = [0usize; 256];
+        for &v in values.iter() {
+            start[(v >> shift & 0xFF) as usize] += 1;
+        }
+        let mut at = 0;
+        for s in start.iter_mut() {
+            (*s, at) = (at, at + *s);
+        }
+        for &v in values.iter() {
+            let b = (v >> shift & 0xFF) as usize;
+            other[start[b]] = v;
+            start[b] += 1;
+        }
+        std::mem::swap(values, &mut other);
+    }
 }
 
 /// The distinct colours of an image with their counts, in a fixed order
@@ -48,7 +74,7 @@ fn colour_counts(image: &RgbImage) -> Vec<([f64; 3], f64)> {
         .iter()
         .map(|p| u32::from_be_bytes([0, p[0], p[1], p[2]]))
         .collect();
-    packed.par_sort_unstable();
+    radix_sort_24(&mut packed);
     let mut out: Vec<([f64; 3], f64)> = Vec::new();
     for chunk in packed.chunk_by(|a, b| a == b) {
         let [_, r, g, b] = chunk[0].to_be_bytes();
@@ -84,7 +110,7 @@ pub fn cluster(image: &RgbImage, k: usize, seed: u64) -> Result<KMeans, SegmentE
     let mut centroids = vec![colours[pick(&mut rng, &counts, total)].0];
     while centroids.len() < k {
         let weights: Vec<f64> = colours
-            .iter()
+            .par_iter()
             .map(|(c, n)| n * nearest(*c, &centroids).1)
             .collect();
         let sum: f64 = weights.iter().sum();
@@ -164,6 +190,21 @@ pub fn kmeans(image: &RgbImage, k: usize, seed: u64) -> Result<Segmentation, Seg
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn radix_sort_sorts() {
+        let mut s = 12345u32;
+        let mut v: Vec<u32> = (0..5000)
+            .map(|_| {
+                s = s.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+                s >> 8
+            })
+            .collect();
+        let mut want = v.clone();
+        want.sort_unstable();
+        radix_sort_24(&mut v);
+        assert_eq!(v, want);
+    }
 
     #[test]
     fn objective_is_zero_for_k_distinct_colours() {
