@@ -94,6 +94,42 @@ fn pick(rng: &mut ChaCha8Rng, weights: &[f64], sum: f64) -> usize {
     weights.len() - 1
 }
 
+/// True when the AVX2 copy of [`chunk_sums`] can run here.
+fn avx2_available() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::is_x86_feature_detected!("avx2")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn chunk_sums_avx2(
+    chunk: &[([f64; 3], f64)],
+    centroids: &[[f64; 3]],
+) -> Vec<([f64; 3], f64)> {
+    chunk_sums(chunk, centroids)
+}
+
+/// Each cluster's weighted colour sum and count over `chunk`, every colour
+/// in the cluster of its nearest centre.
+#[inline(always)]
+fn chunk_sums(chunk: &[([f64; 3], f64)], centroids: &[[f64; 3]]) -> Vec<([f64; 3], f64)> {
+    let mut acc = vec![([0.0f64; 3], 0.0f64); centroids.len()];
+    for &(c, n) in chunk {
+        let (j, _) = nearest(c, centroids);
+        for ch in 0..3 {
+            acc[j].0[ch] += c[ch] * n;
+        }
+        acc[j].1 += n;
+    }
+    acc
+}
+
 /// Runs k-means++ and Lloyd's algorithm on the pixels of `image`.
 pub fn cluster(image: &RgbImage, k: usize, seed: u64) -> Result<KMeans, SegmentError> {
     if k == 0 || k > image.len() {
@@ -119,6 +155,7 @@ pub fn cluster(image: &RgbImage, k: usize, seed: u64) -> Result<KMeans, SegmentE
         }
         centroids.push(colours[pick(&mut rng, &weights, sum)].0);
     }
+    let avx2 = avx2_available();
     let mut iterations = 0;
     loop {
         iterations += 1;
@@ -126,15 +163,12 @@ pub fn cluster(image: &RgbImage, k: usize, seed: u64) -> Result<KMeans, SegmentE
         let sums = colours
             .par_chunks(4096)
             .map(|chunk| {
-                let mut acc = empty();
-                for &(c, n) in chunk {
-                    let (j, _) = nearest(c, &centroids);
-                    for ch in 0..3 {
-                        acc[j].0[ch] += c[ch] * n;
-                    }
-                    acc[j].1 += n;
+                if avx2 {
+                    #[cfg(target_arch = "x86_64")]
+                    // SAFETY: AVX2 was detected at run time.
+                    return unsafe { chunk_sums_avx2(chunk, &centroids) };
                 }
-                acc
+                chunk_sums(chunk, &centroids)
             })
             .reduce(empty, |mut a, b| {
                 for (x, y) in a.iter_mut().zip(b) {
