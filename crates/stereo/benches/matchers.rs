@@ -1,9 +1,10 @@
-//! One benchmark per matcher on a deterministic synthetic 320x240 pair, 32 disparities.
+//! One benchmark per matcher on a deterministic synthetic 320x240 pair, 32
+//! disparities, and one per refinement step on the raw WTA map of it.
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use std::hint::black_box;
 use stereolink_image::synth::{synthesize, SynthSpec};
-use stereolink_stereo::{compute_disparity, Algorithm, MatchSpec, Refinement};
+use stereolink_stereo::{compute_disparity, refine, Algorithm, MatchSpec, Refinement};
 
 fn matchers(c: &mut Criterion) {
     let s = synthesize(&SynthSpec {
@@ -22,6 +23,18 @@ fn matchers(c: &mut Criterion) {
             b.iter(|| compute_disparity(black_box(&s.left), black_box(&s.right), &spec).unwrap())
         });
     }
+    g.finish();
+
+    let mut spec = MatchSpec::new(Algorithm::Wta, 0, 31).unwrap();
+    spec.refine = Refinement::NONE;
+    let raw = compute_disparity(&s.left, &s.right, &spec).unwrap();
+    let mut g = c.benchmark_group("refine_320x240");
+    g.bench_function("median_5x5", |b| {
+        b.iter(|| refine::median(black_box(&raw), 5))
+    });
+    g.bench_function("fill_holes", |b| {
+        b.iter(|| refine::fill_holes(&mut black_box(raw.clone())))
+    });
     g.finish();
 }
 
