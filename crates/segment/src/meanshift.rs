@@ -148,16 +148,19 @@ impl Filter<'_> {
             let (cx, cy) = (px.round() as isize, py.round() as isize);
             let x0 = (cx - hs).max(0) as usize;
             let len = (cx + hs).min(w as isize - 1) as usize + 1 - x0;
-            let mut acc: Sums = [[0.0; LANES]; 6];
-            for y in (cy - hs).max(0) as usize..=(cy + hs).min(h as isize - 1) as usize {
-                let row = Row {
-                    start: y * w + x0,
-                    len,
-                    x0: x0 as f32,
-                    y: y as f32,
-                };
-                self.add_row(&mut acc, &row, c);
-            }
+            let (y0, y1) = (
+                (cy - hs).max(0) as usize,
+                (cy + hs).min(h as isize - 1) as usize,
+            );
+            let window = Window {
+                first: y0 * w + x0,
+                stride: w,
+                len,
+                rows: y1 + 1 - y0,
+                x0: x0 as f32,
+                y0: y0 as f32,
+            };
+            let acc = self.sums(&window, c);
             // Lanes in order, as both window-sum versions leave them.
             let [sx, sy, s0, s1, s2, sw] = acc.map(|a| a.iter().sum::<f32>());
             if sw <= 0.0 {
@@ -175,37 +178,60 @@ impl Filter<'_> {
         (c, it)
     }
 
-    fn add_row(&self, acc: &mut Sums, row: &Row, c: [f32; 3]) {
+    fn sums(&self, window: &Window, c: [f32; 3]) -> Sums {
         let hr2 = self.spec.range * self.spec.range;
+        let mut acc: Sums = [[0.0; LANES]; 6];
         match self.spec.kernel {
             Kernel::Uniform if self.avx2 => {
                 #[cfg(target_arch = "x86_64")]
                 // SAFETY: `avx2` is only set where the CPU has AVX2.
                 unsafe {
-                    add_row_avx2(acc, self.planes, row, c, hr2)
+                    window_avx2(&mut acc, self.planes, window, c, hr2)
                 }
             }
-            Kernel::Uniform => add_row(
-                acc,
-                self.planes,
-                row,
-                c,
-                |d2| {
+            Kernel::Uniform => window.rows().for_each(|row| {
+                add_row(&mut acc, self.planes, &row, c, |d2| {
                     if d2 <= hr2 {
                         1.0
                     } else {
                         0.0
                     }
-                },
-            ),
-            Kernel::Gaussian => add_row(acc, self.planes, row, c, |d2| {
-                if d2 <= 9.0 * hr2 {
-                    (-d2 / (2.0 * hr2)).exp()
-                } else {
-                    0.0
-                }
+                })
+            }),
+            Kernel::Gaussian => window.rows().for_each(|row| {
+                add_row(&mut acc, self.planes, &row, c, |d2| {
+                    if d2 <= 9.0 * hr2 {
+                        (-d2 / (2.0 * hr2)).exp()
+                    } else {
+                        0.0
+                    }
+                })
             }),
         }
+        acc
+    }
+}
+
+/// A pixel's window: `rows` rows of `len` pixels, the first from plane
+/// index `first` at column `x0` and row `y0`.
+struct Window {
+    first: usize,
+    stride: usize,
+    len: usize,
+    rows: usize,
+    x0: f32,
+    y0: f32,
+}
+
+impl Window {
+    /// Its rows, top to bottom.
+    fn rows(&self) -> impl Iterator<Item = Row> + '_ {
+        (0..self.rows).map(|r| Row {
+            start: self.first + r * self.stride,
+            len: self.len,
+            x0: self.x0,
+            y: self.y0 + r as f32,
+        })
     }
 }
 
@@ -246,41 +272,62 @@ fn add_row(
     }
 }
 
-/// [`add_row`] for the uniform kernel with AVX2: the same operations on the
-/// same values in each lane, so the same sums.
+/// [`add_row`] over a whole window for the uniform kernel with AVX2, to the
+/// same bits: the colour sums take the same operations in the same order
+/// in each lane; the weights are 0 or 1, so the sums of `w`, `w·x` and
+/// `w·y` are integers, exact in `f32` in any order while they stay below
+/// 2²⁴ (a 41×41 window anywhere in a 10 000 px image; far larger windows
+/// and images can round, and then differ from the portable sums in the last
+/// bits). That lets the `y` sum be taken once per row and the row-end mask
+/// only on the last block.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn add_row_avx2(acc: &mut Sums, planes: &[Vec<f32>; 3], row: &Row, c: [f32; 3], hr2: f32) {
+unsafe fn window_avx2(
+    acc: &mut Sums,
+    planes: &[Vec<f32>; 3],
+    window: &Window,
+    c: [f32; 3],
+    hr2: f32,
+) {
     use std::arch::x86_64::*;
-    let load = |a: &[f32; LANES]| _mm256_loadu_ps(a.as_ptr());
-    let mut v: [__m256; 6] = std::array::from_fn(|k| load(&acc[k]));
+    let mut v: [__m256; 6] = std::array::from_fn(|k| _mm256_loadu_ps(acc[k].as_ptr()));
     let iota = _mm256_setr_ps(0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0);
     let iota_i = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
     let (cv, limit) = (c.map(|x| _mm256_set1_ps(x)), _mm256_set1_ps(hr2));
-    let (x0, y, one) = (
-        _mm256_set1_ps(row.x0),
-        _mm256_set1_ps(row.y),
-        _mm256_set1_ps(1.0),
-    );
-    for start in (0..row.len).step_by(LANES) {
-        let at = row.start + start;
-        let f: [__m256; 3] =
-            std::array::from_fn(|k| _mm256_loadu_ps(planes[k][at..at + LANES].as_ptr()));
-        let d: [__m256; 3] = std::array::from_fn(|k| _mm256_sub_ps(f[k], cv[k]));
-        let d2 = _mm256_add_ps(
-            _mm256_add_ps(_mm256_mul_ps(d[0], d[0]), _mm256_mul_ps(d[1], d[1])),
-            _mm256_mul_ps(d[2], d[2]),
-        );
-        let inside_row = _mm256_cmpgt_epi32(_mm256_set1_epi32((row.len - start) as i32), iota_i);
-        let near = _mm256_cmp_ps(d2, limit, _CMP_LE_OQ);
-        let m = _mm256_and_ps(_mm256_and_ps(near, _mm256_castsi256_ps(inside_row)), one);
-        let xs = _mm256_add_ps(x0, _mm256_add_ps(_mm256_set1_ps(start as f32), iota));
-        v[0] = _mm256_add_ps(v[0], _mm256_mul_ps(m, xs));
-        v[1] = _mm256_add_ps(v[1], _mm256_mul_ps(m, y));
-        for k in 0..3 {
-            v[2 + k] = _mm256_add_ps(v[2 + k], _mm256_mul_ps(m, f[k]));
+    let one = _mm256_set1_ps(1.0);
+    let full = window.len / LANES * LANES;
+    let row_end = _mm256_cmpgt_epi32(_mm256_set1_epi32((window.len - full) as i32), iota_i);
+    for row in window.rows() {
+        let mut count = _mm256_setzero_ps();
+        let mut xs = _mm256_add_ps(_mm256_set1_ps(row.x0), iota);
+        // One block: `keep` masks the lanes inside the row.
+        let mut block = |start: usize, keep: __m256| {
+            let at = row.start + start;
+            let f: [__m256; 3] =
+                std::array::from_fn(|k| _mm256_loadu_ps(planes[k][at..at + LANES].as_ptr()));
+            let d: [__m256; 3] = std::array::from_fn(|k| _mm256_sub_ps(f[k], cv[k]));
+            let d2 = _mm256_add_ps(
+                _mm256_add_ps(_mm256_mul_ps(d[0], d[0]), _mm256_mul_ps(d[1], d[1])),
+                _mm256_mul_ps(d[2], d[2]),
+            );
+            let near = _mm256_and_ps(_mm256_cmp_ps(d2, limit, _CMP_LE_OQ), keep);
+            let m = _mm256_and_ps(near, one);
+            v[0] = _mm256_add_ps(v[0], _mm256_mul_ps(m, xs));
+            for k in 0..3 {
+                v[2 + k] = _mm256_add_ps(v[2 + k], _mm256_mul_ps(m, f[k]));
+            }
+            count = _mm256_add_ps(count, m);
+            xs = _mm256_add_ps(xs, _mm256_set1_ps(LANES as f32));
+        };
+        let all = _mm256_castsi256_ps(_mm256_set1_epi32(-1));
+        for start in (0..full).step_by(LANES) {
+            block(start, all);
         }
-        v[5] = _mm256_add_ps(v[5], m);
+        if full < window.len {
+            block(full, _mm256_castsi256_ps(row_end));
+        }
+        v[1] = _mm256_add_ps(v[1], _mm256_mul_ps(count, _mm256_set1_ps(row.y)));
+        v[5] = _mm256_add_ps(v[5], count);
     }
     for (a, r) in acc.iter_mut().zip(v) {
         _mm256_storeu_ps(a.as_mut_ptr(), r);
