@@ -170,12 +170,10 @@ pub fn segment(
     match method {
         Method::KMeans => kmeans::kmeans(image, levels, seed),
         Method::MeanShift(spec) => meanshift::mean_shift(image, spec),
-        Method::Otsu => threshold_image(image, levels, |h, _| {
-            Ok((otsu::optimal_thresholds(h, levels), 0))
-        }),
+        Method::Otsu => threshold_image(image, levels, |_, _, optimal| Ok((optimal.to_vec(), 0))),
         Method::Pso(spec) | Method::Dpso(spec) | Method::Fodpso(spec) => {
             spec.validate()?;
-            threshold_image(image, levels, |h, c| {
+            threshold_image(image, levels, |h, c, _| {
                 let r = swarm::optimise(h, levels, spec, seed.wrapping_add(c as u64));
                 Ok((r.thresholds, r.iterations))
             })
@@ -183,12 +181,14 @@ pub fn segment(
     }
 }
 
-/// Thresholds each channel with `search`, then builds the combined labels:
-/// one label per occurring (r, g, b) class triple, coloured by the class means.
+/// Thresholds each channel with `search` (given the histogram, the channel
+/// and the exact optimum, which the report needs anyway), then builds the
+/// combined labels: one label per occurring (r, g, b) class triple,
+/// coloured by the class means.
 fn threshold_image(
     image: &RgbImage,
     levels: usize,
-    mut search: impl FnMut(&[u64; 256], usize) -> Result<(Vec<u8>, usize), SegmentError>,
+    mut search: impl FnMut(&[u64; 256], usize, &[u8]) -> Result<(Vec<u8>, usize), SegmentError>,
 ) -> Result<Segmentation, SegmentError> {
     let mut thresholds: [Vec<u8>; 3] = Default::default();
     let mut fitness = [0.0; 3];
@@ -198,10 +198,11 @@ fn threshold_image(
     let mut means = [[0u8; 256]; 3];
     for c in 0..3 {
         let hist = otsu::histogram(image, c);
-        let (t, it) = search(&hist, c)?;
+        let optimal = otsu::optimal_thresholds(&hist, levels);
+        let (t, it) = search(&hist, c, &optimal)?;
         iterations += it;
         fitness[c] = otsu::between_class_variance(&hist, &t);
-        optimum[c] = otsu::between_class_variance(&hist, &otsu::optimal_thresholds(&hist, levels));
+        optimum[c] = otsu::between_class_variance(&hist, &optimal);
         for v in 0..256 {
             class_of[c][v] = t.iter().filter(|&&th| (v as u8) > th).count() as u8;
         }

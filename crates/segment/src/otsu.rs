@@ -101,15 +101,20 @@ pub fn optimal_thresholds(hist: &[u64; 256], levels: usize) -> Vec<u8> {
         w[v + 1] = w[v] + hist[v] as f64;
         s[v + 1] = s[v] + v as f64 * hist[v] as f64;
     }
-    // Score of class a..b (bins a..b-1 as half-open prefix indices).
-    let score = |a: usize, b: usize| {
-        let ww = w[b] - w[a];
-        if ww > 0.0 {
-            (s[b] - s[a]).powi(2) / ww
-        } else {
-            0.0
-        }
-    };
+    // Score of class a..b (bins a..b-1 as half-open prefix indices), once
+    // per pair: the DP below reads each one up to `levels` times.
+    let table: Vec<f64> = (0..=L)
+        .flat_map(|a| (0..=L).map(move |b| (a, b)))
+        .map(|(a, b)| {
+            let ww = if b > a { w[b] - w[a] } else { 0.0 };
+            if ww > 0.0 {
+                (s[b] - s[a]).powi(2) / ww
+            } else {
+                0.0
+            }
+        })
+        .collect();
+    let score = |a: usize, b: usize| table[a * (L + 1) + b];
     // best[j][b]: best score of splitting bins 0..b into j + 1 classes.
     let mut best = vec![vec![f64::NEG_INFINITY; L + 1]; levels];
     let mut arg = vec![vec![0usize; L + 1]; levels];
