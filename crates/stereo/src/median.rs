@@ -7,9 +7,13 @@
 //! run on [`CHUNK`] neighbouring pixels at once so that every comparator is
 //! one vector `min` and `max`. Disparities are compared as integer keys in
 //! [`f32::total_cmp`] order; invalid pixels and pixels outside the image
-//! become the smallest or largest key in equal numbers (see [`gather`]),
+//! become the smallest or largest key in equal numbers (see [`Keys::split_holes`]),
 //! which makes the network's middle output the median of the valid pixels
 //! exactly, as a sort would give it.
+//!
+//! LLVM's vectoriser turns the network on arrays of `[u32; 8]` into shuffles
+//! through memory, so the vector set is written out twice behind the [`Keys`]
+//! trait: plainly, and with AVX2 intrinsics; the tests check both.
 
 use rayon::prelude::*;
 use stereolink_image::DisparityMap;
@@ -25,6 +29,11 @@ const CHUNK: usize = 8;
 /// # Panics
 /// If `size` is larger than 15 (checked by [`crate::MatchSpec::validate`]).
 pub fn median(map: &DisparityMap, size: usize) -> DisparityMap {
+    median_with(map, size, crate::wta::avx2_available())
+}
+
+/// [`median`] with the AVX2 kernel (`avx2`, only if the CPU has it) or the portable one.
+fn median_with(map: &DisparityMap, size: usize, avx2: bool) -> DisparityMap {
     let (w, h) = map.dims();
     let r = size / 2;
     let mut out = map.clone();
@@ -33,19 +42,14 @@ pub fn median(map: &DisparityMap, size: usize) -> DisparityMap {
     }
     let n = 2 * r + 1;
     assert!(n <= 15, "median window {size} is larger than 15");
-    let built;
-    let network = if n == 5 {
-        &MEDIAN_5X5
-    } else {
-        built = Box::new(selection_network(n * n, n * n / 2));
-        &*built
-    };
+    // The 5×5 network is unrolled with constant indices (`None`).
+    let built = (n != 5).then(|| Box::new(selection_network(n * n, n * n / 2)));
+    let network = built.as_deref().map(Network::pairs);
     let keys: Vec<u32> = map
         .as_slice()
         .iter()
         .map(|&v| if v.is_finite() { order_key(v) } else { HOLE })
         .collect();
-    let avx2 = crate::wta::avx2_available();
     out.as_mut_slice()
         .par_chunks_mut(w)
         .enumerate()
@@ -57,15 +61,14 @@ pub fn median(map: &DisparityMap, size: usize) -> DisparityMap {
                 r,
                 network,
             };
+            #[cfg(target_arch = "x86_64")]
             if avx2 {
-                #[cfg(target_arch = "x86_64")]
-                // SAFETY: AVX2 was detected at run time.
-                unsafe {
-                    filter_row_avx2(&job, row)
-                }
-            } else {
-                filter_row(&job, row)
+                // SAFETY: the caller saw AVX2 at run time.
+                return unsafe { filter_row_avx2(&job, row) };
             }
+            let _ = avx2;
+            // SAFETY: the portable keys need no CPU feature.
+            unsafe { filter_row::<[u32; CHUNK]>(&job, row) }
         });
     out
 }
@@ -76,40 +79,47 @@ struct RowJob<'a> {
     dims: (usize, usize),
     y: usize,
     r: usize,
-    network: &'a Network,
+    /// The selection network, or `None` for the unrolled 5×5 one.
+    network: Option<&'a [(u8, u8)]>,
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 unsafe fn filter_row_avx2(job: &RowJob, row: &mut [f32]) {
-    filter_row(job, row)
+    filter_row::<std::arch::x86_64::__m256i>(job, row)
 }
 
 /// Replaces the valid pixels of `row` by their window medians.
+///
+/// # Safety
+/// `K`'s instruction set must be available.
 #[inline(always)]
-fn filter_row(job: &RowJob, row: &mut [f32]) {
-    if job.r == 2 {
-        // Constant network and size: unrolled, indices resolved.
-        filter_row_with(job, row, MEDIAN_5X5.pairs(), &mut [[0; CHUNK]; 25]);
-    } else {
-        let n = 2 * job.r + 1;
-        filter_row_with(job, row, job.network.pairs(), &mut vec![[0; CHUNK]; n * n]);
-    }
-}
-
-#[inline(always)]
-fn filter_row_with(
-    job: &RowJob,
-    row: &mut [f32],
-    network: &[(u8, u8)],
-    lanes: &mut [[u32; CHUNK]],
-) {
+unsafe fn filter_row<K: Keys>(job: &RowJob, row: &mut [f32]) {
+    let n = 2 * job.r + 1;
+    let mut unrolled = [K::splat(0); 25];
+    let mut general = Vec::new();
+    let lanes: &mut [K] = match job.network {
+        None => &mut unrolled,
+        Some(_) => {
+            general.resize(n * n, K::splat(0));
+            &mut general
+        }
+    };
     let middle = lanes.len() / 2;
     for x in (0..job.dims.0).step_by(CHUNK) {
-        gather(job.keys, job.dims, (x, job.y), job.r, lanes);
-        apply(network, lanes);
+        match job.network {
+            Some(pairs) => {
+                gather(job.keys, job.dims, (x, job.y), job.r, lanes);
+                pairs.iter().for_each(|&pair| compare(lanes, pair));
+            }
+            None => {
+                // A constant radius, so that the loads unroll too.
+                gather(job.keys, job.dims, (x, job.y), 2, lanes);
+                apply_5x5(lanes);
+            }
+        }
         let row = &mut row[x..(x + CHUNK).min(job.dims.0)];
-        for (o, &key) in row.iter_mut().zip(&lanes[middle]) {
+        for (o, &key) in row.iter_mut().zip(&lanes[middle].to_array()) {
             if o.is_finite() {
                 *o = from_order_key(key);
             }
@@ -121,54 +131,145 @@ fn filter_row_with(
 const HOLE: u32 = u32::MAX;
 
 /// Loads the windows of the pixels `x..x + CHUNK` of row `y` into `lanes`
-/// (lane `l` of `lanes[k]` is element `k` of window `l`).
-#[inline(always)]
+/// (lane `l` of `lanes[k]` is element `k` of window `l`), invalid and
+/// outside pixels as [`HOLE`] split by [`Keys::split_holes`].
 ///
-/// A window with `m` invalid or outside pixels gets `⌊m/2⌋` of them as the
-/// smallest key and the rest as the largest: the middle of all `n²` keys is
-/// then element `⌊(n² − m)/2⌋` of the valid ones, the upper median.
-fn gather(
+/// # Safety
+/// `K`'s instruction set must be available.
+#[inline(always)]
+unsafe fn gather<K: Keys>(
     keys: &[u32],
     (w, h): (usize, usize),
     (x, y): (usize, usize),
     r: usize,
-    lanes: &mut [[u32; CHUNK]],
+    lanes: &mut [K],
 ) {
     let n = 2 * r + 1;
     let inside = y >= r && y + r < h && x >= r && x + CHUNK + r <= w;
-    let mut holes = [0u32; CHUNK];
-    for (k, lane) in lanes.iter_mut().enumerate() {
-        if inside {
-            let start = (y + k / n - r) * w + x + k % n - r;
-            lane.copy_from_slice(&keys[start..start + CHUNK]);
-        } else {
-            let yy = (y + k / n).checked_sub(r).filter(|&yy| yy < h);
-            for (l, v) in lane.iter_mut().enumerate() {
-                let xx = (x + l + k % n).checked_sub(r).filter(|&xx| xx < w);
-                *v = match (xx, yy) {
-                    (Some(xx), Some(yy)) => keys[yy * w + xx],
-                    _ => HOLE,
-                };
-            }
-        }
-        for (m, &v) in holes.iter_mut().zip(lane.iter()) {
-            *m += u32::from(v == HOLE);
+    let mut parity = K::splat(0);
+    let mut lanes = lanes.iter_mut();
+    for dy in 0..n {
+        let yy = (y + dy).checked_sub(r).filter(|&yy| yy < h);
+        for dx in 0..n {
+            let keys = if inside {
+                let start = (y + dy - r) * w + x + dx - r;
+                K::load(&keys[start..start + CHUNK])
+            } else {
+                K::load(&std::array::from_fn::<u32, CHUNK, _>(|l| {
+                    let xx = (x + l + dx).checked_sub(r).filter(|&xx| xx < w);
+                    match (xx, yy) {
+                        (Some(xx), Some(yy)) => keys[yy * w + xx],
+                        _ => HOLE,
+                    }
+                }))
+            };
+            *lanes.next().expect("n² lanes") = keys.split_holes(&mut parity);
         }
     }
-    if holes == [0; CHUNK] {
-        return;
+}
+
+/// Eight `u32` keys, one per window, and the operations the filter needs.
+///
+/// # Safety
+/// Every method may use the instruction set its implementation is named
+/// after: call them only when the CPU has it.
+trait Keys: Copy {
+    /// All lanes `v`.
+    unsafe fn splat(v: u32) -> Self;
+    /// `src[..CHUNK]`.
+    unsafe fn load(src: &[u32]) -> Self;
+    unsafe fn to_array(self) -> [u32; CHUNK];
+    unsafe fn min(self, other: Self) -> Self;
+    unsafe fn max(self, other: Self) -> Self;
+    /// Turns every second [`HOLE`] of a lane (counted in `parity`, one bit
+    /// per lane, over the calls for one window) into 0, the smallest key: a
+    /// window with `m` holes then has `⌊m/2⌋` smallest and `⌈m/2⌉` largest
+    /// keys, and the middle of all `n²` keys is element `⌊(n² − m)/2⌋` of the
+    /// valid ones, the upper median.
+    unsafe fn split_holes(self, parity: &mut Self) -> Self;
+}
+
+impl Keys for [u32; CHUNK] {
+    #[inline(always)]
+    unsafe fn splat(v: u32) -> Self {
+        [v; CHUNK]
     }
-    // Lane-wise and branch-free, so it vectorises like the network.
-    let low = holes.map(|m| m / 2);
-    let mut seen = [0u32; CHUNK];
-    for lane in lanes.iter_mut() {
-        for l in 0..CHUNK {
-            let hole = lane[l] == HOLE;
-            if hole && seen[l] < low[l] {
-                lane[l] = 0;
+
+    #[inline(always)]
+    unsafe fn load(src: &[u32]) -> Self {
+        src[..CHUNK].try_into().expect("CHUNK keys")
+    }
+
+    #[inline(always)]
+    unsafe fn to_array(self) -> [u32; CHUNK] {
+        self
+    }
+
+    #[inline(always)]
+    unsafe fn min(self, other: Self) -> Self {
+        std::array::from_fn(|l| self[l].min(other[l]))
+    }
+
+    #[inline(always)]
+    unsafe fn max(self, other: Self) -> Self {
+        std::array::from_fn(|l| self[l].max(other[l]))
+    }
+
+    #[inline(always)]
+    unsafe fn split_holes(self, parity: &mut Self) -> Self {
+        std::array::from_fn(|l| {
+            let hole = self[l] == HOLE;
+            parity[l] ^= u32::from(hole);
+            if hole && parity[l] == 0 {
+                0
+            } else {
+                self[l]
             }
-            seen[l] += u32::from(hole);
-        }
+        })
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+impl Keys for std::arch::x86_64::__m256i {
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn splat(v: u32) -> Self {
+        std::arch::x86_64::_mm256_set1_epi32(v as i32)
+    }
+
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn load(src: &[u32]) -> Self {
+        assert!(src.len() >= CHUNK);
+        std::arch::x86_64::_mm256_loadu_si256(src.as_ptr().cast())
+    }
+
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn to_array(self) -> [u32; CHUNK] {
+        std::mem::transmute(self)
+    }
+
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn min(self, other: Self) -> Self {
+        std::arch::x86_64::_mm256_min_epu32(self, other)
+    }
+
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn max(self, other: Self) -> Self {
+        std::arch::x86_64::_mm256_max_epu32(self, other)
+    }
+
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn split_holes(self, parity: &mut Self) -> Self {
+        use std::arch::x86_64::*;
+        let hole = _mm256_cmpeq_epi32(self, _mm256_set1_epi32(-1));
+        *parity = _mm256_xor_si256(*parity, hole);
+        // Clear the holes whose parity is now even.
+        _mm256_andnot_si256(_mm256_andnot_si256(*parity, hole), self)
     }
 }
 
@@ -208,9 +309,23 @@ impl Network {
     }
 }
 
-/// The selection network of the 5×5 median, built at compile time so that
-/// the compiler can unroll it into straight register code.
-static MEDIAN_5X5: Network = selection_network(25, 12);
+/// The selection network of the 5×5 median, built at compile time.
+const MEDIAN_5X5: Network = selection_network(25, 12);
+
+/// [`apply`] of [`MEDIAN_5X5`] written out comparator by comparator with
+/// constant indices, so that the 25 rows stay in vector registers instead of
+/// being loaded and stored through memory on every comparator (4× faster).
+///
+/// # Safety
+/// `K`'s instruction set must be available.
+#[inline(always)]
+unsafe fn apply_5x5<K: Keys>(lanes: &mut [K]) {
+    const _: () = assert!(MEDIAN_5X5.len == 113);
+    let lanes: &mut [K; 25] = lanes.try_into().expect("25 rows");
+    seq_macro::seq!(K in 0..113 {
+        compare(lanes, MEDIAN_5X5.pairs[K]);
+    });
+}
 
 /// The comparators of Batcher's odd–even merge sort of `n ≤ 256` values
 /// that output `out` of the sorted order depends on.
@@ -272,18 +387,16 @@ const fn selection_network(n: usize, out: usize) -> Network {
     net
 }
 
-/// Runs the comparators on [`CHUNK`] windows at once: lane `l` of every
-/// `lanes[k]` is element `k` of window `l`.
+/// One comparator on every lane: the smaller keys to row `i`, the larger to `j`.
+///
+/// # Safety
+/// `K`'s instruction set must be available.
 #[inline(always)]
-fn apply(network: &[(u8, u8)], lanes: &mut [[u32; CHUNK]]) {
-    for &(i, j) in network {
-        let (i, j) = (i as usize, j as usize);
-        let (a, b) = (lanes[i], lanes[j]);
-        for l in 0..CHUNK {
-            lanes[i][l] = a[l].min(b[l]);
-            lanes[j][l] = a[l].max(b[l]);
-        }
-    }
+unsafe fn compare<K: Keys>(lanes: &mut [K], (i, j): (u8, u8)) {
+    let (i, j) = (i as usize, j as usize);
+    let (a, b) = (lanes[i], lanes[j]);
+    lanes[i] = a.min(b);
+    lanes[j] = a.max(b);
 }
 
 #[cfg(test)]
@@ -315,7 +428,10 @@ mod tests {
                 for bits in 0u32..1 << n {
                     let mut lanes: Vec<[u32; CHUNK]> =
                         (0..n).map(|k| [bits >> k & 1; CHUNK]).collect();
-                    apply(net, &mut lanes);
+                    for &pair in net {
+                        // SAFETY: portable keys.
+                        unsafe { compare(&mut lanes, pair) };
+                    }
                     let zeros = n - bits.count_ones() as usize;
                     assert_eq!(lanes[out][0], u32::from(out >= zeros), "n {n} out {out}");
                 }
@@ -356,7 +472,8 @@ mod tests {
 
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(256))]
-        /// The network, holes and borders included, equals per-pixel selection.
+        /// The network, holes and borders included, equals per-pixel selection,
+        /// and the portable kernel the detected one.
         #[test]
         fn network_equals_selection(
             w in 1usize..40, h in 1usize..20, size in 1usize..8,
@@ -369,7 +486,10 @@ mod tests {
                 // A few holes, and subpixel values with frequent ties.
                 if (v % 100) < holes as u64 { f32::INFINITY } else { (v >> 40) as f32 % 16.0 * 0.25 }
             });
+            let portable = median_with(&map, size, false);
             let fast = median(&map, size);
+            prop_assert_eq!(portable.as_slice().iter().map(|v| v.to_bits()).collect::<Vec<_>>(),
+                fast.as_slice().iter().map(|v| v.to_bits()).collect::<Vec<_>>());
             let r = size / 2;
             let mut window = Vec::new();
             for y in 0..h {
