@@ -7,8 +7,9 @@
 //! * [`compute_disparity`] runs any [`Algorithm`] with a validated
 //!   [`MatchSpec`] and the chosen [`Refinement`] steps, returning an `f32`
 //!   [`DisparityMap`] with `f32::INFINITY` where no disparity is known.
-//! * [`wta::WtaMatcher`] keeps its scratch buffers between frames, for the
-//!   embedded receiver that matches frame after frame without allocating.
+//! * [`Matcher`] does the same keeping its buffers between frames;
+//!   [`wta::WtaMatcher`] alone is what the embedded receiver runs, frame
+//!   after frame without allocating.
 //! * [`depth`] turns disparity into metres (`Z = b·f / (d + doffs)`), point
 //!   clouds (PLY), region distances and the number of depth levels.
 //!
@@ -218,32 +219,63 @@ fn check_pair(left: &RgbImage, right: &RgbImage) -> Result<(), StereoError> {
     Ok(())
 }
 
-/// Computes the left view's disparity map with `spec` (matching, then refinement).
+/// Computes the left view's disparity map with `spec` (matching, then
+/// refinement). To match frame after frame, keep a [`Matcher`] instead.
 pub fn compute_disparity(
     left: &RgbImage,
     right: &RgbImage,
     spec: &MatchSpec,
 ) -> Result<DisparityMap, StereoError> {
-    check_pair(left, right)?;
-    spec.validate(left.width(), left.height())?;
-    let raw = match spec.algorithm {
-        Algorithm::Wta => {
-            let (l, r) = (color::rgb_to_gray(left), color::rgb_to_gray(right));
-            wta_with_check(&l, &r, spec)
-        }
-        Algorithm::LineGrowing => line_growing::line_growing(left, right, spec),
-        Algorithm::Sgm => {
-            let (l, r) = (color::rgb_to_gray(left), color::rgb_to_gray(right));
-            sgm::sgm(&l, &r, spec)
-        }
-    };
-    Ok(refine::postprocess(raw, spec))
+    Matcher::new().compute(left, right, spec)
+}
+
+/// A matcher that keeps its buffers (WTA bands, SGM cost and sum volumes)
+/// from one call to the next: matching frames of an unchanged size neither
+/// allocates nor clears the volumes again.
+#[derive(Default)]
+pub struct Matcher {
+    wta: wta::WtaMatcher,
+    sgm: sgm::SgmBuffers,
+}
+
+impl Matcher {
+    /// An empty matcher; buffers grow on first use.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Computes the left view's disparity map with `spec` (matching, then refinement).
+    pub fn compute(
+        &mut self,
+        left: &RgbImage,
+        right: &RgbImage,
+        spec: &MatchSpec,
+    ) -> Result<DisparityMap, StereoError> {
+        check_pair(left, right)?;
+        spec.validate(left.width(), left.height())?;
+        let raw = match spec.algorithm {
+            Algorithm::Wta => {
+                let (l, r) = (color::rgb_to_gray(left), color::rgb_to_gray(right));
+                wta_with_check(&mut self.wta, &l, &r, spec)
+            }
+            Algorithm::LineGrowing => line_growing::line_growing(left, right, spec),
+            Algorithm::Sgm => {
+                let (l, r) = (color::rgb_to_gray(left), color::rgb_to_gray(right));
+                sgm::sgm(&l, &r, spec, &mut self.sgm)
+            }
+        };
+        Ok(refine::postprocess(raw, spec))
+    }
 }
 
 /// WTA on gray views, with the right view's map for the left-right check
 /// when it is asked for (from the same pass).
-fn wta_with_check(left: &GrayImage, right: &GrayImage, spec: &MatchSpec) -> refine::Raw {
-    let mut matcher = wta::WtaMatcher::new();
+fn wta_with_check(
+    matcher: &mut wta::WtaMatcher,
+    left: &GrayImage,
+    right: &GrayImage,
+    spec: &MatchSpec,
+) -> refine::Raw {
     let params = wta::WtaParams::from_spec(spec);
     let new_map = || DisparityMap::new(left.width(), left.height(), f32::INFINITY);
     let mut disp = new_map();

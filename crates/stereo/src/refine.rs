@@ -5,6 +5,7 @@
 //! Defaults were chosen by measurement on the Middlebury v2 scenes
 //! (`stereolink eval`): every step lowers the bad-pixel rate there.
 
+use rayon::prelude::*;
 use stereolink_image::{DisparityMap, Plane};
 
 pub use crate::median::median;
@@ -93,70 +94,75 @@ pub fn parabola(c0: f32, c1: f32, c2: f32) -> f32 {
     }
 }
 
-/// Invalidates left pixels whose match in the right map disagrees by more than `tol`.
+/// Invalidates left pixels whose match in the right map disagrees by more
+/// than `tol`; the match is the right pixel nearest to `x − d` (ties to the
+/// right). Rows run in parallel.
 pub fn lr_check(left: &mut DisparityMap, right: &DisparityMap, tol: f32) {
     let w = left.width();
-    for y in 0..left.height() {
-        let rrow = right.row(y);
-        for (x, d) in left.row_mut(y).iter_mut().enumerate() {
-            if !d.is_finite() {
-                continue;
-            }
-            let xr = (x as f32 - *d).round();
-            let ok = xr >= 0.0 && (xr as usize) < w && {
-                let dr = rrow[xr as usize];
-                dr.is_finite() && (dr - *d).abs() <= tol
-            };
-            if !ok {
-                *d = f32::INFINITY;
-            }
-        }
+    if w == 0 {
+        return;
     }
+    let rows = left.as_mut_slice().par_chunks_mut(w);
+    rows.zip(right.as_slice().par_chunks(w))
+        .for_each(|(row, rrow)| {
+            for (x, d) in row.iter_mut().enumerate() {
+                // Non-finite `d` gives a non-finite or negative `xr`: dropped.
+                let xr = x as f32 - *d + 0.5;
+                let ok = xr >= 0.0 && xr < w as f32 && {
+                    let dr = rrow[xr as usize];
+                    (dr - *d).abs() <= tol
+                };
+                if !ok {
+                    *d = f32::INFINITY;
+                }
+            }
+        });
 }
 
 /// Fills each invalid run of a row with the smaller of the valid disparities
 /// at its two ends (occlusions belong to the background); rows without any
-/// valid pixel take the nearest filled row above or below.
+/// valid pixel take the nearest filled row above or below. Rows run in parallel.
 pub fn fill_holes(map: &mut DisparityMap) {
     let (w, h) = map.dims();
-    let mut empty_rows = Vec::new();
-    for y in 0..h {
-        let row = map.row_mut(y);
-        let mut x = 0;
-        let mut any = false;
-        while x < w {
-            if row[x].is_finite() {
-                any = true;
-                x += 1;
-                continue;
-            }
-            let start = x;
-            while x < w && !row[x].is_finite() {
-                x += 1;
-            }
-            let before = start.checked_sub(1).map(|i| row[i]);
-            let after = (x < w).then(|| row[x]);
-            let fill = match (before, after) {
-                (Some(a), Some(b)) => a.min(b),
-                (Some(a), None) => a,
-                (None, Some(b)) => b,
-                (None, None) => continue,
-            };
-            row[start..x].fill(fill);
-        }
-        if !any {
-            empty_rows.push(y);
-        }
+    if w == 0 {
+        return;
     }
-    for &y in &empty_rows {
-        let source = (0..h)
-            .filter(|r| !empty_rows.contains(r))
-            .min_by_key(|r| r.abs_diff(y));
+    let filled: Vec<bool> = map.as_mut_slice().par_chunks_mut(w).map(fill_row).collect();
+    for y in (0..h).filter(|&y| !filled[y]) {
+        let source = (0..h).filter(|&r| filled[r]).min_by_key(|r| r.abs_diff(y));
         if let Some(src) = source {
             let copy = map.row(src).to_vec();
             map.row_mut(y).copy_from_slice(&copy);
         }
     }
+}
+
+/// [`fill_holes`] within one row; false if the row has no valid pixel.
+fn fill_row(row: &mut [f32]) -> bool {
+    let w = row.len();
+    let mut x = 0;
+    let mut any = false;
+    while x < w {
+        if row[x].is_finite() {
+            any = true;
+            x += 1;
+            continue;
+        }
+        let start = x;
+        while x < w && !row[x].is_finite() {
+            x += 1;
+        }
+        let before = start.checked_sub(1).map(|i| row[i]);
+        let after = (x < w).then(|| row[x]);
+        let fill = match (before, after) {
+            (Some(a), Some(b)) => a.min(b),
+            (Some(a), None) => a,
+            (None, Some(b)) => b,
+            (None, None) => continue,
+        };
+        row[start..x].fill(fill);
+    }
+    any
 }
 
 /// Mirrors a plane left-right: matching mirrored (right, left) as (left, right)

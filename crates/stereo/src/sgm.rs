@@ -15,12 +15,16 @@
 //!
 //! Memory is the `u8` cost volume (census costs computed once for all
 //! paths) and the `u16` sum volume, `3·W·H·D` bytes, plus a few rows of path
-//! costs: 211 MiB peak for the 741×497 Motorcycle scene at 190 disparities.
-//! Horizontal paths run in parallel over rows; vertical and diagonal paths
-//! run row by row, in parallel over column chunks. Inner loops run along the
-//! disparity axis and are compiled for AVX2 and POPCNT when the CPU has them.
+//! costs (`u8`, see [`step`]); both volumes are kept in [`SgmBuffers`]
+//! between frames. 211 MiB peak for the 741×497 Motorcycle scene at 190
+//! disparities. Aggregation is two sweeps, down and up, that run in
+//! parallel and each add all their paths into a pixel's sums in one visit
+//! (see [`sweep`]); the second sweep to visit a row picks its disparities.
+//! Inner loops run along the disparity axis and are compiled for AVX2 and
+//! POPCNT when the CPU has them.
 
 use rayon::prelude::*;
+use std::sync::Mutex;
 use stereolink_image::{DisparityMap, GrayImage};
 
 use crate::lanes::{LaneOps, Portable};
@@ -29,7 +33,10 @@ use crate::{MatchSpec, StereoError};
 
 /// Cost of a match that falls outside the right view.
 pub const OUTSIDE_COST: u16 = 62;
-const SENTINEL: u16 = 0x3FFF;
+/// Path cost of the missing neighbours of `d_min` and `d_max`.
+const SENTINEL: u8 = u8::MAX;
+/// Largest `P2`: path costs must fit `u8` (see [`step`]).
+pub const MAX_P2: u16 = 255 - OUTSIDE_COST;
 
 /// SGM parameters.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
@@ -64,9 +71,9 @@ impl SgmParams {
                 self.paths
             )));
         }
-        if self.p1 == 0 || self.p2 <= self.p1 || self.p2 > 1000 || self.p2_gamma == 0 {
+        if self.p1 == 0 || self.p2 <= self.p1 || self.p2 > MAX_P2 || self.p2_gamma == 0 {
             return Err(StereoError::Parameter(format!(
-                "SGM penalties need 0 < P1 < P2 <= 1000 and γ > 0 (got P1 {}, P2 {}, γ {})",
+                "SGM penalties need 0 < P1 < P2 <= {MAX_P2} and γ > 0 (got P1 {}, P2 {}, γ {})",
                 self.p1, self.p2, self.p2_gamma
             )));
         }
@@ -153,7 +160,9 @@ struct Volume<'a> {
     img: &'a GrayImage,
     p: SgmParams,
     /// `P2` by intensity step `|I(p) − I(p−r)|`.
-    p2_by_step: [u16; 256],
+    p2_by_step: [u8; 256],
+    /// Fit a parabola to the winner's neighbouring sums.
+    subpixel: bool,
 }
 
 impl Volume<'_> {
@@ -165,21 +174,22 @@ impl Volume<'_> {
     }
 
     #[inline(always)]
-    fn p2(&self, a: u8, b: u8) -> u16 {
+    fn p2(&self, a: u8, b: u8) -> u8 {
         self.p2_by_step[a.abs_diff(b) as usize]
     }
 }
 
 /// The adaptive `P2` for every intensity step (see the module doc).
-fn p2_table(p: &SgmParams) -> [u16; 256] {
+fn p2_table(p: &SgmParams) -> [u8; 256] {
     let g = p.p2_gamma as u32;
-    std::array::from_fn(|step| ((p.p2 as u32 * g / (g + step as u32)) as u16).max(p.p1 + 1))
+    // P1 < P2 ≤ MAX_P2 (validated), so every value fits `u8`.
+    std::array::from_fn(|step| ((p.p2 as u32 * g / (g + step as u32)) as u8).max(p.p1 as u8 + 1))
 }
 
 /// The census Hamming costs of every pixel and disparity, `u8`, computed
 /// once for all paths.
-fn cost_volume(cl: &[u64], cr: &[u64], w: usize, nd: usize, min_disp: usize) -> Vec<u8> {
-    let mut cost = vec![0u8; cl.len() * nd];
+fn cost_volume(cl: &[u64], cr: &[u64], w: usize, nd: usize, min_disp: usize, cost: &mut Vec<u8>) {
+    cost.resize(cl.len() * nd, 0);
     let avx2 = crate::wta::avx2_available();
     cost.par_chunks_mut(w * nd)
         .zip(cl.par_chunks(w).zip(cr.par_chunks(w)))
@@ -194,7 +204,6 @@ fn cost_volume(cl: &[u64], cr: &[u64], w: usize, nd: usize, min_disp: usize) -> 
                 cost_row(l, r, min_disp, out)
             }
         });
-    cost
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -230,39 +239,48 @@ const fn cell(nd: usize) -> usize {
 
 /// Starts a path at pixel costs `cost` (no predecessor): `L = C`.
 #[inline(always)]
-fn start(cost: &[u8], cur: &mut [u16]) {
+fn start(cost: &[u8], cur: &mut [u8]) {
     let nd = cost.len();
-    widen(&mut cur[1..=nd], cost);
+    cur[1..=nd].copy_from_slice(cost);
     cur[0] = SENTINEL;
     cur[nd + 1] = SENTINEL;
-    cur[nd + 2] = cost.iter().copied().min().map_or(0, u16::from);
+    cur[nd + 2] = cost.iter().copied().min().unwrap_or(0);
 }
 
 /// One path step: `cur[k] = C[k] + min(prev[k], prev[k±1] + P1, min_prev + P2) − min_prev`,
 /// on cells laid out as [`cell`] describes, and `cur[k]` added into the
 /// sums `acc` (stored when `FIRST`: the first path written into them).
+///
+/// Path costs fit `u8`: the minimum over `k` of a step's result is at most
+/// `C ≤ 62`, so `min_prev + P2 ≤ 62 + MAX_P2 = 255`, and every result is
+/// `C + (best − min_prev) ≤ 62 + P2`. The `± 1` neighbours add `P1`
+/// saturating: a saturated value is still above `min_prev + P2`, which wins.
+/// 32 disparities per AVX2 operation instead of 16.
 #[inline(always)]
 fn step<const FIRST: bool>(
-    prev: &[u16],
+    prev: &[u8],
     cost: &[u8],
-    cur: &mut [u16],
+    cur: &mut [u8],
     acc: &mut [u16],
-    p1: u16,
-    p2: u16,
+    p1: u8,
+    p2: u8,
 ) {
     let nd = cost.len();
     let min_prev = prev[nd + 2];
     let jump = min_prev + p2;
-    let mut min_cur = u16::MAX;
+    let mut min_cur = u8::MAX;
     // Zipped slices (no indexing) so that the loop compiles to vector code.
     let (below, same, above) = (&prev[..nd], &prev[1..=nd], &prev[2..nd + 2]);
     let outs = cur[1..=nd].iter_mut().zip(acc.iter_mut());
     let lanes = outs.zip(cost).zip(below.iter().zip(same).zip(above));
     for (((out, sum), &c), ((&b, &s), &a)) in lanes {
-        let best = s.min(b + p1).min(a + p1).min(jump);
-        let v = u16::from(c) + best - min_prev;
+        let best = s
+            .min(b.saturating_add(p1))
+            .min(a.saturating_add(p1))
+            .min(jump);
+        let v = c + (best - min_prev);
         *out = v;
-        *sum = if FIRST { v } else { *sum + v };
+        *sum = if FIRST { 0 } else { *sum } + u16::from(v);
         min_cur = min_cur.min(v);
     }
     cur[nd + 2] = min_cur;
@@ -270,271 +288,195 @@ fn step<const FIRST: bool>(
 
 /// Adds a path's costs `cur` into the sums `acc` (stores them when `FIRST`).
 #[inline(always)]
-fn emit<const FIRST: bool>(acc: &mut [u16], cur: &[u16]) {
+fn emit<const FIRST: bool>(acc: &mut [u16], cur: &[u8]) {
     for (a, &c) in acc.iter_mut().zip(cur) {
-        *a = if FIRST { c } else { *a + c };
+        *a = if FIRST { 0 } else { *a } + u16::from(c);
     }
 }
 
-/// `dst[k] = src[k]`, widened.
-#[inline(always)]
-fn widen(dst: &mut [u16], src: &[u8]) {
-    dst.iter_mut()
-        .zip(src)
-        .for_each(|(d, &s)| *d = u16::from(s));
+/// The cost and sum volumes, kept from one frame to the next: both are
+/// entirely overwritten, so a frame of the same size neither allocates nor
+/// clears them.
+#[derive(Default)]
+pub struct SgmBuffers {
+    cost: Vec<u8>,
+    sum: Vec<u16>,
 }
 
 /// Computes the raw SGM disparity (and the right view's map) of gray views.
-pub fn sgm(left: &GrayImage, right: &GrayImage, spec: &MatchSpec) -> Raw {
+pub fn sgm(left: &GrayImage, right: &GrayImage, spec: &MatchSpec, buffers: &mut SgmBuffers) -> Raw {
     let (w, h) = left.dims();
     let (cl, cr) = rayon::join(|| census(left), || census(right));
-    let cost = cost_volume(&cl, &cr, w, spec.ndisp(), spec.min_disp);
+    let SgmBuffers { cost, sum } = buffers;
+    cost_volume(&cl, &cr, w, spec.ndisp(), spec.min_disp, cost);
     drop((cl, cr));
     let vol = Volume {
         w,
         h,
         nd: spec.ndisp(),
         min_disp: spec.min_disp,
-        cost: &cost,
+        cost,
         img: left,
         p: spec.sgm,
         p2_by_step: p2_table(&spec.sgm),
+        subpixel: spec.refine.subpixel,
     };
+    sum.resize(w * h * vol.nd, 0);
+    let mut disparity = DisparityMap::new(w, h, f32::INFINITY);
+    let mut right_map = DisparityMap::new(w, h, f32::INFINITY);
+    let rows: Vec<Mutex<SumRow>> = sum
+        .chunks_mut((w * vol.nd).max(1))
+        .zip(disparity.as_mut_slice().chunks_mut(w.max(1)))
+        .zip(right_map.as_mut_slice().chunks_mut(w.max(1)))
+        .map(|((sums, left), right)| {
+            Mutex::new(SumRow {
+                sums,
+                left,
+                right,
+                visited: false,
+            })
+        })
+        .collect();
     let use_avx2 = crate::wta::avx2_available();
-    let mut sum = vec![0u16; w * h * vol.nd];
-    // Horizontal paths: rows are independent.
-    sum.par_chunks_mut(w * vol.nd * ROW_GROUP)
-        .enumerate()
-        .for_each(|(g, s)| {
-            if use_avx2 {
-                #[cfg(target_arch = "x86_64")]
-                // SAFETY: AVX2 presence was checked at run time; same safe code.
-                unsafe {
-                    horizontal_avx2(&vol, g * ROW_GROUP, s)
-                }
-            } else {
-                horizontal(&vol, g * ROW_GROUP, s)
-            }
-        });
-    vertical(&vol, &mut sum, false, use_avx2);
-    vertical(&vol, &mut sum, true, use_avx2);
-    select(&vol, &sum, spec.refine.subpixel)
+    let run = |downward: bool| {
+        #[cfg(target_arch = "x86_64")]
+        if use_avx2 {
+            // SAFETY: AVX2 and POPCNT presence was checked at run time; same safe code.
+            return unsafe { sweep_avx2(&vol, &rows, downward) };
+        }
+        sweep(&vol, &rows, downward)
+    };
+    rayon::join(|| run(true), || run(false));
+    drop(rows);
+    Raw {
+        disparity,
+        right: Some(right_map),
+    }
+}
+
+/// A row of the sum volume and of both disparity maps, shared by the two
+/// sweeps; whichever visits it second finds `visited` set and computes the
+/// disparities while the sums are still in cache.
+struct SumRow<'a> {
+    sums: &'a mut [u16],
+    left: &'a mut [f32],
+    right: &'a mut [f32],
+    visited: bool,
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,popcnt")]
-unsafe fn horizontal_avx2(vol: &Volume, y0: usize, s: &mut [u16]) {
-    horizontal(vol, y0, s)
+unsafe fn sweep_avx2(vol: &Volume, rows: &[Mutex<SumRow>], downward: bool) {
+    sweep(vol, rows, downward)
 }
 
-/// Rows whose horizontal paths advance in lockstep: each step waits for the
-/// previous pixel's, so one row alone leaves the CPU idle on latency.
-const ROW_GROUP: usize = 4;
-
-/// Left-to-right and right-to-left paths of the rows from `y0` that `s`
-/// (their sum rows) covers, written into `s`.
+/// One of the two sweeps over the image, each run by its own worker: the
+/// downward sweep aggregates the left-to-right path and the paths from the
+/// row above (straight, and both diagonals for 8 paths), the upward sweep
+/// the right-to-left path and the paths from the row below. Every pixel's
+/// path costs are added into its sums in one visit, so the sum and cost
+/// volumes are read twice in all, and the two sweeps run in parallel,
+/// meeting in the middle; a row is locked while a sweep works on it.
 #[inline(always)]
-fn horizontal(vol: &Volume, y0: usize, s: &mut [u16]) {
-    let (w, nd) = (vol.w, vol.nd);
-    let rows = s.len() / (w * nd);
-    let mut prev = vec![SENTINEL; rows * cell(nd)];
-    let mut cur = vec![SENTINEL; rows * cell(nd)];
-    for forward in [true, false] {
-        for i in 0..w {
-            let x = if forward { i } else { w - 1 - i };
-            let xp = if forward { x.wrapping_sub(1) } else { x + 1 };
-            let cells = prev
-                .chunks_exact(cell(nd))
-                .zip(cur.chunks_exact_mut(cell(nd)));
-            for (r, (prev, cur)) in cells.enumerate() {
-                let y = y0 + r;
-                let cost = vol.costs(x, y);
-                let acc = &mut s[(r * w + x) * nd..(r * w + x + 1) * nd];
-                // The forward path is the first written into a fresh sum
-                // row: storing instead of adding never reads the untouched
-                // zero pages.
-                if i == 0 {
-                    start(cost, cur);
-                    if forward {
-                        emit::<true>(acc, &cur[1..=nd]);
-                    } else {
-                        emit::<false>(acc, &cur[1..=nd]);
-                    }
-                } else {
-                    let p2 = vol.p2(vol.img.row(y)[x], vol.img.row(y)[xp]);
-                    if forward {
-                        step::<true>(prev, cost, cur, acc, vol.p.p1, p2);
-                    } else {
-                        step::<false>(prev, cost, cur, acc, vol.p.p1, p2);
-                    }
-                }
-            }
-            std::mem::swap(&mut prev, &mut cur);
-        }
-    }
-}
-
-/// Vertical and (for 8 paths) diagonal paths, top-down or bottom-up.
-fn vertical(vol: &Volume, sum: &mut [u16], upward: bool, use_avx2: bool) {
+fn sweep(vol: &Volume, rows: &[Mutex<SumRow>], downward: bool) {
     let (w, h, nd) = (vol.w, vol.h, vol.nd);
-    let n_paths = if vol.p.paths == 8 { 3 } else { 1 };
     let stride = cell(nd);
-    // prev/cur rows: for each path, w cells.
-    let mut prev = vec![SENTINEL; n_paths * w * stride];
-    let mut cur = vec![SENTINEL; n_paths * w * stride];
-    let chunk = w.div_ceil(rayon::current_num_threads().max(1) * 2).max(16);
+    let p1 = vol.p.p1 as u8;
+    // Diagonals lean one column left or right in the direction of travel.
+    let leans: &[isize] = if vol.p.paths == 8 { &[0, -1, 1] } else { &[0] };
+    let mut prev = vec![SENTINEL; leans.len() * w * stride];
+    let mut cur = prev.clone();
+    let (mut along_prev, mut along_cur) = (vec![SENTINEL; stride], vec![SENTINEL; stride]);
     for i in 0..h {
-        let y = if upward { h - 1 - i } else { i };
-        let yp = if upward { y + 1 } else { y.wrapping_sub(1) };
-        let s_row = &mut sum[y * w * nd..(y + 1) * w * nd];
-        let prev_ref = &prev;
-        let mut cur_paths: Vec<&mut [u16]> = cur.chunks_mut(w * stride).collect();
-        // Split each path's row and the sum row into the same column chunks.
-        let mut jobs: Vec<ChunkJob> = Vec::new();
-        let mut s_rest = s_row;
-        let mut x0 = 0;
-        while x0 < w {
-            let n = chunk.min(w - x0);
-            let (s_head, s_tail) = s_rest.split_at_mut(n * nd);
-            s_rest = s_tail;
-            let parts = cur_paths
-                .iter_mut()
-                .map(|p| {
-                    let taken = std::mem::take(p);
-                    let (head, tail) = taken.split_at_mut(n * stride);
-                    *p = tail;
-                    head
-                })
-                .collect();
-            jobs.push((x0, parts, s_head));
-            x0 += n;
-        }
-        jobs.into_par_iter().for_each(|(x0, mut parts, s)| {
-            let ctx = VerticalRow {
-                vol,
-                y,
-                yp,
-                first: i == 0,
-                prev: prev_ref,
-                x0,
-                upward,
-            };
-            if use_avx2 {
-                #[cfg(target_arch = "x86_64")]
-                // SAFETY: AVX2 presence was checked at run time; same safe code.
-                unsafe {
-                    vertical_chunk_avx2(&ctx, &mut parts, s)
+        let y = if downward { i } else { h - 1 - i };
+        let yp = if downward { y.wrapping_sub(1) } else { y + 1 };
+        let mut row = rows[y].lock().unwrap_or_else(|e| e.into_inner());
+        let row = &mut *row;
+        let first = !row.visited;
+        for j in 0..w {
+            let x = if downward { j } else { w - 1 - j };
+            let cost = vol.costs(x, y);
+            let acc = &mut row.sums[x * nd..(x + 1) * nd];
+            // The path along the row: the first added into a pixel's sums,
+            // stored instead of added on the first visit of the row.
+            if j == 0 {
+                start(cost, &mut along_cur);
+                if first {
+                    emit::<true>(acc, &along_cur[1..=nd]);
+                } else {
+                    emit::<false>(acc, &along_cur[1..=nd]);
                 }
             } else {
-                vertical_chunk(&ctx, &mut parts, s)
+                let xp = if downward { x - 1 } else { x + 1 };
+                let p2 = vol.p2(vol.img.row(y)[x], vol.img.row(y)[xp]);
+                if first {
+                    step::<true>(&along_prev, cost, &mut along_cur, acc, p1, p2);
+                } else {
+                    step::<false>(&along_prev, cost, &mut along_cur, acc, p1, p2);
+                }
             }
-        });
+            std::mem::swap(&mut along_prev, &mut along_cur);
+            for (path, &lean) in leans.iter().enumerate() {
+                let at = (path * w + x) * stride;
+                let cur = &mut cur[at..at + stride];
+                let xp = x as isize + if downward { lean } else { -lean };
+                if i == 0 || xp < 0 || xp >= w as isize {
+                    start(cost, cur);
+                    emit::<false>(acc, &cur[1..=nd]);
+                } else {
+                    let xp = xp as usize;
+                    let base = (path * w + xp) * stride;
+                    let p2 = vol.p2(vol.img.get(x, y), vol.img.get(xp, yp));
+                    step::<false>(&prev[base..base + stride], cost, cur, acc, p1, p2);
+                }
+            }
+        }
+        if !first {
+            select_row(vol, row.sums, row.left, row.right);
+        }
+        row.visited = true;
         std::mem::swap(&mut prev, &mut cur);
     }
 }
 
-/// A column chunk of one row: first column, each path's cost rows, the sum row.
-type ChunkJob<'a> = (usize, Vec<&'a mut [u16]>, &'a mut [u16]);
-
-struct VerticalRow<'a> {
-    vol: &'a Volume<'a>,
-    y: usize,
-    yp: usize,
-    first: bool,
-    prev: &'a [u16],
-    x0: usize,
-    upward: bool,
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,popcnt")]
-unsafe fn vertical_chunk_avx2(ctx: &VerticalRow, parts: &mut [&mut [u16]], s: &mut [u16]) {
-    vertical_chunk(ctx, parts, s)
-}
-
-/// Paths from the previous row (straight, and both diagonals for 8 paths)
-/// for the columns of one chunk.
+/// Winner-take-all on a row of summed costs `s_row`, for the left view and
+/// the right view.
 #[inline(always)]
-fn vertical_chunk(ctx: &VerticalRow, parts: &mut [&mut [u16]], s: &mut [u16]) {
-    let vol = ctx.vol;
+fn select_row(vol: &Volume, s_row: &[u16], lrow: &mut [f32], rrow: &mut [f32]) {
     let (w, nd) = (vol.w, vol.nd);
-    let stride = cell(nd);
-    let n = s.len() / nd;
-    // Diagonals lean one column left or right in the direction of travel.
-    let leans: &[isize] = if parts.len() == 3 { &[0, -1, 1] } else { &[0] };
-    for j in 0..n {
-        let x = ctx.x0 + j;
-        let cost = vol.costs(x, ctx.y);
-        let acc = &mut s[j * nd..(j + 1) * nd];
-        for (path, &lean) in leans.iter().enumerate() {
-            let cur = &mut parts[path][j * stride..(j + 1) * stride];
-            let xp = x as isize + if ctx.upward { -lean } else { lean };
-            if ctx.first || xp < 0 || xp >= w as isize {
-                start(cost, cur);
-                emit::<false>(acc, &cur[1..=nd]);
-            } else {
-                let xp = xp as usize;
-                let base = (path * w + xp) * stride;
-                let prev = &ctx.prev[base..base + stride];
-                let p2 = vol.p2(vol.img.get(x, ctx.y), vol.img.get(xp, ctx.yp));
-                step::<false>(prev, cost, cur, acc, vol.p.p1, p2);
-            }
+    for (x, out) in lrow.iter_mut().enumerate().skip(vol.min_disp) {
+        let costs = &s_row[x * nd..x * nd + nd.min(x - vol.min_disp + 1)];
+        // Cost high, index low: one vectorisable minimum gives the
+        // smallest cost at the smallest disparity.
+        let packed = (costs.iter().zip(0u32..))
+            .map(|(&c, k)| u32::from(c) << 16 | k)
+            .min()
+            .expect("non-empty");
+        let (best, k) = ((packed >> 16) as u16, (packed & 0xFFFF) as usize);
+        let mut d = (vol.min_disp + k) as f32;
+        if vol.subpixel && k > 0 && k + 1 < costs.len() {
+            d += parabola(costs[k - 1] as f32, best as f32, costs[k + 1] as f32);
+        }
+        *out = d;
+    }
+    // The right pixel x − d_min − k costs what left x does at lane
+    // k: a running minimum per right pixel, kept at W − 1 − xr so
+    // that the lanes of one left pixel are contiguous.
+    let (mut best, mut lane) = (vec![u16::MAX; w + nd], vec![0u16; w + nd]);
+    for x in vol.min_disp..w {
+        let at = w - 1 - (x - vol.min_disp);
+        let costs = &s_row[x * nd..(x + 1) * nd];
+        let valid = nd.min(x - vol.min_disp + 1);
+        // SAFETY: the portable lane operations need no special instructions.
+        unsafe {
+            Portable::min_update(&mut best[at..], &mut lane[at..], costs, valid);
         }
     }
-}
-
-/// Winner-take-all on the summed costs, for the left view and the right view.
-fn select(vol: &Volume, sum: &[u16], subpixel: bool) -> Raw {
-    let (w, h, nd) = (vol.w, vol.h, vol.nd);
-    let mut left = DisparityMap::new(w, h, f32::INFINITY);
-    let mut right = DisparityMap::new(w, h, f32::INFINITY);
-    left.as_mut_slice()
-        .par_chunks_mut(w)
-        .zip(right.as_mut_slice().par_chunks_mut(w))
-        .enumerate()
-        .for_each(|(y, (lrow, rrow))| {
-            let s_row = &sum[y * w * nd..(y + 1) * w * nd];
-            for (x, out) in lrow.iter_mut().enumerate() {
-                if x < vol.min_disp {
-                    continue;
-                }
-                let costs = &s_row[x * nd..x * nd + nd.min(x - vol.min_disp + 1)];
-                // Cost high, index low: one vectorisable minimum gives the
-                // smallest cost at the smallest disparity.
-                let packed = (costs.iter().zip(0u32..))
-                    .map(|(&c, k)| u32::from(c) << 16 | k)
-                    .min()
-                    .expect("non-empty");
-                let (best, k) = ((packed >> 16) as u16, (packed & 0xFFFF) as usize);
-                let mut d = (vol.min_disp + k) as f32;
-                if subpixel && k > 0 && k + 1 < costs.len() {
-                    d += parabola(costs[k - 1] as f32, best as f32, costs[k + 1] as f32);
-                }
-                *out = d;
-            }
-            // The right pixel x − d_min − k costs what left x does at lane
-            // k: a running minimum per right pixel, kept at W − 1 − xr so
-            // that the lanes of one left pixel are contiguous.
-            let (mut best, mut lane) = (vec![u16::MAX; w + nd], vec![0u16; w + nd]);
-            for x in vol.min_disp..w {
-                let at = w - 1 - (x - vol.min_disp);
-                let costs = &s_row[x * nd..(x + 1) * nd];
-                let valid = nd.min(x - vol.min_disp + 1);
-                // SAFETY: the portable lane operations need no special instructions.
-                unsafe {
-                    Portable::min_update(&mut best[at..], &mut lane[at..], costs, valid);
-                }
-            }
-            for (xr, out) in rrow.iter_mut().enumerate() {
-                let at = w - 1 - xr;
-                if best[at] != u16::MAX {
-                    *out = (vol.min_disp + lane[at] as usize) as f32;
-                }
-            }
-        });
-    Raw {
-        disparity: left,
-        right: Some(right),
+    for (xr, out) in rrow.iter_mut().enumerate() {
+        let at = w - 1 - xr;
+        if best[at] != u16::MAX {
+            *out = (vol.min_disp + lane[at] as usize) as f32;
+        }
     }
 }
 

@@ -6,7 +6,7 @@ use std::time::Instant;
 use anyhow::Context;
 use serde::Serialize;
 use stereolink_image::{colormap, io, pfm, Scene};
-use stereolink_stereo::{compute_disparity, Algorithm, MatchSpec, Refinement};
+use stereolink_stereo::{compute_disparity, Algorithm, MatchSpec, Matcher, Refinement};
 
 /// Matcher options shared by `match`, `eval` and `bench match`.
 #[derive(Debug, Clone, clap::Args)]
@@ -198,11 +198,13 @@ pub fn run_bench(args: BenchArgs, out: &super::Output) -> anyhow::Result<()> {
         .num_threads(args.threads.unwrap_or(0))
         .build()?;
     let (times, disp) = pool.install(|| -> anyhow::Result<_> {
-        let disp = compute_disparity(&scene.left, &scene.right, &spec)?;
+        // One matcher for every run, as for the frames of a video.
+        let mut matcher = Matcher::new();
+        let disp = matcher.compute(&scene.left, &scene.right, &spec)?;
         let mut times = Vec::with_capacity(args.iters);
         for _ in 0..args.iters.max(1) {
             let t = Instant::now();
-            std::hint::black_box(compute_disparity(&scene.left, &scene.right, &spec)?);
+            std::hint::black_box(matcher.compute(&scene.left, &scene.right, &spec)?);
             times.push(t.elapsed().as_secs_f64() * 1e3);
         }
         Ok((times, disp))
