@@ -15,11 +15,11 @@
 //!
 //! Memory is the `u8` cost volume (census costs computed once for all
 //! paths) and the `u16` sum volume, `3·W·H·D` bytes, plus a few rows of path
-//! costs (`u8`, see [`step`]); both volumes are kept in [`SgmBuffers`]
+//! costs (`u8`, see `step`); both volumes are kept in [`SgmBuffers`]
 //! between frames. 211 MiB peak for the 741×497 Motorcycle scene at 190
 //! disparities. Aggregation is two sweeps, down and up, that run in
 //! parallel and each add all their paths into a pixel's sums in one visit
-//! (see [`sweep`]); the second sweep to visit a row picks its disparities.
+//! (see `sweep`); the second sweep to visit a row picks its disparities.
 //! Inner loops run along the disparity axis and are compiled for AVX2 and
 //! POPCNT when the CPU has them.
 
@@ -35,7 +35,7 @@ use crate::{MatchSpec, StereoError};
 pub const OUTSIDE_COST: u16 = 62;
 /// Path cost of the missing neighbours of `d_min` and `d_max`.
 const SENTINEL: u8 = u8::MAX;
-/// Largest `P2`: path costs must fit `u8` (see [`step`]).
+/// Largest `P2`: path costs must fit `u8` (see `step`).
 pub const MAX_P2: u16 = 255 - OUTSIDE_COST;
 
 /// SGM parameters.

@@ -9,8 +9,8 @@
 //! `colsum[x][d]` over the window's rows is updated incrementally (add the
 //! entering row, subtract the leaving one) and a horizontal running sum over
 //! the columns gives the window sum. The disparity axis is innermost and
-//! contiguous, padded to a whole number of [`LANES`]-wide blocks of `u16`
-//! lanes; the lane operations come in two sets ([`crate::lanes`]), AVX2
+//! contiguous, padded to a whole number of `LANES`-wide blocks of `u16`
+//! lanes; the lane operations come in two sets (`lanes` module), AVX2
 //! intrinsics chosen at run time where the CPU has them and portable Rust
 //! elsewhere, which give bit-identical results (integer arithmetic, the
 //! same tie rule: the smallest disparity wins). Row bands run in parallel
