@@ -154,8 +154,10 @@ struct Volume<'a> {
     w: usize,
     h: usize,
     nd: usize,
+    /// Lanes per pixel: `nd` padded to a multiple of [`BLOCK`].
+    np: usize,
     min_disp: usize,
-    /// `C(x, y, d_min + k)` at `((y·W + x)·nd + k)`.
+    /// `C(x, y, d_min + k)` at `((y·W + x)·np + k)`; [`PAD`] for `k ≥ nd`.
     cost: &'a [u8],
     img: &'a GrayImage,
     p: SgmParams,
@@ -166,11 +168,11 @@ struct Volume<'a> {
 }
 
 impl Volume<'_> {
-    /// Matching costs of pixel (x, y), one per disparity.
+    /// Matching costs of pixel (x, y), one per lane.
     #[inline(always)]
     fn costs(&self, x: usize, y: usize) -> &[u8] {
-        let at = (y * self.w + x) * self.nd;
-        &self.cost[at..at + self.nd]
+        let at = (y * self.w + x) * self.np;
+        &self.cost[at..at + self.np]
     }
 
     #[inline(always)]
@@ -186,65 +188,73 @@ fn p2_table(p: &SgmParams) -> [u8; 256] {
     std::array::from_fn(|step| ((p.p2 as u32 * g / (g + step as u32)) as u8).max(p.p1 as u8 + 1))
 }
 
+/// Lanes of one vector step along the disparity axis (one AVX2 register of `u8`).
+const BLOCK: usize = 32;
+
+/// Cost of the padding lanes past `d_max`: saturates every path cost there
+/// to [`SENTINEL`], so they act as the missing neighbour of `d_max`.
+const PAD: u8 = u8::MAX;
+
 /// The census Hamming costs of every pixel and disparity, `u8`, computed
-/// once for all paths.
-fn cost_volume(cl: &[u64], cr: &[u64], w: usize, nd: usize, min_disp: usize, cost: &mut Vec<u8>) {
-    cost.resize(cl.len() * nd, 0);
+/// once for all paths, `np` lanes per pixel.
+fn cost_volume(
+    cl: &[u64],
+    cr: &[u64],
+    w: usize,
+    (nd, np): (usize, usize),
+    min_disp: usize,
+    cost: &mut Vec<u8>,
+) {
+    cost.resize(cl.len() * np, 0);
     let avx2 = crate::wta::avx2_available();
-    cost.par_chunks_mut(w * nd)
+    cost.par_chunks_mut(w * np)
         .zip(cl.par_chunks(w).zip(cr.par_chunks(w)))
         .for_each(|(out, (l, r))| {
             if avx2 {
                 #[cfg(target_arch = "x86_64")]
                 // SAFETY: AVX2 and POPCNT presence was checked at run time.
                 unsafe {
-                    cost_row_popcnt(l, r, min_disp, out)
+                    cost_row_popcnt(l, r, min_disp, nd, out)
                 }
             } else {
-                cost_row(l, r, min_disp, out)
+                cost_row(l, r, min_disp, nd, out)
             }
         });
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,popcnt")]
-unsafe fn cost_row_popcnt(l: &[u64], r: &[u64], min_disp: usize, out: &mut [u8]) {
-    cost_row(l, r, min_disp, out)
+unsafe fn cost_row_popcnt(l: &[u64], r: &[u64], min_disp: usize, nd: usize, out: &mut [u8]) {
+    cost_row(l, r, min_disp, nd, out)
 }
 
 #[inline(always)]
-fn cost_row(l: &[u64], r: &[u64], min_disp: usize, out: &mut [u8]) {
+fn cost_row(l: &[u64], r: &[u64], min_disp: usize, nd: usize, out: &mut [u8]) {
     let w = l.len();
-    let nd = out.len() / w;
+    let np = out.len() / w;
     // The right row reversed, so that the right pixels x − d of increasing d
     // are read forwards: r[x − d] = reversed[W − 1 − x + d].
     let reversed: Vec<u64> = r.iter().rev().copied().collect();
-    for (x, (&c, costs)) in l.iter().zip(out.chunks_exact_mut(nd)).enumerate() {
+    for (x, (&c, costs)) in l.iter().zip(out.chunks_exact_mut(np)).enumerate() {
         let inside = nd.min((x + 1).saturating_sub(min_disp));
-        let (matched, outside) = costs.split_at_mut(inside);
+        let (real, padding) = costs.split_at_mut(nd);
+        let (matched, outside) = real.split_at_mut(inside);
         let base = w - 1 - x + min_disp;
         for (v, &rv) in matched.iter_mut().zip(&reversed[base..base + inside]) {
             *v = (c ^ rv).count_ones() as u8;
         }
         outside.fill(OUTSIDE_COST as u8);
+        padding.fill(PAD);
     }
 }
 
-/// Values per pixel and path: `[SENTINEL, L(d_min)..L(d_max), SENTINEL, min_k L]`.
-/// The sentinels stand for the missing neighbours `d_min − 1` and
-/// `d_max + 1`; the minimum is kept so the next step need not search it.
-const fn cell(nd: usize) -> usize {
-    nd + 3
-}
-
-/// Starts a path at pixel costs `cost` (no predecessor): `L = C`.
-#[inline(always)]
-fn start(cost: &[u8], cur: &mut [u8]) {
-    let nd = cost.len();
-    cur[1..=nd].copy_from_slice(cost);
-    cur[0] = SENTINEL;
-    cur[nd + 1] = SENTINEL;
-    cur[nd + 2] = cost.iter().copied().min().unwrap_or(0);
+/// Values per pixel and path: `[SENTINEL, L(d_min)..L(d_max), padding, SENTINEL, min_k L]`,
+/// `np + 3` in all. The sentinels stand for the missing neighbours `d_min − 1`
+/// and `d_max + 1` (the padding lanes are [`SENTINEL`] too); the minimum is
+/// kept so the next step need not search it. A path's first pixel steps
+/// from an all-zero cell, which gives `L = C`.
+const fn cell(np: usize) -> usize {
+    np + 3
 }
 
 /// One path step: `cur[k] = C[k] + min(prev[k], prev[k±1] + P1, min_prev + P2) − min_prev`,
@@ -254,8 +264,8 @@ fn start(cost: &[u8], cur: &mut [u8]) {
 /// Path costs fit `u8`: the minimum over `k` of a step's result is at most
 /// `C ≤ 62`, so `min_prev + P2 ≤ 62 + MAX_P2 = 255`, and every result is
 /// `C + (best − min_prev) ≤ 62 + P2`. The `± 1` neighbours add `P1`
-/// saturating: a saturated value is still above `min_prev + P2`, which wins.
-/// 32 disparities per AVX2 operation instead of 16.
+/// saturating: a saturated value is still above `min_prev + P2`, which wins;
+/// the padding lanes' [`PAD`] cost saturates them to [`SENTINEL`].
 #[inline(always)]
 fn step<const FIRST: bool>(
     prev: &[u8],
@@ -265,32 +275,104 @@ fn step<const FIRST: bool>(
     p1: u8,
     p2: u8,
 ) {
-    let nd = cost.len();
-    let min_prev = prev[nd + 2];
+    let np = cost.len();
+    let min_prev = prev[np + 2];
     let jump = min_prev + p2;
     let mut min_cur = u8::MAX;
     // Zipped slices (no indexing) so that the loop compiles to vector code.
-    let (below, same, above) = (&prev[..nd], &prev[1..=nd], &prev[2..nd + 2]);
-    let outs = cur[1..=nd].iter_mut().zip(acc.iter_mut());
+    let (below, same, above) = (&prev[..np], &prev[1..=np], &prev[2..np + 2]);
+    let outs = cur[1..=np].iter_mut().zip(acc.iter_mut());
     let lanes = outs.zip(cost).zip(below.iter().zip(same).zip(above));
     for (((out, sum), &c), ((&b, &s), &a)) in lanes {
         let best = s
             .min(b.saturating_add(p1))
             .min(a.saturating_add(p1))
             .min(jump);
-        let v = c + (best - min_prev);
+        let v = c.saturating_add(best - min_prev);
         *out = v;
         *sum = if FIRST { 0 } else { *sum } + u16::from(v);
         min_cur = min_cur.min(v);
     }
-    cur[nd + 2] = min_cur;
+    cur[np + 2] = min_cur;
 }
 
-/// Adds a path's costs `cur` into the sums `acc` (stores them when `FIRST`).
-#[inline(always)]
-fn emit<const FIRST: bool>(acc: &mut [u16], cur: &[u8]) {
-    for (a, &c) in acc.iter_mut().zip(cur) {
-        *a = if FIRST { 0 } else { *a } + u16::from(c);
+/// The steps of all `N` paths of a sweep at one pixel (path `p` from
+/// `prev[p]` to `cur[p]` with penalty `p2[p]`), their costs added into the
+/// pixel's sums `acc` (stored when `FIRST`).
+struct PixelSteps<'a, const N: usize> {
+    prev: [&'a [u8]; N],
+    cur: [&'a mut [u8]; N],
+    p2: [u8; N],
+    p1: u8,
+    cost: &'a [u8],
+    acc: &'a mut [u16],
+}
+
+impl<const N: usize> PixelSteps<'_, N> {
+    /// One [`step`] per path.
+    #[inline(always)]
+    fn run<const FIRST: bool>(self) {
+        for (p, (prev, cur)) in self.prev.into_iter().zip(self.cur).enumerate() {
+            if FIRST && p == 0 {
+                step::<true>(prev, self.cost, cur, self.acc, self.p1, self.p2[p]);
+            } else {
+                step::<false>(prev, self.cost, cur, self.acc, self.p1, self.p2[p]);
+            }
+        }
+    }
+
+    /// [`Self::run`] with AVX2 intrinsics, [`BLOCK`] lanes at a time for
+    /// every path, the paths' costs summed in registers and added into
+    /// `acc` once (the same integers: bit-identical).
+    ///
+    /// # Safety
+    /// The CPU must have AVX2.
+    #[cfg(target_arch = "x86_64")]
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn run_avx2<const FIRST: bool>(self) {
+        use std::arch::x86_64::*;
+        let np = self.cost.len();
+        assert!(np % BLOCK == 0 && self.acc.len() >= np);
+        for p in 0..N {
+            assert!(self.prev[p].len() >= cell(np) && self.cur[p].len() >= cell(np));
+        }
+        let p1 = _mm256_set1_epi8(self.p1 as i8);
+        let min_prev: [u8; N] = std::array::from_fn(|p| self.prev[p][np + 2]);
+        let base = min_prev.map(|m| _mm256_set1_epi8(m as i8));
+        let jump: [__m256i; N] =
+            std::array::from_fn(|p| _mm256_set1_epi8((min_prev[p] + self.p2[p]) as i8));
+        let mut mins = [_mm256_set1_epi8(-1); N];
+        let load = |s: &[u8], at: usize| _mm256_loadu_si256(s[at..at + BLOCK].as_ptr().cast());
+        for b in (0..np).step_by(BLOCK) {
+            let c = load(self.cost, b);
+            let acc = self.acc[b..b + BLOCK].as_mut_ptr().cast::<__m256i>();
+            let (mut lo, mut hi) = if FIRST {
+                (_mm256_setzero_si256(), _mm256_setzero_si256())
+            } else {
+                (_mm256_loadu_si256(acc), _mm256_loadu_si256(acc.add(1)))
+            };
+            for p in 0..N {
+                let prev = self.prev[p];
+                let (below, same, above) = (load(prev, b), load(prev, b + 1), load(prev, b + 2));
+                let near =
+                    _mm256_min_epu8(_mm256_adds_epu8(below, p1), _mm256_adds_epu8(above, p1));
+                let best = _mm256_min_epu8(_mm256_min_epu8(same, near), jump[p]);
+                let v = _mm256_adds_epu8(c, _mm256_sub_epi8(best, base[p]));
+                _mm256_storeu_si256(self.cur[p][b + 1..b + 1 + BLOCK].as_mut_ptr().cast(), v);
+                mins[p] = _mm256_min_epu8(mins[p], v);
+                lo = _mm256_add_epi16(lo, _mm256_cvtepu8_epi16(_mm256_castsi256_si128(v)));
+                hi = _mm256_add_epi16(hi, _mm256_cvtepu8_epi16(_mm256_extracti128_si256(v, 1)));
+            }
+            _mm256_storeu_si256(acc, lo);
+            _mm256_storeu_si256(acc.add(1), hi);
+        }
+        for (cur, m) in self.cur.into_iter().zip(mins) {
+            let m = _mm_min_epu8(_mm256_castsi256_si128(m), _mm256_extracti128_si256(m, 1));
+            let m = _mm_min_epu8(m, _mm_srli_si128(m, 8));
+            let m = _mm_minpos_epu16(_mm_cvtepu8_epi16(m));
+            cur[np + 2] = _mm_cvtsi128_si32(m) as u8;
+        }
     }
 }
 
@@ -308,12 +390,14 @@ pub fn sgm(left: &GrayImage, right: &GrayImage, spec: &MatchSpec, buffers: &mut 
     let (w, h) = left.dims();
     let (cl, cr) = rayon::join(|| census(left), || census(right));
     let SgmBuffers { cost, sum } = buffers;
-    cost_volume(&cl, &cr, w, spec.ndisp(), spec.min_disp, cost);
+    let (nd, np) = (spec.ndisp(), spec.ndisp().next_multiple_of(BLOCK));
+    cost_volume(&cl, &cr, w, (nd, np), spec.min_disp, cost);
     drop((cl, cr));
     let vol = Volume {
         w,
         h,
-        nd: spec.ndisp(),
+        nd,
+        np,
         min_disp: spec.min_disp,
         cost,
         img: left,
@@ -321,11 +405,11 @@ pub fn sgm(left: &GrayImage, right: &GrayImage, spec: &MatchSpec, buffers: &mut 
         p2_by_step: p2_table(&spec.sgm),
         subpixel: spec.refine.subpixel,
     };
-    sum.resize(w * h * vol.nd, 0);
+    sum.resize(w * h * np, 0);
     let mut disparity = DisparityMap::new(w, h, f32::INFINITY);
     let mut right_map = DisparityMap::new(w, h, f32::INFINITY);
     let rows: Vec<Mutex<SumRow>> = sum
-        .chunks_mut((w * vol.nd).max(1))
+        .chunks_mut((w * np).max(1))
         .zip(disparity.as_mut_slice().chunks_mut(w.max(1)))
         .zip(right_map.as_mut_slice().chunks_mut(w.max(1)))
         .map(|((sums, left), right)| {
@@ -339,12 +423,23 @@ pub fn sgm(left: &GrayImage, right: &GrayImage, spec: &MatchSpec, buffers: &mut 
         .collect();
     let use_avx2 = crate::wta::avx2_available();
     let run = |downward: bool| {
+        let eight = vol.p.paths == 8;
         #[cfg(target_arch = "x86_64")]
         if use_avx2 {
-            // SAFETY: AVX2 and POPCNT presence was checked at run time; same safe code.
-            return unsafe { sweep_avx2(&vol, &rows, downward) };
+            // SAFETY: AVX2 and POPCNT presence was checked at run time.
+            return unsafe {
+                if eight {
+                    sweep_avx2::<4>(&vol, &rows, downward)
+                } else {
+                    sweep_avx2::<2>(&vol, &rows, downward)
+                }
+            };
         }
-        sweep(&vol, &rows, downward)
+        if eight {
+            sweep::<4>(&vol, &rows, downward, false)
+        } else {
+            sweep::<2>(&vol, &rows, downward, false)
+        }
     };
     rayon::join(|| run(true), || run(false));
     drop(rows);
@@ -366,70 +461,91 @@ struct SumRow<'a> {
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,popcnt")]
-unsafe fn sweep_avx2(vol: &Volume, rows: &[Mutex<SumRow>], downward: bool) {
-    sweep(vol, rows, downward)
+unsafe fn sweep_avx2<const N: usize>(vol: &Volume, rows: &[Mutex<SumRow>], downward: bool) {
+    sweep::<N>(vol, rows, downward, true)
 }
 
-/// One of the two sweeps over the image, each run by its own worker: the
-/// downward sweep aggregates the left-to-right path and the paths from the
-/// row above (straight, and both diagonals for 8 paths), the upward sweep
-/// the right-to-left path and the paths from the row below. Every pixel's
-/// path costs are added into its sums in one visit, so the sum and cost
-/// volumes are read twice in all, and the two sweeps run in parallel,
-/// meeting in the middle; a row is locked while a sweep works on it.
+/// Which way the paths from the previous row lean, in the direction of
+/// travel: straight, then the two diagonals (8 paths).
+const LEANS: [isize; 3] = [0, -1, 1];
+
+/// One of the two sweeps over the image, each run by its own worker, with
+/// `N` paths: the downward sweep aggregates the left-to-right path (path 0)
+/// and the paths from the row above (straight, and both diagonals for 8
+/// paths), the upward sweep the right-to-left path and the paths from the
+/// row below. Every pixel's path costs are added into its sums in one visit
+/// ([`PixelSteps`]), so the sum and cost volumes are read twice in all; the
+/// two sweeps run in parallel, meeting in the middle, and a row is locked
+/// while a sweep works on it. `avx2`: the CPU has it.
 #[inline(always)]
-fn sweep(vol: &Volume, rows: &[Mutex<SumRow>], downward: bool) {
-    let (w, h, nd) = (vol.w, vol.h, vol.nd);
-    let stride = cell(nd);
+fn sweep<const N: usize>(vol: &Volume, rows: &[Mutex<SumRow>], downward: bool, avx2: bool) {
+    let (w, h, np) = (vol.w, vol.h, vol.np);
+    let stride = cell(np);
     let p1 = vol.p.p1 as u8;
-    // Diagonals lean one column left or right in the direction of travel.
-    let leans: &[isize] = if vol.p.paths == 8 { &[0, -1, 1] } else { &[0] };
-    let mut prev = vec![SENTINEL; leans.len() * w * stride];
+    let zero = vec![0u8; stride];
+    let mut prev = vec![SENTINEL; (N - 1) * w * stride];
     let mut cur = prev.clone();
     let (mut along_prev, mut along_cur) = (vec![SENTINEL; stride], vec![SENTINEL; stride]);
     for i in 0..h {
         let y = if downward { i } else { h - 1 - i };
-        let yp = if downward { y.wrapping_sub(1) } else { y + 1 };
+        let line = vol.img.row(y);
+        let line_prev = (i > 0).then(|| vol.img.row(if downward { y - 1 } else { y + 1 }));
         let mut row = rows[y].lock().unwrap_or_else(|e| e.into_inner());
         let row = &mut *row;
         let first = !row.visited;
         for j in 0..w {
             let x = if downward { j } else { w - 1 - j };
-            let cost = vol.costs(x, y);
-            let acc = &mut row.sums[x * nd..(x + 1) * nd];
-            // The path along the row: the first added into a pixel's sums,
-            // stored instead of added on the first visit of the row.
-            if j == 0 {
-                start(cost, &mut along_cur);
-                if first {
-                    emit::<true>(acc, &along_cur[1..=nd]);
-                } else {
-                    emit::<false>(acc, &along_cur[1..=nd]);
+            let mut prevs = [&zero[..]; N];
+            let mut p2 = [0; N];
+            if j > 0 {
+                let xa = if downward { x - 1 } else { x + 1 };
+                (prevs[0], p2[0]) = (&along_prev[..], vol.p2(line[x], line[xa]));
+            }
+            for p in 1..N {
+                let xp = x as isize
+                    + if downward {
+                        LEANS[p - 1]
+                    } else {
+                        -LEANS[p - 1]
+                    };
+                if let (Some(above), Ok(xp)) = (line_prev, usize::try_from(xp)) {
+                    if xp < w {
+                        let at = ((p - 1) * w + xp) * stride;
+                        (prevs[p], p2[p]) = (&prev[at..at + stride], vol.p2(line[x], above[xp]));
+                    }
                 }
-            } else {
-                let xp = if downward { x - 1 } else { x + 1 };
-                let p2 = vol.p2(vol.img.row(y)[x], vol.img.row(y)[xp]);
-                if first {
-                    step::<true>(&along_prev, cost, &mut along_cur, acc, p1, p2);
+            }
+            let mut along = Some(&mut along_cur[..]);
+            let mut verticals = cur
+                .chunks_exact_mut(w * stride)
+                .map(|c| &mut c[x * stride..(x + 1) * stride]);
+            let cur = std::array::from_fn(|p| {
+                if p == 0 {
+                    along.take()
                 } else {
-                    step::<false>(&along_prev, cost, &mut along_cur, acc, p1, p2);
+                    verticals.next()
                 }
+                .expect("N paths")
+            });
+            let steps = PixelSteps {
+                prev: prevs,
+                cur,
+                p2,
+                p1,
+                cost: vol.costs(x, y),
+                acc: &mut row.sums[x * np..(x + 1) * np],
+            };
+            match (avx2, first) {
+                #[cfg(target_arch = "x86_64")]
+                // SAFETY: the caller saw AVX2.
+                (true, true) => unsafe { steps.run_avx2::<true>() },
+                #[cfg(target_arch = "x86_64")]
+                // SAFETY: as above.
+                (true, false) => unsafe { steps.run_avx2::<false>() },
+                (_, true) => steps.run::<true>(),
+                (_, false) => steps.run::<false>(),
             }
             std::mem::swap(&mut along_prev, &mut along_cur);
-            for (path, &lean) in leans.iter().enumerate() {
-                let at = (path * w + x) * stride;
-                let cur = &mut cur[at..at + stride];
-                let xp = x as isize + if downward { lean } else { -lean };
-                if i == 0 || xp < 0 || xp >= w as isize {
-                    start(cost, cur);
-                    emit::<false>(acc, &cur[1..=nd]);
-                } else {
-                    let xp = xp as usize;
-                    let base = (path * w + xp) * stride;
-                    let p2 = vol.p2(vol.img.get(x, y), vol.img.get(xp, yp));
-                    step::<false>(&prev[base..base + stride], cost, cur, acc, p1, p2);
-                }
-            }
         }
         if !first {
             select_row(vol, row.sums, row.left, row.right);
@@ -443,9 +559,9 @@ fn sweep(vol: &Volume, rows: &[Mutex<SumRow>], downward: bool) {
 /// the right view.
 #[inline(always)]
 fn select_row(vol: &Volume, s_row: &[u16], lrow: &mut [f32], rrow: &mut [f32]) {
-    let (w, nd) = (vol.w, vol.nd);
+    let (w, nd, np) = (vol.w, vol.nd, vol.np);
     for (x, out) in lrow.iter_mut().enumerate().skip(vol.min_disp) {
-        let costs = &s_row[x * nd..x * nd + nd.min(x - vol.min_disp + 1)];
+        let costs = &s_row[x * np..x * np + nd.min(x - vol.min_disp + 1)];
         // Cost high, index low: one vectorisable minimum gives the
         // smallest cost at the smallest disparity.
         let packed = (costs.iter().zip(0u32..))
@@ -465,7 +581,7 @@ fn select_row(vol: &Volume, s_row: &[u16], lrow: &mut [f32], rrow: &mut [f32]) {
     let (mut best, mut lane) = (vec![u16::MAX; w + nd], vec![0u16; w + nd]);
     for x in vol.min_disp..w {
         let at = w - 1 - (x - vol.min_disp);
-        let costs = &s_row[x * nd..(x + 1) * nd];
+        let costs = &s_row[x * np..x * np + nd];
         let valid = nd.min(x - vol.min_disp + 1);
         // SAFETY: the portable lane operations need no special instructions.
         unsafe {
@@ -527,9 +643,12 @@ mod tests {
 
     #[test]
     fn step_follows_the_recurrence() {
-        let mut prev = [0; cell(3)];
-        start(&[5, 0, 9], &mut prev);
+        // From the zero cell a path starts at its costs: L = C.
+        let mut prev = [SENTINEL; cell(3)];
+        let mut acc = [0; 3];
+        step::<true>(&[0; cell(3)], &[5, 0, 9], &mut prev, &mut acc, 2, 6);
         assert_eq!(prev, [SENTINEL, 5, 0, 9, SENTINEL, 0]);
+        assert_eq!(acc, [5, 0, 9]);
         let cost = [3, 3, 3];
         let mut cur = [0; cell(3)];
         let mut acc = [10; 3];
@@ -539,6 +658,87 @@ mod tests {
         assert_eq!(acc, [15, 13, 15]);
         step::<true>(&prev, &cost, &mut cur, &mut acc, 2, 6);
         assert_eq!(acc, [5, 3, 5]);
+    }
+
+    /// The AVX2 pixel kernel equals one portable step per path, on cells
+    /// that paths can reach (built by stepping from random costs).
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn avx2_pixel_steps_equal_portable_steps() {
+        if !crate::wta::avx2_available() {
+            return;
+        }
+        fn steps<'a>(
+            prev: &'a [Vec<u8>],
+            cur: &'a mut [Vec<u8>],
+            acc: &'a mut [u16],
+            cost: &'a [u8],
+            p1: u8,
+        ) -> PixelSteps<'a, 4> {
+            let mut cur = cur.iter_mut();
+            PixelSteps {
+                prev: std::array::from_fn(|p| &prev[p][..]),
+                cur: std::array::from_fn(|_| &mut cur.next().expect("4 paths")[..]),
+                p2: [90, 40, 193, 30],
+                p1,
+                cost,
+                acc,
+            }
+        }
+        let mut s = 0x2545_F491_4F6C_DD1Du64;
+        let mut costs = |nd: usize, np: usize| -> Vec<u8> {
+            let mut c: Vec<u8> = (0..nd)
+                .map(|_| {
+                    s ^= s << 13;
+                    s ^= s >> 7;
+                    s ^= s << 17;
+                    (s % 63) as u8
+                })
+                .collect();
+            c.resize(np, PAD);
+            c
+        };
+        for (nd, p1) in [
+            (1usize, 3u8),
+            (5, 24),
+            (31, 1),
+            (32, 29),
+            (33, 7),
+            (64, 24),
+            (100, 12),
+        ] {
+            let np = nd.next_multiple_of(BLOCK);
+            // Four reachable previous cells: a few steps from the zero cell.
+            let prev: Vec<Vec<u8>> = (0..4)
+                .map(|p| {
+                    let mut now = vec![0u8; cell(np)];
+                    for _ in 0..=p {
+                        let mut out = vec![SENTINEL; cell(np)];
+                        step::<true>(&now, &costs(nd, np), &mut out, &mut vec![0; np], p1, 90);
+                        now = out;
+                    }
+                    now
+                })
+                .collect();
+            let cost = costs(nd, np);
+            for first in [false, true] {
+                let (mut cur_a, mut acc_a) = (vec![vec![SENTINEL; cell(np)]; 4], vec![7u16; np]);
+                let (mut cur_b, mut acc_b) = (cur_a.clone(), acc_a.clone());
+                let a = steps(&prev, &mut cur_a, &mut acc_a, &cost, p1);
+                let b = steps(&prev, &mut cur_b, &mut acc_b, &cost, p1);
+                // SAFETY: AVX2 was detected above.
+                unsafe {
+                    if first {
+                        a.run::<true>();
+                        b.run_avx2::<true>();
+                    } else {
+                        a.run::<false>();
+                        b.run_avx2::<false>();
+                    }
+                }
+                assert_eq!((cur_a, acc_a), (cur_b, acc_b), "nd {nd}, first {first}");
+            }
+        }
     }
 
     #[test]
