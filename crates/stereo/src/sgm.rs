@@ -122,9 +122,11 @@ fn census_row(img: &GrayImage, y: usize, out: &mut [u64]) {
     let mut padded = vec![0u8; 7 * pw];
     for (dy, dst) in padded.chunks_exact_mut(pw).enumerate() {
         let line = img.row((y + dy).saturating_sub(3).min(h - 1));
-        for (i, p) in dst.iter_mut().enumerate() {
-            *p = line[i.saturating_sub(4).min(w - 1)];
-        }
+        let (left, rest) = dst.split_at_mut(4);
+        let (middle, right) = rest.split_at_mut(w);
+        left.fill(line[0]);
+        middle.copy_from_slice(line);
+        right.fill(line[w - 1]);
     }
     // The 62 neighbours of the 9×7 window as (row, column) in `padded`.
     let neighbours = (0..7)
