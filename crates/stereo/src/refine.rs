@@ -22,8 +22,34 @@ pub struct Refinement {
     pub uniqueness: u32,
     /// Median filter size over valid pixels (0 or 1 = off, else odd).
     pub median: usize,
-    /// Fill invalid pixels from their row neighbours (the farther, i.e. smaller, disparity).
-    pub fill: bool,
+    /// How invalid pixels are filled, if at all.
+    pub fill: Option<HoleFill>,
+}
+
+/// Hole-filling strategies for a dense output.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum HoleFill {
+    /// Each invalid run of a row takes the smaller (farther) of the valid
+    /// disparities at its two ends: occlusions belong to the background.
+    Row,
+    /// Each invalid pixel takes the median of the nearest valid disparities
+    /// along the 8 directions (Hirschmüller 2008, §3.4, as for mismatches);
+    /// measured on the Middlebury v2 scenes it beats [`HoleFill::Row`] after
+    /// WTA on all four and after SGM on three (not Tsukuba).
+    Directions,
+}
+
+impl std::str::FromStr for HoleFill {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "row" => Ok(HoleFill::Row),
+            "directions" | "dirs" => Ok(HoleFill::Directions),
+            _ => Err(format!("unknown hole fill {s:?} (row or directions)")),
+        }
+    }
 }
 
 impl Refinement {
@@ -33,7 +59,7 @@ impl Refinement {
         subpixel: false,
         uniqueness: 0,
         median: 0,
-        fill: false,
+        fill: None,
     };
 
     /// The measured defaults for an algorithm (dense output).
@@ -44,14 +70,14 @@ impl Refinement {
                 subpixel: true,
                 uniqueness: 0,
                 median: 5,
-                fill: true,
+                fill: Some(HoleFill::Directions),
             },
             Algorithm::LineGrowing => Refinement {
                 lr_check: None,
                 subpixel: false,
                 uniqueness: 0,
                 median: 3,
-                fill: true,
+                fill: Some(HoleFill::Row),
             },
         }
     }
@@ -76,8 +102,10 @@ pub fn postprocess(raw: Raw, spec: &MatchSpec) -> DisparityMap {
     if r.median > 1 {
         d = median(&d, r.median);
     }
-    if r.fill {
-        fill_holes(&mut d);
+    match r.fill {
+        Some(HoleFill::Row) => fill_holes(&mut d),
+        Some(HoleFill::Directions) => fill_from_directions(&mut d),
+        None => {}
     }
     d
 }
@@ -165,6 +193,169 @@ fn fill_row(row: &mut [f32]) -> bool {
     any
 }
 
+/// [`HoleFill::Directions`]: each invalid pixel takes the median (the lower
+/// one for an even count) of the nearest valid disparities along the 8
+/// directions; pixels that see none are left to [`fill_holes`].
+///
+/// Two raster passes, O(W·H) whatever the holes, run in parallel: the
+/// forward pass carries, per column, the nearest valid value from the north,
+/// north-west and north-east from row to row (branch-free selects on whole
+/// rows) and follows each row for the west; the backward pass does the same
+/// from the south and east. Each lists its four values per invalid pixel,
+/// and the median of the eight comes from a sorting network.
+pub fn fill_from_directions(map: &mut DisparityMap) {
+    let w = map.width();
+    if w == 0 {
+        return;
+    }
+    let (forward, backward) =
+        rayon::join(|| nearest_valid(map, false), || nearest_valid(map, true));
+    // The backward pass lists the holes in reverse raster order.
+    let medians: Vec<f32> = forward
+        .par_iter()
+        .zip(backward.par_iter().rev())
+        .map(|((_, [a, b, c, d]), (_, [e, f, g, h]))| {
+            median_of_valid(&mut [*a, *b, *c, *d, *e, *f, *g, *h])
+        })
+        .collect();
+    let values = map.as_mut_slice();
+    for (&(at, _), m) in forward.iter().zip(medians) {
+        values[at] = m;
+    }
+    fill_holes(map);
+}
+
+/// For every invalid pixel (as its index, in raster order or, `backward`,
+/// the reverse), the nearest valid values along the row (west, or east when
+/// `backward`), its diagonal through the left neighbour's row, straight, and
+/// the diagonal through the right; the rows before it are those above (or
+/// below).
+fn nearest_valid(map: &DisparityMap, backward: bool) -> Vec<(usize, [f32; 4])> {
+    let (w, h) = map.dims();
+    let mut found = Vec::new();
+    let mut pass = DirectionPass::new(w);
+    for i in 0..h {
+        let y = if backward { h - 1 - i } else { i };
+        let row = map.row(y);
+        pass.find_holes(row);
+        let mut along = f32::INFINITY;
+        let holes = &pass.holes;
+        let n = holes.len();
+        for j in 0..n {
+            let k = if backward { n - 1 - j } else { j };
+            let x = holes[k];
+            let (neighbour, previous_hole) = if backward {
+                (x + 1, holes.get(k + 1).copied())
+            } else {
+                (x.wrapping_sub(1), k.checked_sub(1).map(|p| holes[p]))
+            };
+            // The nearest valid pixel along the row is the neighbour, or the
+            // previous hole's when the neighbour is a hole too.
+            if neighbour < w && previous_hole != Some(neighbour) {
+                along = row[neighbour];
+            }
+            let [straight, from_left, from_right] = pass.carried(x);
+            found.push((y * w + x, [along, from_left, straight, from_right]));
+        }
+        pass.advance(row);
+    }
+    found
+}
+
+/// Whether `d` is a valid (finite, disparities are never NaN) disparity,
+/// as one vector comparison.
+#[inline(always)]
+fn valid(d: f32) -> bool {
+    d.abs() < f32::INFINITY
+}
+
+/// One raster pass of [`fill_from_directions`]: per column, the nearest
+/// valid value straight above (or below), and on the diagonals through the
+/// left and right neighbours, for the row being visited.
+struct DirectionPass {
+    carry: [Vec<f32>; 3],
+    next: [Vec<f32>; 3],
+    /// The invalid pixels of the row, ascending.
+    holes: Vec<usize>,
+}
+
+impl DirectionPass {
+    fn new(w: usize) -> Self {
+        let none = vec![f32::INFINITY; w];
+        DirectionPass {
+            carry: [none.clone(), none.clone(), none.clone()],
+            next: [none.clone(), none.clone(), none],
+            holes: Vec::with_capacity(w),
+        }
+    }
+
+    /// Lists the invalid pixels of `row` (branch-free: holes are scattered).
+    fn find_holes(&mut self, row: &[f32]) {
+        self.holes.resize(row.len(), 0);
+        let mut n = 0;
+        for (x, &d) in row.iter().enumerate() {
+            self.holes[n] = x;
+            n += usize::from(!valid(d));
+        }
+        self.holes.truncate(n);
+    }
+
+    /// Straight, from-the-left and from-the-right values carried to column `x`.
+    fn carried(&self, x: usize) -> [f32; 3] {
+        [self.carry[0][x], self.carry[1][x], self.carry[2][x]]
+    }
+
+    /// Carries the values past `row` to the next row: a valid pixel starts
+    /// its column's value, an invalid one passes on what reached it; the
+    /// diagonals move one column.
+    fn advance(&mut self, row: &[f32]) {
+        // A bit-mask select: as an `if`, LLVM emits a branch per pixel.
+        fn pick(out: &mut [f32], row: &[f32], old: &[f32]) {
+            for ((o, &d), &old) in out.iter_mut().zip(row).zip(old) {
+                let keep = u32::from(valid(d)).wrapping_neg();
+                *o = f32::from_bits(d.to_bits() & keep | old.to_bits() & !keep);
+            }
+        }
+        let w = row.len();
+        let [straight, from_left, from_right] = &mut self.next;
+        pick(straight, row, &self.carry[0]);
+        from_left[0] = f32::INFINITY;
+        pick(&mut from_left[1..], &row[..w - 1], &self.carry[1][..w - 1]);
+        from_right[w - 1] = f32::INFINITY;
+        pick(&mut from_right[..w - 1], &row[1..], &self.carry[2][1..]);
+        std::mem::swap(&mut self.carry, &mut self.next);
+    }
+}
+
+/// The optimal 19-comparator network sorting eight values.
+#[rustfmt::skip]
+const SORT8: [(usize, usize); 19] = [
+    (0, 2), (1, 3), (4, 6), (5, 7),
+    (0, 4), (1, 5), (2, 6), (3, 7),
+    (0, 1), (2, 3), (4, 5), (6, 7),
+    (2, 4), (3, 5),
+    (1, 4), (3, 6),
+    (1, 2), (3, 4), (5, 6),
+];
+
+/// Sorts eight NaN-free values by [`SORT8`], unrolled into registers.
+#[inline(always)]
+fn sort8(v: &mut [f32; 8]) {
+    seq_macro::seq!(K in 0..19 {
+        let (i, j) = SORT8[K];
+        let (a, b) = (v[i], v[j]);
+        (v[i], v[j]) = if b < a { (b, a) } else { (a, b) };
+    });
+}
+
+/// The lower median of the finite values of `v` (`inf` for none); `inf`
+/// if there are none.
+fn median_of_valid(v: &mut [f32; 8]) -> f32 {
+    sort8(v);
+    let n = v.iter().filter(|&&d| valid(d)).count();
+    v[n.saturating_sub(1) / 2]
+}
+
 /// Mirrors a plane left-right: matching mirrored (right, left) as (left, right)
 /// gives the right view's disparity map, mirrored.
 pub fn flip<T: Copy>(img: &Plane<T>) -> Plane<T> {
@@ -194,6 +385,95 @@ mod tests {
         lr_check(&mut left, &right, 0.5);
         // x=0: d0 → xr 0: dr 1 ≠ 0 → drop; x=1: xr 0 → dr 1 ok; x=2: xr 1 → 1 ok; x=3: xr 0 → 1 ≠ 3 drop.
         assert_eq!(left.as_slice(), &[INF, 1.0, 1.0, INF]);
+    }
+
+    /// By the 0/1 principle a comparator network sorts iff it sorts every
+    /// input of zeros and ones.
+    #[test]
+    fn the_eight_value_network_sorts() {
+        for bits in 0u32..256 {
+            let mut v: [f32; 8] = std::array::from_fn(|k| (bits >> k & 1) as f32);
+            sort8(&mut v);
+            assert!(v.windows(2).all(|p| p[0] <= p[1]), "{bits:08b}");
+        }
+        assert_eq!(
+            median_of_valid(&mut [INF, 3.0, INF, 1.0, 2.0, INF, 9.0, INF]),
+            2.0
+        );
+        assert_eq!(median_of_valid(&mut [INF; 8]), INF);
+    }
+
+    #[test]
+    fn directional_fill_takes_the_median_of_the_eight_nearest() {
+        // The hole at (2, 2) sees 1, 2, 3 on the row above, 4 and 5 beside
+        // it and 6, 7, 9 below; the median of eight is the lower one, 4.
+        #[rustfmt::skip]
+        let mut m = Plane::from_vec(5, 5, vec![
+            INF, INF, INF, INF, INF,
+            INF, 1.0, 2.0, 3.0, INF,
+            INF, 4.0, INF, 5.0, INF,
+            INF, 6.0, 7.0, 9.0, INF,
+            INF, INF, INF, INF, INF,
+        ]).unwrap();
+        fill_from_directions(&mut m);
+        assert_eq!(m.get(2, 2), 4.0);
+        // The corner (0, 0) sees only 1, along its diagonal.
+        assert_eq!(m.get(0, 0), 1.0);
+        // (0, 2) sees east 4, north-east 1 (at (1, 1)), south-east 6: median 4.
+        assert_eq!(m.get(0, 2), 4.0);
+        assert!(m.as_slice().iter().all(|v| v.is_finite()));
+        // Nothing valid at all: stays invalid, no panic.
+        let mut empty = Plane::from_vec(3, 2, vec![INF; 6]).unwrap();
+        fill_from_directions(&mut empty);
+        assert!(empty.as_slice().iter().all(|v| !v.is_finite()));
+    }
+
+    proptest::proptest! {
+        /// The two passes equal walking from each hole in the 8 directions.
+        #[test]
+        fn directional_fill_equals_walking(
+            w in 1usize..24, h in 1usize..16, seed in proptest::prelude::any::<u64>(),
+            holes in 0u64..100,
+        ) {
+            let mut s = seed | 1;
+            let mut next = || { s ^= s << 13; s ^= s >> 7; s ^= s << 17; s };
+            let map = DisparityMap::from_fn(w, h, |_, _| {
+                let v = next();
+                if v % 100 < holes { INF } else { (v >> 40) as f32 % 32.0 * 0.5 }
+            });
+            let mut want = map.clone();
+            for y in 0..h {
+                for x in 0..w {
+                    if map.get(x, y).is_finite() {
+                        continue;
+                    }
+                    let mut near = [INF; 8];
+                    for (k, (dx, dy)) in [(-1, 0), (-1, -1), (0, -1), (1, -1), (1, 0), (1, 1), (0, 1), (-1, 1)]
+                        .into_iter()
+                        .enumerate()
+                    {
+                        let (mut cx, mut cy) = (x as isize + dx, y as isize + dy);
+                        while (0..w as isize).contains(&cx) && (0..h as isize).contains(&cy) {
+                            let v = map.get(cx as usize, cy as usize);
+                            if v.is_finite() {
+                                near[k] = v;
+                                break;
+                            }
+                            (cx, cy) = (cx + dx, cy + dy);
+                        }
+                    }
+                    let mut valid: Vec<f32> = near.into_iter().filter(|v| v.is_finite()).collect();
+                    valid.sort_by(f32::total_cmp);
+                    if !valid.is_empty() {
+                        want.set(x, y, valid[(valid.len() - 1) / 2]);
+                    }
+                }
+            }
+            fill_holes(&mut want);
+            let mut got = map.clone();
+            fill_from_directions(&mut got);
+            proptest::prop_assert_eq!(got.as_slice(), want.as_slice());
+        }
     }
 
     #[test]

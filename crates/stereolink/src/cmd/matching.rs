@@ -6,6 +6,7 @@ use std::time::Instant;
 use anyhow::Context;
 use serde::Serialize;
 use stereolink_image::{colormap, io, pfm, Scene};
+use stereolink_stereo::refine::HoleFill;
 use stereolink_stereo::{compute_disparity, Algorithm, MatchSpec, Matcher, Refinement};
 
 /// Matcher options shared by `match`, `eval` and `bench match`.
@@ -27,8 +28,13 @@ pub struct MatcherArgs {
     #[arg(long)]
     pub median: Option<usize>,
     /// Leave invalid pixels invalid instead of filling them.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "fill")]
     pub no_fill: bool,
+    /// Hole filling: `directions` (median of the nearest valid disparities
+    /// in 8 directions; default for wta and sgm) or `row` (the background
+    /// end of each invalid run; default for lg).
+    #[arg(long, value_name = "MODE")]
+    pub fill: Option<HoleFill>,
     /// SGM penalty P1.
     #[arg(long)]
     pub p1: Option<u16>,
@@ -67,8 +73,11 @@ impl MatcherArgs {
         if let Some(m) = self.median {
             spec.refine.median = m;
         }
+        if let Some(f) = self.fill {
+            spec.refine.fill = Some(f);
+        }
         if self.no_fill {
-            spec.refine.fill = false;
+            spec.refine.fill = None;
         }
         spec.sgm.p1 = self.p1.unwrap_or(spec.sgm.p1);
         spec.sgm.p2 = self.p2.unwrap_or(spec.sgm.p2);
