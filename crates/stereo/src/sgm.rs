@@ -335,7 +335,7 @@ impl<const N: usize> PixelSteps<'_, N> {
     unsafe fn run_avx2<const FIRST: bool>(self) {
         use std::arch::x86_64::*;
         let np = self.cost.len();
-        assert!(np % BLOCK == 0 && self.acc.len() >= np);
+        assert!(N <= 4 && np % BLOCK == 0 && self.acc.len() >= np);
         for p in 0..N {
             assert!(self.prev[p].len() >= cell(np) && self.cur[p].len() >= cell(np));
         }
@@ -345,37 +345,52 @@ impl<const N: usize> PixelSteps<'_, N> {
         let jump: [__m256i; N] =
             std::array::from_fn(|p| _mm256_set1_epi8((min_prev[p] + self.p2[p]) as i8));
         let mut mins = [_mm256_set1_epi8(-1); N];
-        let load = |s: &[u8], at: usize| _mm256_loadu_si256(s[at..at + BLOCK].as_ptr().cast());
-        for b in (0..np).step_by(BLOCK) {
-            let c = load(self.cost, b);
-            let acc = self.acc[b..b + BLOCK].as_mut_ptr().cast::<__m256i>();
+        // Lengths checked above: from here on, raw pointers and no bounds checks.
+        let prev = self.prev.map(|p| p.as_ptr());
+        let cur = self.cur.map(|c| c.as_mut_ptr());
+        let acc = self.acc.as_mut_ptr().cast::<__m256i>();
+        for b in 0..np / BLOCK {
+            let c = _mm256_loadu_si256(self.cost.as_ptr().add(b * BLOCK).cast());
             let (mut lo, mut hi) = if FIRST {
                 (_mm256_setzero_si256(), _mm256_setzero_si256())
             } else {
-                (_mm256_loadu_si256(acc), _mm256_loadu_si256(acc.add(1)))
+                (_mm256_loadu_si256(acc.add(2 * b)), _mm256_loadu_si256(acc.add(2 * b + 1)))
             };
-            for p in 0..N {
-                let prev = self.prev[p];
-                let (below, same, above) = (load(prev, b), load(prev, b + 1), load(prev, b + 2));
+            let mut path = |p: usize| {
+                let at = prev[p].add(b * BLOCK);
+                let load = |k: usize| _mm256_loadu_si256(at.add(k).cast());
+                let (below, same, above) = (load(0), load(1), load(2));
                 let near =
                     _mm256_min_epu8(_mm256_adds_epu8(below, p1), _mm256_adds_epu8(above, p1));
                 let best = _mm256_min_epu8(_mm256_min_epu8(same, near), jump[p]);
                 let v = _mm256_adds_epu8(c, _mm256_sub_epi8(best, base[p]));
-                _mm256_storeu_si256(self.cur[p][b + 1..b + 1 + BLOCK].as_mut_ptr().cast(), v);
+                _mm256_storeu_si256(cur[p].add(b * BLOCK + 1).cast(), v);
                 mins[p] = _mm256_min_epu8(mins[p], v);
                 lo = _mm256_add_epi16(lo, _mm256_cvtepu8_epi16(_mm256_castsi256_si128(v)));
                 hi = _mm256_add_epi16(hi, _mm256_cvtepu8_epi16(_mm256_extracti128_si256(v, 1)));
+            };
+            // Written out so that every path's vectors stay in registers.
+            path(0);
+            if N > 1 {
+                path(1);
             }
-            _mm256_storeu_si256(acc, lo);
-            _mm256_storeu_si256(acc.add(1), hi);
+            if N > 2 {
+                path(2);
+            }
+            if N > 3 {
+                path(3);
+            }
+            _mm256_storeu_si256(acc.add(2 * b), lo);
+            _mm256_storeu_si256(acc.add(2 * b + 1), hi);
         }
-        for (cur, m) in self.cur.into_iter().zip(mins) {
+        for (cur, m) in cur.into_iter().zip(mins) {
             let m = _mm_min_epu8(_mm256_castsi256_si128(m), _mm256_extracti128_si256(m, 1));
             let m = _mm_min_epu8(m, _mm_srli_si128(m, 8));
             let m = _mm_minpos_epu16(_mm_cvtepu8_epi16(m));
-            cur[np + 2] = _mm_cvtsi128_si32(m) as u8;
+            *cur.add(np + 2) = _mm_cvtsi128_si32(m) as u8;
         }
     }
+
 }
 
 /// The cost and sum volumes, kept from one frame to the next: both are
@@ -550,7 +565,13 @@ fn sweep<const N: usize>(vol: &Volume, rows: &[Mutex<SumRow>], downward: bool, a
             std::mem::swap(&mut along_prev, &mut along_cur);
         }
         if !first {
-            select_row(vol, row.sums, row.left, row.right);
+            match avx2 {
+                #[cfg(target_arch = "x86_64")]
+                // SAFETY: the caller saw AVX2.
+                true => unsafe { select_row::<crate::lanes::Avx2>(vol, row.sums, row.left, row.right) },
+                // SAFETY: the portable lane operations need nothing.
+                _ => unsafe { select_row::<Portable>(vol, row.sums, row.left, row.right) },
+            }
         }
         row.visited = true;
         std::mem::swap(&mut prev, &mut cur);
@@ -559,36 +580,28 @@ fn sweep<const N: usize>(vol: &Volume, rows: &[Mutex<SumRow>], downward: bool, a
 
 /// Winner-take-all on a row of summed costs `s_row`, for the left view and
 /// the right view.
+///
+/// # Safety
+/// `L`'s instruction set must be available.
 #[inline(always)]
-fn select_row(vol: &Volume, s_row: &[u16], lrow: &mut [f32], rrow: &mut [f32]) {
+unsafe fn select_row<L: LaneOps>(vol: &Volume, s_row: &[u16], lrow: &mut [f32], rrow: &mut [f32]) {
     let (w, nd, np) = (vol.w, vol.nd, vol.np);
-    for (x, out) in lrow.iter_mut().enumerate().skip(vol.min_disp) {
-        let costs = &s_row[x * np..x * np + nd.min(x - vol.min_disp + 1)];
-        // Cost high, index low: one vectorisable minimum gives the
-        // smallest cost at the smallest disparity.
-        let packed = (costs.iter().zip(0u32..))
-            .map(|(&c, k)| u32::from(c) << 16 | k)
-            .min()
-            .expect("non-empty");
-        let (best, k) = ((packed >> 16) as u16, (packed & 0xFFFF) as usize);
-        let mut d = (vol.min_disp + k) as f32;
-        if vol.subpixel && k > 0 && k + 1 < costs.len() {
-            d += parabola(costs[k - 1] as f32, best as f32, costs[k + 1] as f32);
-        }
-        *out = d;
-    }
     // The right pixel x − d_min − k costs what left x does at lane
     // k: a running minimum per right pixel, kept at W − 1 − xr so
     // that the lanes of one left pixel are contiguous.
-    let (mut best, mut lane) = (vec![u16::MAX; w + nd], vec![0u16; w + nd]);
+    let (mut best, mut lane) = (vec![u16::MAX; w + np], vec![0u16; w + np]);
     for x in vol.min_disp..w {
-        let at = w - 1 - (x - vol.min_disp);
-        let costs = &s_row[x * np..x * np + nd];
+        // Padded to whole blocks of lanes, as the lane operations need.
+        let costs = &s_row[x * np..(x + 1) * np];
         let valid = nd.min(x - vol.min_disp + 1);
-        // SAFETY: the portable lane operations need no special instructions.
-        unsafe {
-            Portable::min_update(&mut best[at..], &mut lane[at..], costs, valid);
+        let k = L::argmin(costs, valid);
+        let mut d = (vol.min_disp + k) as f32;
+        if vol.subpixel && k > 0 && k + 1 < valid {
+            d += parabola(costs[k - 1] as f32, costs[k] as f32, costs[k + 1] as f32);
         }
+        lrow[x] = d;
+        let at = w - 1 - (x - vol.min_disp);
+        L::min_update(&mut best[at..], &mut lane[at..], costs, valid);
     }
     for (xr, out) in rrow.iter_mut().enumerate() {
         let at = w - 1 - xr;
