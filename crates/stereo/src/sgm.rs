@@ -170,13 +170,6 @@ struct Volume<'a> {
 }
 
 impl Volume<'_> {
-    /// Matching costs of pixel (x, y), one per lane.
-    #[inline(always)]
-    fn costs(&self, x: usize, y: usize) -> &[u8] {
-        let at = (y * self.w + x) * self.np;
-        &self.cost[at..at + self.np]
-    }
-
     #[inline(always)]
     fn p2(&self, a: u8, b: u8) -> u8 {
         self.p2_by_step[a.abs_diff(b) as usize]
@@ -298,27 +291,42 @@ fn step<const FIRST: bool>(
     cur[np + 2] = min_cur;
 }
 
-/// The steps of all `N` paths of a sweep at one pixel (path `p` from
-/// `prev[p]` to `cur[p]` with penalty `p2[p]`), their costs added into the
-/// pixel's sums `acc` (stored when `FIRST`).
-struct PixelSteps<'a, const N: usize> {
-    prev: [&'a [u8]; N],
-    cur: [&'a mut [u8]; N],
+/// The steps of all `N` paths of a sweep at one pixel: path `p` from the
+/// cell at `prev[p]` to the cell at `cur[p]` with penalty `p2[p]`, their
+/// costs added into the pixel's `np` sums at `acc` (stored when `FIRST`).
+///
+/// Raw pointers, because building `N` checked slices per pixel cost more
+/// than the steps themselves. The contract of [`PixelSteps::run`] and
+/// [`PixelSteps::run_avx2`]: every cell pointer is valid for `cell(np)`
+/// bytes, `cost` for `np` bytes and `acc` for `np` sums, and the `cur`
+/// cells overlap neither each other nor anything else given.
+struct PixelSteps<const N: usize> {
+    prev: [*const u8; N],
+    cur: [*mut u8; N],
     p2: [u8; N],
     p1: u8,
-    cost: &'a [u8],
-    acc: &'a mut [u16],
+    np: usize,
+    cost: *const u8,
+    acc: *mut u16,
 }
 
-impl<const N: usize> PixelSteps<'_, N> {
+impl<const N: usize> PixelSteps<N> {
     /// One [`step`] per path.
+    ///
+    /// # Safety
+    /// The pointers keep the contract of [`PixelSteps`].
     #[inline(always)]
-    fn run<const FIRST: bool>(self) {
-        for (p, (prev, cur)) in self.prev.into_iter().zip(self.cur).enumerate() {
+    unsafe fn run<const FIRST: bool>(&self) {
+        let np = self.np;
+        let cost = std::slice::from_raw_parts(self.cost, np);
+        let acc = std::slice::from_raw_parts_mut(self.acc, np);
+        for p in 0..N {
+            let prev = std::slice::from_raw_parts(self.prev[p], cell(np));
+            let cur = std::slice::from_raw_parts_mut(self.cur[p], cell(np));
             if FIRST && p == 0 {
-                step::<true>(prev, self.cost, cur, self.acc, self.p1, self.p2[p]);
+                step::<true>(prev, cost, cur, acc, self.p1, self.p2[p]);
             } else {
-                step::<false>(prev, self.cost, cur, self.acc, self.p1, self.p2[p]);
+                step::<false>(prev, cost, cur, acc, self.p1, self.p2[p]);
             }
         }
     }
@@ -328,35 +336,55 @@ impl<const N: usize> PixelSteps<'_, N> {
     /// `acc` once (the same integers: bit-identical).
     ///
     /// # Safety
-    /// The CPU must have AVX2.
+    /// The CPU must have AVX2; the pointers keep the contract of [`PixelSteps`].
     #[cfg(target_arch = "x86_64")]
     #[inline]
     #[target_feature(enable = "avx2")]
-    unsafe fn run_avx2<const FIRST: bool>(self) {
+    unsafe fn run_avx2<const FIRST: bool>(&self) {
         use std::arch::x86_64::*;
-        let np = self.cost.len();
-        assert!(N <= 4 && np % BLOCK == 0 && self.acc.len() >= np);
-        for p in 0..N {
-            assert!(self.prev[p].len() >= cell(np) && self.cur[p].len() >= cell(np));
+        // `$body` once per path with `$p` a constant, so that every path's
+        // vectors stay in registers (a loop over paths keeps them in memory).
+        macro_rules! each_path {
+            ($p:ident => $body:block) => {{
+                {
+                    let $p = 0;
+                    $body
+                }
+                if N > 1 {
+                    let $p = 1;
+                    $body
+                }
+                if N > 2 {
+                    let $p = 2;
+                    $body
+                }
+                if N > 3 {
+                    let $p = 3;
+                    $body
+                }
+            }};
         }
+        let np = self.np;
+        debug_assert!(N <= 4 && np % BLOCK == 0);
+        let (prev, cur) = (self.prev, self.cur);
         let p1 = _mm256_set1_epi8(self.p1 as i8);
-        let min_prev: [u8; N] = std::array::from_fn(|p| self.prev[p][np + 2]);
-        let base = min_prev.map(|m| _mm256_set1_epi8(m as i8));
-        let jump: [__m256i; N] =
-            std::array::from_fn(|p| _mm256_set1_epi8((min_prev[p] + self.p2[p]) as i8));
+        let mut base = [_mm256_setzero_si256(); N];
+        let mut jump = [_mm256_setzero_si256(); N];
+        each_path!(p => {
+            let min_prev = *prev[p].add(np + 2);
+            base[p] = _mm256_set1_epi8(min_prev as i8);
+            jump[p] = _mm256_set1_epi8((min_prev + self.p2[p]) as i8);
+        });
         let mut mins = [_mm256_set1_epi8(-1); N];
-        // Lengths checked above: from here on, raw pointers and no bounds checks.
-        let prev = self.prev.map(|p| p.as_ptr());
-        let cur = self.cur.map(|c| c.as_mut_ptr());
-        let acc = self.acc.as_mut_ptr().cast::<__m256i>();
+        let acc = self.acc.cast::<__m256i>();
         for b in 0..np / BLOCK {
-            let c = _mm256_loadu_si256(self.cost.as_ptr().add(b * BLOCK).cast());
+            let c = _mm256_loadu_si256(self.cost.add(b * BLOCK).cast());
             let (mut lo, mut hi) = if FIRST {
                 (_mm256_setzero_si256(), _mm256_setzero_si256())
             } else {
                 (_mm256_loadu_si256(acc.add(2 * b)), _mm256_loadu_si256(acc.add(2 * b + 1)))
             };
-            let mut path = |p: usize| {
+            each_path!(p => {
                 let at = prev[p].add(b * BLOCK);
                 let load = |k: usize| _mm256_loadu_si256(at.add(k).cast());
                 let (below, same, above) = (load(0), load(1), load(2));
@@ -368,28 +396,19 @@ impl<const N: usize> PixelSteps<'_, N> {
                 mins[p] = _mm256_min_epu8(mins[p], v);
                 lo = _mm256_add_epi16(lo, _mm256_cvtepu8_epi16(_mm256_castsi256_si128(v)));
                 hi = _mm256_add_epi16(hi, _mm256_cvtepu8_epi16(_mm256_extracti128_si256(v, 1)));
-            };
-            // Written out so that every path's vectors stay in registers.
-            path(0);
-            if N > 1 {
-                path(1);
-            }
-            if N > 2 {
-                path(2);
-            }
-            if N > 3 {
-                path(3);
-            }
+            });
             _mm256_storeu_si256(acc.add(2 * b), lo);
             _mm256_storeu_si256(acc.add(2 * b + 1), hi);
         }
-        for (cur, m) in cur.into_iter().zip(mins) {
+        each_path!(p => {
+            let m = mins[p];
             let m = _mm_min_epu8(_mm256_castsi256_si128(m), _mm256_extracti128_si256(m, 1));
             let m = _mm_min_epu8(m, _mm_srli_si128(m, 8));
             let m = _mm_minpos_epu16(_mm_cvtepu8_epi16(m));
-            *cur.add(np + 2) = _mm_cvtsi128_si32(m) as u8;
-        }
+            *cur[p].add(np + 2) = _mm_cvtsi128_si32(m) as u8;
+        });
     }
+
 
 }
 
@@ -510,57 +529,48 @@ fn sweep<const N: usize>(vol: &Volume, rows: &[Mutex<SumRow>], downward: bool, a
         let mut row = rows[y].lock().unwrap_or_else(|e| e.into_inner());
         let row = &mut *row;
         let first = !row.visited;
+        let costs = &vol.cost[y * w * np..(y + 1) * w * np];
+        let sums = &mut row.sums[..w * np];
+        // Every pointer below is to a whole cell of `zero`, `prev`, `cur`,
+        // `along_prev` or `along_cur`, or to pixel x's lanes of `costs` and
+        // `sums`, as `PixelSteps` requires; the cur cells are distinct.
+        let (prev_cells, cur_cells) = (prev.as_ptr(), cur.as_mut_ptr());
         for j in 0..w {
             let x = if downward { j } else { w - 1 - j };
-            let mut prevs = [&zero[..]; N];
-            let mut p2 = [0; N];
+            let mut steps = PixelSteps {
+                prev: [zero.as_ptr(); N],
+                cur: [along_cur.as_mut_ptr(); N],
+                p2: [0; N],
+                p1,
+                np,
+                cost: costs[x * np..].as_ptr(),
+                acc: sums[x * np..].as_mut_ptr(),
+            };
             if j > 0 {
                 let xa = if downward { x - 1 } else { x + 1 };
-                (prevs[0], p2[0]) = (&along_prev[..], vol.p2(line[x], line[xa]));
+                steps.prev[0] = along_prev.as_ptr();
+                steps.p2[0] = vol.p2(line[x], line[xa]);
             }
             for p in 1..N {
-                let xp = x as isize
-                    + if downward {
-                        LEANS[p - 1]
-                    } else {
-                        -LEANS[p - 1]
-                    };
-                if let (Some(above), Ok(xp)) = (line_prev, usize::try_from(xp)) {
-                    if xp < w {
-                        let at = ((p - 1) * w + xp) * stride;
-                        (prevs[p], p2[p]) = (&prev[at..at + stride], vol.p2(line[x], above[xp]));
-                    }
+                steps.cur[p] = cur_cells.wrapping_add(((p - 1) * w + x) * stride);
+                let lean = if downward { LEANS[p - 1] } else { -LEANS[p - 1] };
+                let xp = x.wrapping_add_signed(lean);
+                if let Some(above) = line_prev.filter(|_| xp < w) {
+                    steps.prev[p] = prev_cells.wrapping_add(((p - 1) * w + xp) * stride);
+                    steps.p2[p] = vol.p2(line[x], above[xp]);
                 }
             }
-            let mut along = Some(&mut along_cur[..]);
-            let mut verticals = cur
-                .chunks_exact_mut(w * stride)
-                .map(|c| &mut c[x * stride..(x + 1) * stride]);
-            let cur = std::array::from_fn(|p| {
-                if p == 0 {
-                    along.take()
-                } else {
-                    verticals.next()
+            // SAFETY: the pointers keep the contract (see above); AVX2 is
+            // used only when the caller saw it.
+            unsafe {
+                match (avx2, first) {
+                    #[cfg(target_arch = "x86_64")]
+                    (true, true) => steps.run_avx2::<true>(),
+                    #[cfg(target_arch = "x86_64")]
+                    (true, false) => steps.run_avx2::<false>(),
+                    (_, true) => steps.run::<true>(),
+                    (_, false) => steps.run::<false>(),
                 }
-                .expect("N paths")
-            });
-            let steps = PixelSteps {
-                prev: prevs,
-                cur,
-                p2,
-                p1,
-                cost: vol.costs(x, y),
-                acc: &mut row.sums[x * np..(x + 1) * np],
-            };
-            match (avx2, first) {
-                #[cfg(target_arch = "x86_64")]
-                // SAFETY: the caller saw AVX2.
-                (true, true) => unsafe { steps.run_avx2::<true>() },
-                #[cfg(target_arch = "x86_64")]
-                // SAFETY: as above.
-                (true, false) => unsafe { steps.run_avx2::<false>() },
-                (_, true) => steps.run::<true>(),
-                (_, false) => steps.run::<false>(),
             }
             std::mem::swap(&mut along_prev, &mut along_cur);
         }
@@ -683,21 +693,21 @@ mod tests {
         if !crate::wta::avx2_available() {
             return;
         }
-        fn steps<'a>(
-            prev: &'a [Vec<u8>],
-            cur: &'a mut [Vec<u8>],
-            acc: &'a mut [u16],
-            cost: &'a [u8],
+        fn steps(
+            prev: &[Vec<u8>],
+            cur: &mut [Vec<u8>],
+            acc: &mut [u16],
+            cost: &[u8],
             p1: u8,
-        ) -> PixelSteps<'a, 4> {
-            let mut cur = cur.iter_mut();
+        ) -> PixelSteps<4> {
             PixelSteps {
-                prev: std::array::from_fn(|p| &prev[p][..]),
-                cur: std::array::from_fn(|_| &mut cur.next().expect("4 paths")[..]),
+                prev: std::array::from_fn(|p| prev[p].as_ptr()),
+                cur: std::array::from_fn(|p| cur[p].as_mut_ptr()),
                 p2: [90, 40, 193, 30],
                 p1,
-                cost,
-                acc,
+                np: cost.len(),
+                cost: cost.as_ptr(),
+                acc: acc.as_mut_ptr(),
             }
         }
         let mut s = 0x2545_F491_4F6C_DD1Du64;
@@ -741,7 +751,7 @@ mod tests {
                 let (mut cur_b, mut acc_b) = (cur_a.clone(), acc_a.clone());
                 let a = steps(&prev, &mut cur_a, &mut acc_a, &cost, p1);
                 let b = steps(&prev, &mut cur_b, &mut acc_b, &cost, p1);
-                // SAFETY: AVX2 was detected above.
+                // SAFETY: AVX2 was detected above; whole cells and lanes.
                 unsafe {
                     if first {
                         a.run::<true>();
