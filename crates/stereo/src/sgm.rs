@@ -204,43 +204,84 @@ fn cost_volume(
     let avx2 = crate::wta::avx2_available();
     cost.par_chunks_mut(w * np)
         .zip(cl.par_chunks(w).zip(cr.par_chunks(w)))
-        .for_each(|(out, (l, r))| {
-            if avx2 {
-                #[cfg(target_arch = "x86_64")]
-                // SAFETY: AVX2 and POPCNT presence was checked at run time.
-                unsafe {
-                    cost_row_popcnt(l, r, min_disp, nd, out)
-                }
-            } else {
-                cost_row(l, r, min_disp, nd, out)
-            }
-        });
+        .for_each(|(out, (l, r))| cost_row(l, r, min_disp, nd, out, avx2));
 }
 
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,popcnt")]
-unsafe fn cost_row_popcnt(l: &[u64], r: &[u64], min_disp: usize, nd: usize, out: &mut [u8]) {
-    cost_row(l, r, min_disp, nd, out)
-}
-
-#[inline(always)]
-fn cost_row(l: &[u64], r: &[u64], min_disp: usize, nd: usize, out: &mut [u8]) {
+/// The costs of one row (`np` lanes per pixel); `avx2`: the CPU has it.
+fn cost_row(l: &[u64], r: &[u64], min_disp: usize, nd: usize, out: &mut [u8], avx2: bool) {
     let w = l.len();
     let np = out.len() / w;
     // The right row reversed, so that the right pixels x − d of increasing d
-    // are read forwards: r[x − d] = reversed[W − 1 − x + d].
-    let reversed: Vec<u64> = r.iter().rev().copied().collect();
+    // are read forwards: r[x − d] = reversed[W − 1 − x + d]; padded so that
+    // whole blocks of `BLOCK` can be read.
+    let mut reversed: Vec<u64> = r.iter().rev().copied().collect();
+    reversed.resize(w + BLOCK, 0);
     for (x, (&c, costs)) in l.iter().zip(out.chunks_exact_mut(np)).enumerate() {
         let inside = nd.min((x + 1).saturating_sub(min_disp));
-        let (real, padding) = costs.split_at_mut(nd);
-        let (matched, outside) = real.split_at_mut(inside);
         let base = w - 1 - x + min_disp;
-        for (v, &rv) in matched.iter_mut().zip(&reversed[base..base + inside]) {
-            *v = (c ^ rv).count_ones() as u8;
+        if avx2 {
+            #[cfg(target_arch = "x86_64")]
+            for (out, right) in costs[..inside.next_multiple_of(BLOCK)]
+                .chunks_exact_mut(BLOCK)
+                .zip(reversed[base..].chunks(BLOCK))
+            {
+                // SAFETY: the caller saw AVX2.
+                unsafe { hamming_block_avx2(c, right, out) };
+            }
+        } else {
+            for (v, &rv) in costs[..inside].iter_mut().zip(&reversed[base..]) {
+                *v = (c ^ rv).count_ones() as u8;
+            }
         }
-        outside.fill(OUTSIDE_COST as u8);
+        let (real, padding) = costs.split_at_mut(nd);
+        real[inside..].fill(OUTSIDE_COST as u8);
         padding.fill(PAD);
     }
+}
+
+/// `out[k] = popcount(c ^ right[k])` for [`BLOCK`] values: nibble-table
+/// popcounts summed per `u64` by `vpsadbw`, the eight vectors of four sums
+/// packed into one by shifts, then put in order by three shuffles.
+///
+/// # Safety
+/// The CPU must have AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn hamming_block_avx2(c: u64, right: &[u64], out: &mut [u8]) {
+    use std::arch::x86_64::*;
+    assert!(right.len() >= BLOCK && out.len() >= BLOCK);
+    #[rustfmt::skip]
+    let nibbles = _mm256_setr_epi8(
+        0, 1, 1, 2, 1, 2, 2, 3, 1, 2, 2, 3, 2, 3, 3, 4,
+        0, 1, 1, 2, 1, 2, 2, 3, 1, 2, 2, 3, 2, 3, 3, 4,
+    );
+    let low = _mm256_set1_epi8(0x0F);
+    let cv = _mm256_set1_epi64x(c as i64);
+    let mut packed = _mm256_setzero_si256();
+    // Vector k holds the sums of k·4 + j in its u64 lane j (each below 64),
+    // shifted to byte k of the lane: byte 8j + k of `packed`.
+    seq_macro::seq!(K in 0..8 {
+        let v = _mm256_xor_si256(cv, _mm256_loadu_si256(right.as_ptr().add(4 * K).cast()));
+        let counts = _mm256_add_epi8(
+            _mm256_shuffle_epi8(nibbles, _mm256_and_si256(v, low)),
+            _mm256_shuffle_epi8(nibbles, _mm256_and_si256(_mm256_srli_epi16(v, 4), low)),
+        );
+        let sums = _mm256_sad_epu8(counts, _mm256_setzero_si256());
+        packed = _mm256_or_si256(packed, _mm256_slli_epi64(sums, 8 * K));
+    });
+    // Per 128-bit lane (j = 0, 1 or 2, 3): bytes ordered (k, j) so that each
+    // 16-bit word holds k for both j ...
+    #[rustfmt::skip]
+    let by_k = _mm256_setr_epi8(
+        0, 8, 1, 9, 2, 10, 3, 11, 4, 12, 5, 13, 6, 14, 7, 15,
+        0, 8, 1, 9, 2, 10, 3, 11, 4, 12, 5, 13, 6, 14, 7, 15,
+    );
+    let v = _mm256_shuffle_epi8(packed, by_k);
+    // ... k 0–3 of both lanes into the low lane, k 4–7 into the high one ...
+    let v = _mm256_permute4x64_epi64(v, 0b11_01_10_00);
+    // ... and the words of j 0, 1 interleaved with those of j 2, 3: 4k + j.
+    let v = _mm256_unpacklo_epi16(v, _mm256_srli_si256(v, 8));
+    _mm256_storeu_si256(out.as_mut_ptr().cast(), v);
 }
 
 /// Values per pixel and path: `[SENTINEL, L(d_min)..L(d_max), padding, SENTINEL, min_k L]`,
@@ -382,7 +423,10 @@ impl<const N: usize> PixelSteps<N> {
             let (mut lo, mut hi) = if FIRST {
                 (_mm256_setzero_si256(), _mm256_setzero_si256())
             } else {
-                (_mm256_loadu_si256(acc.add(2 * b)), _mm256_loadu_si256(acc.add(2 * b + 1)))
+                (
+                    _mm256_loadu_si256(acc.add(2 * b)),
+                    _mm256_loadu_si256(acc.add(2 * b + 1)),
+                )
             };
             each_path!(p => {
                 let at = prev[p].add(b * BLOCK);
@@ -408,8 +452,6 @@ impl<const N: usize> PixelSteps<N> {
             *cur[p].add(np + 2) = _mm_cvtsi128_si32(m) as u8;
         });
     }
-
-
 }
 
 /// The cost and sum volumes, kept from one frame to the next: both are
@@ -553,7 +595,11 @@ fn sweep<const N: usize>(vol: &Volume, rows: &[Mutex<SumRow>], downward: bool, a
             }
             for p in 1..N {
                 steps.cur[p] = cur_cells.wrapping_add(((p - 1) * w + x) * stride);
-                let lean = if downward { LEANS[p - 1] } else { -LEANS[p - 1] };
+                let lean = if downward {
+                    LEANS[p - 1]
+                } else {
+                    -LEANS[p - 1]
+                };
                 let xp = x.wrapping_add_signed(lean);
                 if let Some(above) = line_prev.filter(|_| xp < w) {
                     steps.prev[p] = prev_cells.wrapping_add(((p - 1) * w + xp) * stride);
@@ -578,7 +624,9 @@ fn sweep<const N: usize>(vol: &Volume, rows: &[Mutex<SumRow>], downward: bool, a
             match avx2 {
                 #[cfg(target_arch = "x86_64")]
                 // SAFETY: the caller saw AVX2.
-                true => unsafe { select_row::<crate::lanes::Avx2>(vol, row.sums, row.left, row.right) },
+                true => unsafe {
+                    select_row::<crate::lanes::Avx2>(vol, row.sums, row.left, row.right)
+                },
                 // SAFETY: the portable lane operations need nothing.
                 _ => unsafe { select_row::<Portable>(vol, row.sums, row.left, row.right) },
             }
@@ -664,6 +712,34 @@ mod tests {
         let c = census(&img);
         // At an interior pixel the 4 columns to the left (7 rows each) are darker.
         assert_eq!(c[4 * 12 + 6].count_ones(), 28);
+    }
+
+    /// The AVX2 cost rows equal the portable ones (Hamming distances).
+    #[test]
+    fn avx2_cost_rows_equal_portable_rows() {
+        if !crate::wta::avx2_available() {
+            return;
+        }
+        let mut s = 0x9E37_79B9_7F4A_7C15u64;
+        let mut next = move || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            s & (1 << 62) - 1
+        };
+        for (w, nd, min_disp) in [(1, 1, 0), (7, 3, 0), (40, 33, 2), (70, 64, 0), (100, 90, 5)] {
+            let np = usize::next_multiple_of(nd, BLOCK);
+            let l: Vec<u64> = (0..w).map(|_| next()).collect();
+            let r: Vec<u64> = (0..w).map(|_| next()).collect();
+            let (mut a, mut b) = (vec![0u8; w * np], vec![1u8; w * np]);
+            cost_row(&l, &r, min_disp, nd, &mut a, false);
+            cost_row(&l, &r, min_disp, nd, &mut b, true);
+            assert_eq!(a, b, "w {w} nd {nd}");
+            let x = w - 1;
+            if x >= min_disp {
+                assert_eq!(u32::from(a[x * np]), (l[x] ^ r[x - min_disp]).count_ones());
+            }
+        }
     }
 
     #[test]
