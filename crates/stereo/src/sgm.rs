@@ -247,6 +247,7 @@ fn cost_row(l: &[u64], r: &[u64], min_disp: usize, nd: usize, out: &mut [u8], av
 /// The CPU must have AVX2.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
+#[allow(clippy::erasing_op, clippy::identity_op)] // the unrolled k = 0 and 1
 unsafe fn hamming_block_avx2(c: u64, right: &[u64], out: &mut [u8]) {
     use std::arch::x86_64::*;
     assert!(right.len() >= BLOCK && out.len() >= BLOCK);
@@ -725,7 +726,7 @@ mod tests {
             s ^= s << 13;
             s ^= s >> 7;
             s ^= s << 17;
-            s & (1 << 62) - 1
+            s & ((1 << 62) - 1)
         };
         for (w, nd, min_disp) in [(1, 1, 0), (7, 3, 0), (40, 33, 2), (70, 64, 0), (100, 90, 5)] {
             let np = usize::next_multiple_of(nd, BLOCK);
