@@ -204,10 +204,24 @@ fn cost_volume(
     let avx2 = crate::wta::avx2_available();
     cost.par_chunks_mut(w * np)
         .zip(cl.par_chunks(w).zip(cr.par_chunks(w)))
-        .for_each(|(out, (l, r))| cost_row(l, r, min_disp, nd, out, avx2));
+        .for_each(|(out, (l, r))| {
+            #[cfg(target_arch = "x86_64")]
+            if avx2 {
+                // SAFETY: AVX2 presence was checked at run time.
+                return unsafe { cost_row_avx2(l, r, min_disp, nd, out) };
+            }
+            cost_row(l, r, min_disp, nd, out, false)
+        });
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn cost_row_avx2(l: &[u64], r: &[u64], min_disp: usize, nd: usize, out: &mut [u8]) {
+    cost_row(l, r, min_disp, nd, out, true)
 }
 
 /// The costs of one row (`np` lanes per pixel); `avx2`: the CPU has it.
+#[inline(always)]
 fn cost_row(l: &[u64], r: &[u64], min_disp: usize, nd: usize, out: &mut [u8], avx2: bool) {
     let w = l.len();
     let np = out.len() / w;
@@ -221,36 +235,63 @@ fn cost_row(l: &[u64], r: &[u64], min_disp: usize, nd: usize, out: &mut [u8], av
         let base = w - 1 - x + min_disp;
         if avx2 {
             #[cfg(target_arch = "x86_64")]
-            for (out, right) in costs[..inside.next_multiple_of(BLOCK)]
-                .chunks_exact_mut(BLOCK)
-                .zip(reversed[base..].chunks(BLOCK))
-            {
+            for (b, out) in costs.chunks_exact_mut(BLOCK).enumerate() {
+                let lanes = (b * BLOCK, inside, nd);
                 // SAFETY: the caller saw AVX2.
-                unsafe { hamming_block_avx2(c, right, out) };
+                unsafe { hamming_block_avx2(c, &reversed, base + b * BLOCK, lanes, out) };
             }
         } else {
             for (v, &rv) in costs[..inside].iter_mut().zip(&reversed[base..]) {
                 *v = (c ^ rv).count_ones() as u8;
             }
+            let (real, padding) = costs.split_at_mut(nd);
+            real[inside..].fill(OUTSIDE_COST as u8);
+            padding.fill(PAD);
         }
-        let (real, padding) = costs.split_at_mut(nd);
-        real[inside..].fill(OUTSIDE_COST as u8);
-        padding.fill(PAD);
     }
 }
 
-/// `out[k] = popcount(c ^ right[k])` for [`BLOCK`] values: nibble-table
-/// popcounts summed per `u64` by `vpsadbw`, the eight vectors of four sums
-/// packed into one by shifts, then put in order by three shuffles.
+/// One block of a pixel's costs, lanes `first..first + BLOCK`:
+/// `popcount(c ^ right[at + k])` for the lanes below `inside`, then
+/// [`OUTSIDE_COST`] below `nd` and [`PAD`] above, by masks (no calls to
+/// fill). Popcounts by nibble table, summed per `u64` by `vpsadbw`; the
+/// eight vectors of four sums packed into one by shifts, then put in order
+/// by three shuffles.
 ///
 /// # Safety
 /// The CPU must have AVX2.
 #[cfg(target_arch = "x86_64")]
+#[inline]
 #[target_feature(enable = "avx2")]
 #[allow(clippy::erasing_op, clippy::identity_op)] // the unrolled k = 0 and 1
-unsafe fn hamming_block_avx2(c: u64, right: &[u64], out: &mut [u8]) {
+unsafe fn hamming_block_avx2(
+    c: u64,
+    right: &[u64],
+    at: usize,
+    (first, inside, nd): (usize, usize, usize),
+    out: &mut [u8],
+) {
     use std::arch::x86_64::*;
-    assert!(right.len() >= BLOCK && out.len() >= BLOCK);
+    assert!(out.len() >= BLOCK);
+    let iota = _mm256_setr_epi8(
+        0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15, 16, 17, 18, 19, 20, 21, 22, 23, 24,
+        25, 26, 27, 28, 29, 30, 31,
+    );
+    // Lanes at or past `limit` (clamped to 0..=BLOCK) as a mask.
+    let past = |limit: usize| {
+        let limit = limit.saturating_sub(first).min(BLOCK) as i8;
+        _mm256_cmpgt_epi8(iota, _mm256_set1_epi8(limit - 1))
+    };
+    let fixed = _mm256_blendv_epi8(
+        _mm256_set1_epi8(OUTSIDE_COST as i8),
+        _mm256_set1_epi8(PAD as i8),
+        past(nd),
+    );
+    if first >= inside {
+        _mm256_storeu_si256(out.as_mut_ptr().cast(), fixed);
+        return;
+    }
+    let right = &right[at..at + BLOCK];
     #[rustfmt::skip]
     let nibbles = _mm256_setr_epi8(
         0, 1, 1, 2, 1, 2, 2, 3, 1, 2, 2, 3, 2, 3, 3, 4,
@@ -282,6 +323,7 @@ unsafe fn hamming_block_avx2(c: u64, right: &[u64], out: &mut [u8]) {
     let v = _mm256_permute4x64_epi64(v, 0b11_01_10_00);
     // ... and the words of j 0, 1 interleaved with those of j 2, 3: 4k + j.
     let v = _mm256_unpacklo_epi16(v, _mm256_srli_si256(v, 8));
+    let v = _mm256_blendv_epi8(v, fixed, past(inside));
     _mm256_storeu_si256(out.as_mut_ptr().cast(), v);
 }
 
