@@ -84,9 +84,13 @@ impl SgmParams {
 /// 9×7 census transform: bit set where the neighbour is darker than the
 /// centre; outside pixels replicate the border.
 pub fn census(img: &GrayImage) -> Vec<u64> {
+    census_with(img, crate::wta::avx2_available())
+}
+
+/// [`census`] compiled for AVX2 (`avx2`: the CPU has it) or not.
+fn census_with(img: &GrayImage, avx2: bool) -> Vec<u64> {
     let (w, h) = img.dims();
     let mut out = vec![0u64; w * h];
-    let avx2 = crate::wta::avx2_available();
     out.par_chunks_mut(w.max(1))
         .enumerate()
         .for_each(|(y, row)| {
@@ -199,9 +203,9 @@ fn cost_volume(
     (nd, np): (usize, usize),
     min_disp: usize,
     cost: &mut Vec<u8>,
+    avx2: bool,
 ) {
     cost.resize(cl.len() * np, 0);
-    let avx2 = crate::wta::avx2_available();
     cost.par_chunks_mut(w * np)
         .zip(cl.par_chunks(w).zip(cr.par_chunks(w)))
         .for_each(|(out, (l, r))| {
@@ -508,11 +512,26 @@ pub struct SgmBuffers {
 
 /// Computes the raw SGM disparity (and the right view's map) of gray views.
 pub fn sgm(left: &GrayImage, right: &GrayImage, spec: &MatchSpec, buffers: &mut SgmBuffers) -> Raw {
+    sgm_with(left, right, spec, buffers, crate::wta::avx2_available())
+}
+
+/// [`sgm`] with the AVX2 kernels (`use_avx2`, only if the CPU has it) or the
+/// portable ones.
+fn sgm_with(
+    left: &GrayImage,
+    right: &GrayImage,
+    spec: &MatchSpec,
+    buffers: &mut SgmBuffers,
+    use_avx2: bool,
+) -> Raw {
     let (w, h) = left.dims();
-    let (cl, cr) = rayon::join(|| census(left), || census(right));
+    let (cl, cr) = rayon::join(
+        || census_with(left, use_avx2),
+        || census_with(right, use_avx2),
+    );
     let SgmBuffers { cost, sum } = buffers;
     let (nd, np) = (spec.ndisp(), spec.ndisp().next_multiple_of(BLOCK));
-    cost_volume(&cl, &cr, w, (nd, np), spec.min_disp, cost);
+    cost_volume(&cl, &cr, w, (nd, np), spec.min_disp, cost, use_avx2);
     drop((cl, cr));
     let vol = Volume {
         w,
@@ -542,7 +561,6 @@ pub fn sgm(left: &GrayImage, right: &GrayImage, spec: &MatchSpec, buffers: &mut 
             })
         })
         .collect();
-    let use_avx2 = crate::wta::avx2_available();
     let run = |downward: bool| {
         let eight = vol.p.paths == 8;
         #[cfg(target_arch = "x86_64")]
@@ -782,6 +800,46 @@ mod tests {
             if x >= min_disp {
                 assert_eq!(u32::from(a[x * np]), (l[x] ^ r[x - min_disp]).count_ones());
             }
+        }
+    }
+
+    /// Whole SGM runs, AVX2 against portable, bit for bit, on random views
+    /// of awkward sizes and ranges (a few pixels, ranges past a block).
+    #[test]
+    fn avx2_and_portable_sgm_agree() {
+        if !crate::wta::avx2_available() {
+            return;
+        }
+        let mut s = 0x1234_5678_9ABC_DEF1u64;
+        let mut next = move || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            s
+        };
+        let cases = [
+            (2, 1, 0, 1, 8),
+            (5, 3, 1, 3, 4),
+            (37, 9, 0, 35, 8),
+            (70, 6, 3, 40, 8),
+        ];
+        for (w, h, min_disp, max_disp, paths) in cases {
+            let left = GrayImage::from_fn(w, h, |_, _| (next() >> 58) as u8 * 16);
+            let right = GrayImage::from_fn(w, h, |_, _| (next() >> 58) as u8 * 16);
+            let mut spec = MatchSpec::new(crate::Algorithm::Sgm, min_disp, max_disp).unwrap();
+            spec.sgm.paths = paths;
+            let mut buffers = SgmBuffers::default();
+            let a = sgm_with(&left, &right, &spec, &mut buffers, false);
+            let b = sgm_with(&left, &right, &spec, &mut buffers, true);
+            let bits =
+                |m: &DisparityMap| m.as_slice().iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+            assert_eq!(
+                bits(&a.disparity),
+                bits(&b.disparity),
+                "{w}x{h} {min_disp}..={max_disp}"
+            );
+            let (ar, br) = (a.right.unwrap(), b.right.unwrap());
+            assert_eq!(bits(&ar), bits(&br));
         }
     }
 
