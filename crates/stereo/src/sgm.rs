@@ -117,6 +117,7 @@ fn census_with(img: &GrayImage, avx2: bool) -> Vec<u64> {
 /// The CPU must have AVX2.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
+#[allow(clippy::erasing_op, clippy::identity_op)] // the unrolled group 0
 unsafe fn census_row_avx2(img: &GrayImage, y: usize, out: &mut [u64]) {
     use std::arch::x86_64::*;
     const CHUNK: usize = 32;
@@ -135,23 +136,30 @@ unsafe fn census_row_avx2(img: &GrayImage, y: usize, out: &mut [u64]) {
         }
         right.fill(line[w - 1] ^ 0x80);
     }
-    let load = |at: usize| _mm256_loadu_si256(padded[at..at + CHUNK].as_ptr().cast());
+    // The 62 neighbours of the 9×7 window as offsets into `padded`.
+    let mut offsets = [0; 62];
+    let neighbours = (0..7)
+        .flat_map(|dy| (0..9).map(move |dx| (dy, dx)))
+        .filter(|&n| n != (3, 4));
+    for (o, (dy, dx)) in offsets.iter_mut().zip(neighbours) {
+        *o = dy * pw + dx;
+    }
+    // Every load below reads 32 bytes at x0 + an offset ≤ 6·pw + 8, with
+    // x0 + 32 ≤ pw − 8: within the 7·pw bytes.
+    let rows = padded.as_ptr();
     let mut codes = [0u64; CHUNK];
     for x0 in (0..w).step_by(CHUNK) {
-        let centre = load(3 * pw + 4 + x0);
+        let at = rows.add(x0);
+        let centre = _mm256_loadu_si256(at.add(3 * pw + 4).cast());
         let mut groups = [_mm256_setzero_si256(); 8];
-        let mut k = 0;
-        for dy in 0..7 {
-            for dx in 0..9 {
-                if (dy, dx) == (3, 4) {
-                    continue;
-                }
-                let darker = _mm256_cmpgt_epi8(centre, load(dy * pw + dx + x0));
-                let g = &mut groups[k / 8];
-                *g = _mm256_sub_epi8(_mm256_add_epi8(*g, *g), darker);
-                k += 1;
+        seq_macro::seq!(G in 0..8 {
+            let mut b = _mm256_setzero_si256();
+            for &o in &offsets[G * 8..(G * 8 + 8).min(62)] {
+                let darker = _mm256_cmpgt_epi8(centre, _mm256_loadu_si256(at.add(o).cast()));
+                b = _mm256_sub_epi8(_mm256_add_epi8(b, b), darker);
             }
-        }
+            groups[G] = b;
+        });
         // Byte l of groups[g] is group g of pixel x0 + l; within each
         // 128-bit lane, unpacking interleaves the groups of a pixel.
         let [g0, g1, g2, g3, g4, g5, g6, g7] = groups;
