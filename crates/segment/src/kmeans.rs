@@ -106,28 +106,167 @@ fn avx2_available() -> bool {
     }
 }
 
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn chunk_sums_avx2(
-    chunk: &[([f64; 3], f64)],
-    centroids: &[[f64; 3]],
-) -> Vec<([f64; 3], f64)> {
-    chunk_sums(chunk, centroids)
+/// The distinct colours as structure of arrays, for vector code: channel
+/// values and counts, all small integers held exactly in `f64`.
+struct Colours {
+    r: Vec<f64>,
+    g: Vec<f64>,
+    b: Vec<f64>,
+    n: Vec<f64>,
 }
 
-/// Each cluster's weighted colour sum and count over `chunk`, every colour
-/// in the cluster of its nearest centre.
-#[inline(always)]
-fn chunk_sums(chunk: &[([f64; 3], f64)], centroids: &[[f64; 3]]) -> Vec<([f64; 3], f64)> {
+impl Colours {
+    fn new(colours: &[([f64; 3], f64)]) -> Self {
+        let channel = |i: usize| colours.iter().map(|c| c.0[i]).collect();
+        Colours {
+            r: channel(0),
+            g: channel(1),
+            b: channel(2),
+            n: colours.iter().map(|c| c.1).collect(),
+        }
+    }
+
+    fn len(&self) -> usize {
+        self.n.len()
+    }
+}
+
+/// Each cluster's weighted colour sum and count over colours `range`, every
+/// colour in the cluster of its nearest centre (the first on ties).
+///
+/// The sums are of integers below 2⁵³, exact in any order, so the AVX2 copy
+/// ([`chunk_sums_avx2`]) gives the same result bit for bit.
+fn chunk_sums(
+    colours: &Colours,
+    range: std::ops::Range<usize>,
+    centroids: &[[f64; 3]],
+) -> Vec<([f64; 3], f64)> {
     let mut acc = vec![([0.0f64; 3], 0.0f64); centroids.len()];
-    for &(c, n) in chunk {
+    for i in range {
+        let c = [colours.r[i], colours.g[i], colours.b[i]];
         let (j, _) = nearest(c, centroids);
         for ch in 0..3 {
-            acc[j].0[ch] += c[ch] * n;
+            acc[j].0[ch] += c[ch] * colours.n[i];
         }
-        acc[j].1 += n;
+        acc[j].1 += colours.n[i];
     }
     acc
+}
+
+/// [`chunk_sums`] for `K` centres, four colours at a time: distances to
+/// every centre as in [`dist2`] (no fused multiply-add: the same rounding),
+/// the nearest kept by a strict comparison (the first on ties), and the
+/// weighted channels added into the accumulators of the first `K − 1`
+/// centres under lane masks; the last centre's sums are the totals minus
+/// the others' (exact: integers).
+///
+/// # Safety
+/// The CPU must have AVX2; `centroids.len() == K ≥ 2`.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn chunk_sums_avx2<const K: usize>(
+    colours: &Colours,
+    range: std::ops::Range<usize>,
+    centroids: &[[f64; 3]],
+) -> Vec<([f64; 3], f64)> {
+    use std::arch::x86_64::*;
+    assert!(K >= 2 && centroids.len() == K);
+    let (start, end) = (range.start, range.end);
+    let whole = start + (end - start) / 4 * 4;
+    let (r, g, b, n) = (
+        &colours.r[start..whole],
+        &colours.g[start..whole],
+        &colours.b[start..whole],
+        &colours.n[start..whole],
+    );
+    let zero = _mm256_setzero_pd();
+    let centres: [[__m256d; 3]; K] =
+        std::array::from_fn(|j| centroids[j].map(|v| _mm256_set1_pd(v)));
+    let ids: [__m256d; K] = std::array::from_fn(|j| _mm256_set1_pd(j as f64));
+    let mut sums = [[zero; 4]; K];
+    let mut totals = [zero; 4];
+    for i in (0..whole - start).step_by(4) {
+        let load = |v: &[f64]| _mm256_loadu_pd(v.as_ptr().add(i));
+        let (cr, cg, cb, cn) = (load(r), load(g), load(b), load(n));
+        let dist = |m: &[__m256d; 3]| {
+            let (dr, dg, db) = (
+                _mm256_sub_pd(cr, m[0]),
+                _mm256_sub_pd(cg, m[1]),
+                _mm256_sub_pd(cb, m[2]),
+            );
+            _mm256_add_pd(
+                _mm256_add_pd(_mm256_mul_pd(dr, dr), _mm256_mul_pd(dg, dg)),
+                _mm256_mul_pd(db, db),
+            )
+        };
+        let mut best = dist(&centres[0]);
+        let mut label = zero;
+        for j in 1..K {
+            let d = dist(&centres[j]);
+            let closer = _mm256_cmp_pd(d, best, _CMP_LT_OQ);
+            best = _mm256_blendv_pd(best, d, closer);
+            label = _mm256_blendv_pd(label, ids[j], closer);
+        }
+        let weighted = [
+            _mm256_mul_pd(cr, cn),
+            _mm256_mul_pd(cg, cn),
+            _mm256_mul_pd(cb, cn),
+            cn,
+        ];
+        for (acc, &v) in totals.iter_mut().zip(&weighted) {
+            *acc = _mm256_add_pd(*acc, v);
+        }
+        for j in 0..K - 1 {
+            let mine = _mm256_cmp_pd(label, ids[j], _CMP_EQ_OQ);
+            for (acc, &v) in sums[j].iter_mut().zip(&weighted) {
+                *acc = _mm256_add_pd(*acc, _mm256_and_pd(v, mine));
+            }
+        }
+    }
+    // The last centre's: all minus the others' (exact: integers).
+    for ch in 0..4 {
+        let others = (0..K - 1).fold(zero, |a, j| _mm256_add_pd(a, sums[j][ch]));
+        sums[K - 1][ch] = _mm256_sub_pd(totals[ch], others);
+    }
+    let mut acc = chunk_sums(colours, whole..end, centroids);
+    for (a, s) in acc.iter_mut().zip(&sums) {
+        let total = |v: __m256d| {
+            let lanes: [f64; 4] = std::mem::transmute(v);
+            lanes.iter().sum::<f64>()
+        };
+        for ch in 0..3 {
+            a.0[ch] += total(s[ch]);
+        }
+        a.1 += total(s[3]);
+    }
+    acc
+}
+
+/// [`chunk_sums`], with the AVX2 copy for 2 to 8 centres when `avx2`.
+fn lloyd_sums(
+    colours: &Colours,
+    range: std::ops::Range<usize>,
+    centroids: &[[f64; 3]],
+    avx2: bool,
+) -> Vec<([f64; 3], f64)> {
+    #[cfg(target_arch = "x86_64")]
+    if avx2 {
+        // SAFETY: AVX2 was detected at run time; the arm matches the count.
+        unsafe {
+            match centroids.len() {
+                2 => return chunk_sums_avx2::<2>(colours, range, centroids),
+                3 => return chunk_sums_avx2::<3>(colours, range, centroids),
+                4 => return chunk_sums_avx2::<4>(colours, range, centroids),
+                5 => return chunk_sums_avx2::<5>(colours, range, centroids),
+                6 => return chunk_sums_avx2::<6>(colours, range, centroids),
+                7 => return chunk_sums_avx2::<7>(colours, range, centroids),
+                8 => return chunk_sums_avx2::<8>(colours, range, centroids),
+                _ => {}
+            }
+        }
+    }
+    let _ = avx2;
+    chunk_sums(colours, range, centroids)
 }
 
 /// Runs k-means++ and Lloyd's algorithm on the pixels of `image`.
@@ -156,19 +295,17 @@ pub fn cluster(image: &RgbImage, k: usize, seed: u64) -> Result<KMeans, SegmentE
         centroids.push(colours[pick(&mut rng, &weights, sum)].0);
     }
     let avx2 = avx2_available();
+    let soa = Colours::new(&colours);
     let mut iterations = 0;
     loop {
         iterations += 1;
         let empty = || vec![([0.0f64; 3], 0.0f64); centroids.len()];
-        let sums = colours
-            .par_chunks(4096)
-            .map(|chunk| {
-                if avx2 {
-                    #[cfg(target_arch = "x86_64")]
-                    // SAFETY: AVX2 was detected at run time.
-                    return unsafe { chunk_sums_avx2(chunk, &centroids) };
-                }
-                chunk_sums(chunk, &centroids)
+        const CHUNK: usize = 4096;
+        let sums = (0..soa.len().div_ceil(CHUNK))
+            .into_par_iter()
+            .map(|c| {
+                let range = c * CHUNK..((c + 1) * CHUNK).min(soa.len());
+                lloyd_sums(&soa, range, &centroids, avx2)
             })
             .reduce(empty, |mut a, b| {
                 for (x, y) in a.iter_mut().zip(b) {
@@ -238,6 +375,39 @@ mod tests {
         want.sort_unstable();
         radix_sort_24(&mut v);
         assert_eq!(v, want);
+    }
+
+    /// The AVX2 Lloyd sums equal the portable ones bit for bit, ties included.
+    #[test]
+    fn avx2_sums_equal_portable_sums() {
+        if !avx2_available() {
+            return;
+        }
+        let mut s = 0x5DEE_CE66_Du64;
+        let mut next = move |m: u64| {
+            s = s.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
+            (s >> 33) % m
+        };
+        for len in [1, 3, 4, 5, 37, 1000] {
+            // Few levels, so that colours equidistant from two centres occur.
+            let colours: Vec<([f64; 3], f64)> = (0..len)
+                .map(|_| {
+                    (
+                        [0, 1, 2].map(|_| (next(8) * 32) as f64),
+                        (1 + next(50)) as f64,
+                    )
+                })
+                .collect();
+            let soa = Colours::new(&colours);
+            for k in 2..=8 {
+                let centroids: Vec<[f64; 3]> = (0..k)
+                    .map(|_| [0, 1, 2].map(|_| (next(16) * 16) as f64))
+                    .collect();
+                let portable = chunk_sums(&soa, 0..len, &centroids);
+                let fast = lloyd_sums(&soa, 0..len, &centroids, true);
+                assert_eq!(portable, fast, "{len} colours, k {k}");
+            }
+        }
     }
 
     #[test]

@@ -154,7 +154,7 @@ unsafe fn census_row_avx2(img: &GrayImage, y: usize, out: &mut [u64]) {
         let mut groups = [_mm256_setzero_si256(); 8];
         seq_macro::seq!(G in 0..8 {
             let mut b = _mm256_setzero_si256();
-            for &o in &offsets[G * 8..(G * 8 + 8).min(62)] {
+            for &o in offsets[G * 8..].iter().take(8) {
                 let darker = _mm256_cmpgt_epi8(centre, _mm256_loadu_si256(at.add(o).cast()));
                 b = _mm256_sub_epi8(_mm256_add_epi8(b, b), darker);
             }
