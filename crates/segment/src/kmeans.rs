@@ -383,7 +383,7 @@ mod tests {
         if !avx2_available() {
             return;
         }
-        let mut s = 0x5DEE_CE66_Du64;
+        let mut s = 0x0005_DEEC_E66D_u64;
         let mut next = move |m: u64| {
             s = s.wrapping_mul(6_364_136_223_846_793_005).wrapping_add(1);
             (s >> 33) % m
