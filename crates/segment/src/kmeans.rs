@@ -126,9 +126,45 @@ impl Colours {
         }
     }
 
+    /// Every pixel of `image` once, weight 1.
+    fn pixels(image: &RgbImage) -> Self {
+        let channel = |i: usize| image.as_slice().iter().map(|p| f64::from(p[i])).collect();
+        Colours {
+            r: channel(0),
+            g: channel(1),
+            b: channel(2),
+            n: vec![1.0; image.len()],
+        }
+    }
+
     fn len(&self) -> usize {
         self.n.len()
     }
+}
+
+/// For every colour (in parallel), its nearest centre and its weighted
+/// squared distance `n·d²` to it: [`nearest`] for all, with the AVX2 copy
+/// for up to 8 centres (bit-identical).
+fn assign(colours: &Colours, centroids: &[[f64; 3]], avx2: bool) -> Vec<(u32, f64)> {
+    let mut out = vec![(0u32, 0.0f64); colours.len()];
+    const CHUNK: usize = 4096;
+    out.par_chunks_mut(CHUNK).enumerate().for_each(|(c, out)| {
+        let range = c * CHUNK..c * CHUNK + out.len();
+        #[cfg(target_arch = "x86_64")]
+        if avx2 {
+            // SAFETY: AVX2 was detected at run time; the arm matches the count.
+            let done = unsafe { with_centres!(centroids.len(), K => assign_avx2::<K>(colours, range.clone(), centroids, out)) };
+            if done.is_some() {
+                return;
+            }
+        }
+        let _ = avx2;
+        for (o, i) in out.iter_mut().zip(range) {
+            let (j, d) = nearest([colours.r[i], colours.g[i], colours.b[i]], centroids);
+            *o = (j as u32, colours.n[i] * d);
+        }
+    });
+    out
 }
 
 /// Each cluster's weighted colour sum and count over colours `range`, every
@@ -153,12 +189,148 @@ fn chunk_sums(
     acc
 }
 
-/// [`chunk_sums`] for `K` centres, four colours at a time: distances to
-/// every centre as in [`dist2`] (no fused multiply-add: the same rounding),
-/// the nearest kept by a strict comparison (the first on ties), and the
-/// weighted channels added into the accumulators of the first `K − 1`
-/// centres under lane masks; the last centre's sums are the totals minus
-/// the others' (exact: integers).
+/// Runs `$call` with the const `$k` equal to `$n` when `$n` is 1 to 8:
+/// `Some(result)`, else `None`.
+macro_rules! with_centres {
+    ($n:expr, $k:ident => $call:expr) => {
+        match $n {
+            1 => {
+                const $k: usize = 1;
+                Some($call)
+            }
+            2 => {
+                const $k: usize = 2;
+                Some($call)
+            }
+            3 => {
+                const $k: usize = 3;
+                Some($call)
+            }
+            4 => {
+                const $k: usize = 4;
+                Some($call)
+            }
+            5 => {
+                const $k: usize = 5;
+                Some($call)
+            }
+            6 => {
+                const $k: usize = 6;
+                Some($call)
+            }
+            7 => {
+                const $k: usize = 7;
+                Some($call)
+            }
+            8 => {
+                const $k: usize = 8;
+                Some($call)
+            }
+            _ => None,
+        }
+    };
+}
+use with_centres;
+
+/// The nearest of `K` centres for four colours: distances as in [`dist2`]
+/// (no fused multiply-add: the same rounding), the nearest kept by a strict
+/// comparison (the first on ties); the label as `f64` lanes and the squared
+/// distance.
+///
+/// # Safety
+/// The CPU must have AVX2.
+#[cfg(target_arch = "x86_64")]
+#[inline]
+#[target_feature(enable = "avx2")]
+unsafe fn nearest4<const K: usize>(
+    [cr, cg, cb]: [std::arch::x86_64::__m256d; 3],
+    centres: &[[std::arch::x86_64::__m256d; 3]; K],
+    ids: &[std::arch::x86_64::__m256d; K],
+) -> (std::arch::x86_64::__m256d, std::arch::x86_64::__m256d) {
+    use std::arch::x86_64::*;
+    let dist = |m: &[__m256d; 3]| {
+        let (dr, dg, db) = (
+            _mm256_sub_pd(cr, m[0]),
+            _mm256_sub_pd(cg, m[1]),
+            _mm256_sub_pd(cb, m[2]),
+        );
+        _mm256_add_pd(
+            _mm256_add_pd(_mm256_mul_pd(dr, dr), _mm256_mul_pd(dg, dg)),
+            _mm256_mul_pd(db, db),
+        )
+    };
+    let mut best = dist(&centres[0]);
+    let mut label = _mm256_setzero_pd();
+    for j in 1..K {
+        let d = dist(&centres[j]);
+        let closer = _mm256_cmp_pd(d, best, _CMP_LT_OQ);
+        best = _mm256_blendv_pd(best, d, closer);
+        label = _mm256_blendv_pd(label, ids[j], closer);
+    }
+    (label, best)
+}
+
+/// The centres broadcast, and their indices as `f64` lanes.
+#[cfg(target_arch = "x86_64")]
+#[inline]
+#[target_feature(enable = "avx2")]
+#[allow(clippy::type_complexity)]
+unsafe fn broadcast<const K: usize>(
+    centroids: &[[f64; 3]],
+) -> (
+    [[std::arch::x86_64::__m256d; 3]; K],
+    [std::arch::x86_64::__m256d; K],
+) {
+    use std::arch::x86_64::*;
+    assert_eq!(centroids.len(), K);
+    (
+        std::array::from_fn(|j| centroids[j].map(|v| _mm256_set1_pd(v))),
+        std::array::from_fn(|j| _mm256_set1_pd(j as f64)),
+    )
+}
+
+/// [`assign`] of colours `range` into `out` for `K` centres, four at a time.
+///
+/// # Safety
+/// The CPU must have AVX2; `centroids.len() == K`, `out.len() == range.len()`.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn assign_avx2<const K: usize>(
+    colours: &Colours,
+    range: std::ops::Range<usize>,
+    centroids: &[[f64; 3]],
+    out: &mut [(u32, f64)],
+) {
+    use std::arch::x86_64::*;
+    assert_eq!(out.len(), range.len());
+    let (centres, ids) = broadcast::<K>(centroids);
+    let whole = range.len() / 4 * 4;
+    for (o, i) in out[..whole]
+        .chunks_exact_mut(4)
+        .zip(range.clone().step_by(4))
+    {
+        let load = |v: &[f64]| _mm256_loadu_pd(v[i..i + 4].as_ptr());
+        let (label, d) = nearest4::<K>(
+            [load(&colours.r), load(&colours.g), load(&colours.b)],
+            &centres,
+            &ids,
+        );
+        let lanes = |v: __m256d| std::mem::transmute::<__m256d, [f64; 4]>(v);
+        let (label, d) = (lanes(label), lanes(_mm256_mul_pd(load(&colours.n), d)));
+        for (o, (l, d)) in o.iter_mut().zip(label.into_iter().zip(d)) {
+            *o = (l as u32, d);
+        }
+    }
+    for (o, i) in out[whole..].iter_mut().zip(range.start + whole..range.end) {
+        let (j, d) = nearest([colours.r[i], colours.g[i], colours.b[i]], centroids);
+        *o = (j as u32, colours.n[i] * d);
+    }
+}
+
+/// [`chunk_sums`] for `K ≥ 2` centres, four colours at a time by
+/// [`nearest4`], the weighted channels added into the accumulators of the
+/// first `K − 1` centres under lane masks; the last centre's sums are the
+/// totals minus the others' (exact: integers).
 ///
 /// # Safety
 /// The CPU must have AVX2; `centroids.len() == K ≥ 2`.
@@ -170,7 +342,7 @@ unsafe fn chunk_sums_avx2<const K: usize>(
     centroids: &[[f64; 3]],
 ) -> Vec<([f64; 3], f64)> {
     use std::arch::x86_64::*;
-    assert!(K >= 2 && centroids.len() == K);
+    assert!(K >= 2);
     let (start, end) = (range.start, range.end);
     let whole = start + (end - start) / 4 * 4;
     let (r, g, b, n) = (
@@ -180,33 +352,13 @@ unsafe fn chunk_sums_avx2<const K: usize>(
         &colours.n[start..whole],
     );
     let zero = _mm256_setzero_pd();
-    let centres: [[__m256d; 3]; K] =
-        std::array::from_fn(|j| centroids[j].map(|v| _mm256_set1_pd(v)));
-    let ids: [__m256d; K] = std::array::from_fn(|j| _mm256_set1_pd(j as f64));
+    let (centres, ids) = broadcast::<K>(centroids);
     let mut sums = [[zero; 4]; K];
     let mut totals = [zero; 4];
     for i in (0..whole - start).step_by(4) {
         let load = |v: &[f64]| _mm256_loadu_pd(v.as_ptr().add(i));
         let (cr, cg, cb, cn) = (load(r), load(g), load(b), load(n));
-        let dist = |m: &[__m256d; 3]| {
-            let (dr, dg, db) = (
-                _mm256_sub_pd(cr, m[0]),
-                _mm256_sub_pd(cg, m[1]),
-                _mm256_sub_pd(cb, m[2]),
-            );
-            _mm256_add_pd(
-                _mm256_add_pd(_mm256_mul_pd(dr, dr), _mm256_mul_pd(dg, dg)),
-                _mm256_mul_pd(db, db),
-            )
-        };
-        let mut best = dist(&centres[0]);
-        let mut label = zero;
-        for j in 1..K {
-            let d = dist(&centres[j]);
-            let closer = _mm256_cmp_pd(d, best, _CMP_LT_OQ);
-            best = _mm256_blendv_pd(best, d, closer);
-            label = _mm256_blendv_pd(label, ids[j], closer);
-        }
+        let (label, _) = nearest4::<K>([cr, cg, cb], &centres, &ids);
         let weighted = [
             _mm256_mul_pd(cr, cn),
             _mm256_mul_pd(cg, cn),
@@ -250,19 +402,13 @@ fn lloyd_sums(
     avx2: bool,
 ) -> Vec<([f64; 3], f64)> {
     #[cfg(target_arch = "x86_64")]
-    if avx2 {
+    if avx2 && centroids.len() >= 2 {
         // SAFETY: AVX2 was detected at run time; the arm matches the count.
-        unsafe {
-            match centroids.len() {
-                2 => return chunk_sums_avx2::<2>(colours, range, centroids),
-                3 => return chunk_sums_avx2::<3>(colours, range, centroids),
-                4 => return chunk_sums_avx2::<4>(colours, range, centroids),
-                5 => return chunk_sums_avx2::<5>(colours, range, centroids),
-                6 => return chunk_sums_avx2::<6>(colours, range, centroids),
-                7 => return chunk_sums_avx2::<7>(colours, range, centroids),
-                8 => return chunk_sums_avx2::<8>(colours, range, centroids),
-                _ => {}
-            }
+        let sums = unsafe {
+            with_centres!(centroids.len(), K => chunk_sums_avx2::<K>(colours, range.clone(), centroids))
+        };
+        if let Some(sums) = sums {
+            return sums;
         }
     }
     let _ = avx2;
@@ -278,15 +424,16 @@ pub fn cluster(image: &RgbImage, k: usize, seed: u64) -> Result<KMeans, SegmentE
         });
     }
     let colours = colour_counts(image);
+    let soa = Colours::new(&colours);
+    let avx2 = avx2_available();
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     // k-means++: first centre by pixel count, then by count · D².
-    let counts: Vec<f64> = colours.iter().map(|c| c.1).collect();
-    let total: f64 = counts.iter().sum();
-    let mut centroids = vec![colours[pick(&mut rng, &counts, total)].0];
+    let total: f64 = soa.n.iter().sum();
+    let mut centroids = vec![colours[pick(&mut rng, &soa.n, total)].0];
     while centroids.len() < k {
-        let weights: Vec<f64> = colours
-            .par_iter()
-            .map(|(c, n)| n * nearest(*c, &centroids).1)
+        let weights: Vec<f64> = assign(&soa, &centroids, avx2)
+            .into_iter()
+            .map(|a| a.1)
             .collect();
         let sum: f64 = weights.iter().sum();
         if sum <= 0.0 {
@@ -294,8 +441,6 @@ pub fn cluster(image: &RgbImage, k: usize, seed: u64) -> Result<KMeans, SegmentE
         }
         centroids.push(colours[pick(&mut rng, &weights, sum)].0);
     }
-    let avx2 = avx2_available();
-    let soa = Colours::new(&colours);
     let mut iterations = 0;
     loop {
         iterations += 1;
@@ -328,10 +473,7 @@ pub fn cluster(image: &RgbImage, k: usize, seed: u64) -> Result<KMeans, SegmentE
             break;
         }
     }
-    let objective = colours
-        .par_iter()
-        .map(|&(c, n)| n * nearest(c, &centroids).1)
-        .sum();
+    let objective = assign(&soa, &centroids, avx2).iter().map(|a| a.1).sum();
     Ok(KMeans {
         centroids,
         objective,
@@ -342,10 +484,10 @@ pub fn cluster(image: &RgbImage, k: usize, seed: u64) -> Result<KMeans, SegmentE
 /// Segments into `k` clusters coloured by their rounded centres.
 pub fn kmeans(image: &RgbImage, k: usize, seed: u64) -> Result<Segmentation, SegmentError> {
     let km = cluster(image, k, seed)?;
-    let data: Vec<u32> = image
-        .as_slice()
-        .par_iter()
-        .map(|p| nearest(p.map(f64::from), &km.centroids).0 as u32)
+    let pixels = Colours::pixels(image);
+    let data: Vec<u32> = assign(&pixels, &km.centroids, avx2_available())
+        .into_iter()
+        .map(|a| a.0)
         .collect();
     let labels = Plane::from_vec(image.width(), image.height(), data).expect("one label per pixel");
     let image = compact(labels, |l| {
@@ -377,7 +519,8 @@ mod tests {
         assert_eq!(v, want);
     }
 
-    /// The AVX2 Lloyd sums equal the portable ones bit for bit, ties included.
+    /// The AVX2 Lloyd sums and assignments equal the portable ones bit for
+    /// bit, ties included.
     #[test]
     fn avx2_sums_equal_portable_sums() {
         if !avx2_available() {
@@ -399,13 +542,17 @@ mod tests {
                 })
                 .collect();
             let soa = Colours::new(&colours);
-            for k in 2..=8 {
+            for k in 1..=9 {
                 let centroids: Vec<[f64; 3]> = (0..k)
                     .map(|_| [0, 1, 2].map(|_| (next(16) * 16) as f64))
                     .collect();
                 let portable = chunk_sums(&soa, 0..len, &centroids);
                 let fast = lloyd_sums(&soa, 0..len, &centroids, true);
                 assert_eq!(portable, fast, "{len} colours, k {k}");
+                assert_eq!(
+                    assign(&soa, &centroids, false),
+                    assign(&soa, &centroids, true)
+                );
             }
         }
     }
