@@ -68,17 +68,25 @@ fn radix_sort_24(values: &mut Vec<u32>) {
 
 /// The distinct colours of an image with their counts, in a fixed order
 /// (sorted packed RGB; sorting beats hashing here by a wide margin).
-fn colour_counts(image: &RgbImage) -> Vec<([f64; 3], f64)> {
+fn colour_counts(image: &RgbImage) -> Colours {
     let mut packed: Vec<u32> = image
         .as_slice()
         .iter()
         .map(|p| u32::from_be_bytes([0, p[0], p[1], p[2]]))
         .collect();
     radix_sort_24(&mut packed);
-    let mut out: Vec<([f64; 3], f64)> = Vec::new();
+    let mut out = Colours {
+        r: Vec::new(),
+        g: Vec::new(),
+        b: Vec::new(),
+        n: Vec::new(),
+    };
     for chunk in packed.chunk_by(|a, b| a == b) {
         let [_, r, g, b] = chunk[0].to_be_bytes();
-        out.push(([r as f64, g as f64, b as f64], chunk.len() as f64));
+        out.r.push(r);
+        out.g.push(g);
+        out.b.push(b);
+        out.n.push(chunk.len() as u32);
     }
     out
 }
@@ -106,35 +114,32 @@ fn avx2_available() -> bool {
     }
 }
 
-/// The distinct colours as structure of arrays, for vector code: channel
-/// values and counts, all small integers held exactly in `f64`.
+/// Colours as structure of arrays, for vector code: channels and counts as
+/// compact integers (a Lloyd step streams them all, so their size sets its
+/// speed), widened to `f64` where used.
 struct Colours {
-    r: Vec<f64>,
-    g: Vec<f64>,
-    b: Vec<f64>,
-    n: Vec<f64>,
+    r: Vec<u8>,
+    g: Vec<u8>,
+    b: Vec<u8>,
+    n: Vec<u32>,
 }
 
 impl Colours {
-    fn new(colours: &[([f64; 3], f64)]) -> Self {
-        let channel = |i: usize| colours.iter().map(|c| c.0[i]).collect();
+    /// Every pixel of `image` once, weight 1.
+    fn pixels(image: &RgbImage) -> Self {
+        let channel = |i: usize| image.as_slice().iter().map(|p| p[i]).collect();
         Colours {
             r: channel(0),
             g: channel(1),
             b: channel(2),
-            n: colours.iter().map(|c| c.1).collect(),
+            n: vec![1; image.len()],
         }
     }
 
-    /// Every pixel of `image` once, weight 1.
-    fn pixels(image: &RgbImage) -> Self {
-        let channel = |i: usize| image.as_slice().iter().map(|p| f64::from(p[i])).collect();
-        Colours {
-            r: channel(0),
-            g: channel(1),
-            b: channel(2),
-            n: vec![1.0; image.len()],
-        }
+    /// Colour `i` and its count.
+    fn get(&self, i: usize) -> ([f64; 3], f64) {
+        let c = [self.r[i], self.g[i], self.b[i]].map(f64::from);
+        (c, f64::from(self.n[i]))
     }
 
     fn len(&self) -> usize {
@@ -160,8 +165,9 @@ fn assign(colours: &Colours, centroids: &[[f64; 3]], avx2: bool) -> Vec<(u32, f6
         }
         let _ = avx2;
         for (o, i) in out.iter_mut().zip(range) {
-            let (j, d) = nearest([colours.r[i], colours.g[i], colours.b[i]], centroids);
-            *o = (j as u32, colours.n[i] * d);
+            let (c, n) = colours.get(i);
+            let (j, d) = nearest(c, centroids);
+            *o = (j as u32, n * d);
         }
     });
     out
@@ -179,12 +185,12 @@ fn chunk_sums(
 ) -> Vec<([f64; 3], f64)> {
     let mut acc = vec![([0.0f64; 3], 0.0f64); centroids.len()];
     for i in range {
-        let c = [colours.r[i], colours.g[i], colours.b[i]];
+        let (c, n) = colours.get(i);
         let (j, _) = nearest(c, centroids);
         for ch in 0..3 {
-            acc[j].0[ch] += c[ch] * colours.n[i];
+            acc[j].0[ch] += c[ch] * n;
         }
-        acc[j].1 += colours.n[i];
+        acc[j].1 += n;
     }
     acc
 }
@@ -270,6 +276,29 @@ unsafe fn nearest4<const K: usize>(
     (label, best)
 }
 
+/// Colours `i..i + 4` as `f64` lanes: the three channels and the counts.
+///
+/// # Safety
+/// The CPU must have AVX2.
+#[cfg(target_arch = "x86_64")]
+#[inline]
+#[target_feature(enable = "avx2")]
+unsafe fn load4(colours: &Colours, i: usize) -> [std::arch::x86_64::__m256d; 4] {
+    use std::arch::x86_64::*;
+    let channel = |v: &[u8]| {
+        let bytes = u32::from_le_bytes(v[i..i + 4].try_into().expect("four bytes"));
+        _mm256_cvtepi32_pd(_mm_cvtepu8_epi32(_mm_cvtsi32_si128(bytes as i32)))
+    };
+    // Counts are at most the pixel count, far below 2³¹: exact as i32.
+    let counts = _mm_loadu_si128(colours.n[i..i + 4].as_ptr().cast());
+    [
+        channel(&colours.r),
+        channel(&colours.g),
+        channel(&colours.b),
+        _mm256_cvtepi32_pd(counts),
+    ]
+}
+
 /// The centres broadcast, and their indices as `f64` lanes.
 #[cfg(target_arch = "x86_64")]
 #[inline]
@@ -309,21 +338,18 @@ unsafe fn assign_avx2<const K: usize>(
         .chunks_exact_mut(4)
         .zip(range.clone().step_by(4))
     {
-        let load = |v: &[f64]| _mm256_loadu_pd(v[i..i + 4].as_ptr());
-        let (label, d) = nearest4::<K>(
-            [load(&colours.r), load(&colours.g), load(&colours.b)],
-            &centres,
-            &ids,
-        );
+        let [cr, cg, cb, cn] = load4(colours, i);
+        let (label, d) = nearest4::<K>([cr, cg, cb], &centres, &ids);
         let lanes = |v: __m256d| std::mem::transmute::<__m256d, [f64; 4]>(v);
-        let (label, d) = (lanes(label), lanes(_mm256_mul_pd(load(&colours.n), d)));
+        let (label, d) = (lanes(label), lanes(_mm256_mul_pd(cn, d)));
         for (o, (l, d)) in o.iter_mut().zip(label.into_iter().zip(d)) {
             *o = (l as u32, d);
         }
     }
     for (o, i) in out[whole..].iter_mut().zip(range.start + whole..range.end) {
-        let (j, d) = nearest([colours.r[i], colours.g[i], colours.b[i]], centroids);
-        *o = (j as u32, colours.n[i] * d);
+        let (c, n) = colours.get(i);
+        let (j, d) = nearest(c, centroids);
+        *o = (j as u32, n * d);
     }
 }
 
@@ -345,19 +371,12 @@ unsafe fn chunk_sums_avx2<const K: usize>(
     assert!(K >= 2);
     let (start, end) = (range.start, range.end);
     let whole = start + (end - start) / 4 * 4;
-    let (r, g, b, n) = (
-        &colours.r[start..whole],
-        &colours.g[start..whole],
-        &colours.b[start..whole],
-        &colours.n[start..whole],
-    );
     let zero = _mm256_setzero_pd();
     let (centres, ids) = broadcast::<K>(centroids);
     let mut sums = [[zero; 4]; K];
     let mut totals = [zero; 4];
-    for i in (0..whole - start).step_by(4) {
-        let load = |v: &[f64]| _mm256_loadu_pd(v.as_ptr().add(i));
-        let (cr, cg, cb, cn) = (load(r), load(g), load(b), load(n));
+    for i in (start..whole).step_by(4) {
+        let [cr, cg, cb, cn] = load4(colours, i);
         let (label, _) = nearest4::<K>([cr, cg, cb], &centres, &ids);
         let weighted = [
             _mm256_mul_pd(cr, cn),
@@ -423,13 +442,13 @@ pub fn cluster(image: &RgbImage, k: usize, seed: u64) -> Result<KMeans, SegmentE
             pixels: image.len(),
         });
     }
-    let colours = colour_counts(image);
-    let soa = Colours::new(&colours);
+    let soa = colour_counts(image);
     let avx2 = avx2_available();
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     // k-means++: first centre by pixel count, then by count · D².
-    let total: f64 = soa.n.iter().sum();
-    let mut centroids = vec![colours[pick(&mut rng, &soa.n, total)].0];
+    let counts: Vec<f64> = soa.n.iter().map(|&n| f64::from(n)).collect();
+    let total: f64 = counts.iter().sum();
+    let mut centroids = vec![soa.get(pick(&mut rng, &counts, total)).0];
     while centroids.len() < k {
         let weights: Vec<f64> = assign(&soa, &centroids, avx2)
             .into_iter()
@@ -439,7 +458,7 @@ pub fn cluster(image: &RgbImage, k: usize, seed: u64) -> Result<KMeans, SegmentE
         if sum <= 0.0 {
             break; // fewer distinct colours than k: every colour is a centre already
         }
-        centroids.push(colours[pick(&mut rng, &weights, sum)].0);
+        centroids.push(soa.get(pick(&mut rng, &weights, sum)).0);
     }
     let mut iterations = 0;
     loop {
@@ -533,15 +552,10 @@ mod tests {
         };
         for len in [1, 3, 4, 5, 37, 1000] {
             // Few levels, so that colours equidistant from two centres occur.
-            let colours: Vec<([f64; 3], f64)> = (0..len)
-                .map(|_| {
-                    (
-                        [0, 1, 2].map(|_| (next(8) * 32) as f64),
-                        (1 + next(50)) as f64,
-                    )
-                })
-                .collect();
-            let soa = Colours::new(&colours);
+            let mut channel = || (0..len).map(|_| (next(8) * 32) as u8).collect();
+            let (r, g, b) = (channel(), channel(), channel());
+            let n = (0..len).map(|_| 1 + next(50) as u32).collect();
+            let soa = Colours { r, g, b, n };
             for k in 1..=9 {
                 let centroids: Vec<[f64; 3]> = (0..k)
                     .map(|_| [0, 1, 2].map(|_| (next(16) * 16) as f64))
