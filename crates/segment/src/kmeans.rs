@@ -173,8 +173,27 @@ fn assign(colours: &Colours, centroids: &[[f64; 3]], avx2: bool) -> Vec<(u32, f6
     out
 }
 
+/// The nearest of `centres` to `c` in `f32` (the first on ties): the
+/// assignment of the Lloyd steps, which need not be exact but must be the
+/// same in the scalar and the AVX2 code (same operations in the same order,
+/// no fused multiply-add).
+fn nearest32(c: [f32; 3], centres: &[[f32; 3]]) -> usize {
+    let dist = |m: &[f32; 3]| {
+        let e = [c[0] - m[0], c[1] - m[1], c[2] - m[2]];
+        e[0] * e[0] + e[1] * e[1] + e[2] * e[2]
+    };
+    let mut best = (0, dist(&centres[0]));
+    for (j, m) in centres.iter().enumerate().skip(1) {
+        let d = dist(m);
+        if d < best.1 {
+            best = (j, d);
+        }
+    }
+    best.0
+}
+
 /// Each cluster's weighted colour sum and count over colours `range`, every
-/// colour in the cluster of its nearest centre (the first on ties).
+/// colour in the cluster of its nearest centre by [`nearest32`].
 ///
 /// The sums are of integers below 2⁵³, exact in any order, so the AVX2 copy
 /// ([`chunk_sums_avx2`]) gives the same result bit for bit.
@@ -183,10 +202,11 @@ fn chunk_sums(
     range: std::ops::Range<usize>,
     centroids: &[[f64; 3]],
 ) -> Vec<([f64; 3], f64)> {
+    let centres: Vec<[f32; 3]> = centroids.iter().map(|m| m.map(|v| v as f32)).collect();
     let mut acc = vec![([0.0f64; 3], 0.0f64); centroids.len()];
     for i in range {
         let (c, n) = colours.get(i);
-        let (j, _) = nearest(c, centroids);
+        let j = nearest32(c.map(|v| v as f32), &centres);
         for ch in 0..3 {
             acc[j].0[ch] += c[ch] * n;
         }
@@ -353,13 +373,14 @@ unsafe fn assign_avx2<const K: usize>(
     }
 }
 
-/// [`chunk_sums`] for `K ≥ 2` centres, four colours at a time by
-/// [`nearest4`], the weighted channels added into the accumulators of the
-/// first `K − 1` centres under lane masks; the last centre's sums are the
-/// totals minus the others' (exact: integers).
+/// [`chunk_sums`] for `K ≥ 2` centres, eight colours at a time: the
+/// [`nearest32`] distances on `f32` lanes, the weighted channels as `i32`
+/// products added into the accumulators of the first `K − 1` centres under
+/// lane masks; the last centre's sums are the totals minus the others'.
 ///
 /// # Safety
-/// The CPU must have AVX2; `centroids.len() == K ≥ 2`.
+/// The CPU must have AVX2; `centroids.len() == K ≥ 2`; 255 times the total
+/// count of all colours fits `i32`, so that no lane sum overflows.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 unsafe fn chunk_sums_avx2<const K: usize>(
@@ -368,42 +389,69 @@ unsafe fn chunk_sums_avx2<const K: usize>(
     centroids: &[[f64; 3]],
 ) -> Vec<([f64; 3], f64)> {
     use std::arch::x86_64::*;
-    assert!(K >= 2);
+    assert!(K >= 2 && centroids.len() == K);
     let (start, end) = (range.start, range.end);
-    let whole = start + (end - start) / 4 * 4;
-    let zero = _mm256_setzero_pd();
-    let (centres, ids) = broadcast::<K>(centroids);
+    let whole = start + (end - start) / 8 * 8;
+    let centres: [[__m256; 3]; K] =
+        std::array::from_fn(|j| centroids[j].map(|v| _mm256_set1_ps(v as f32)));
+    let ids: [__m256i; K] = std::array::from_fn(|j| _mm256_set1_epi32(j as i32));
+    let zero = _mm256_setzero_si256();
     let mut sums = [[zero; 4]; K];
     let mut totals = [zero; 4];
-    for i in (start..whole).step_by(4) {
-        let [cr, cg, cb, cn] = load4(colours, i);
-        let (label, _) = nearest4::<K>([cr, cg, cb], &centres, &ids);
+    for i in (start..whole).step_by(8) {
+        let widen = |v: &[u8]| _mm256_cvtepu8_epi32(_mm_loadl_epi64(v[i..i + 8].as_ptr().cast()));
+        let (ir, ig, ib) = (widen(&colours.r), widen(&colours.g), widen(&colours.b));
+        let n = _mm256_loadu_si256(colours.n[i..i + 8].as_ptr().cast());
+        let (fr, fg, fb) = (
+            _mm256_cvtepi32_ps(ir),
+            _mm256_cvtepi32_ps(ig),
+            _mm256_cvtepi32_ps(ib),
+        );
+        let dist = |m: &[__m256; 3]| {
+            let (er, eg, eb) = (
+                _mm256_sub_ps(fr, m[0]),
+                _mm256_sub_ps(fg, m[1]),
+                _mm256_sub_ps(fb, m[2]),
+            );
+            _mm256_add_ps(
+                _mm256_add_ps(_mm256_mul_ps(er, er), _mm256_mul_ps(eg, eg)),
+                _mm256_mul_ps(eb, eb),
+            )
+        };
+        let mut best = dist(&centres[0]);
+        let mut label = zero;
+        for j in 1..K {
+            let d = dist(&centres[j]);
+            let closer = _mm256_cmp_ps(d, best, _CMP_LT_OQ);
+            best = _mm256_blendv_ps(best, d, closer);
+            label = _mm256_blendv_epi8(label, ids[j], _mm256_castps_si256(closer));
+        }
         let weighted = [
-            _mm256_mul_pd(cr, cn),
-            _mm256_mul_pd(cg, cn),
-            _mm256_mul_pd(cb, cn),
-            cn,
+            _mm256_mullo_epi32(ir, n),
+            _mm256_mullo_epi32(ig, n),
+            _mm256_mullo_epi32(ib, n),
+            n,
         ];
         for (acc, &v) in totals.iter_mut().zip(&weighted) {
-            *acc = _mm256_add_pd(*acc, v);
+            *acc = _mm256_add_epi32(*acc, v);
         }
         for j in 0..K - 1 {
-            let mine = _mm256_cmp_pd(label, ids[j], _CMP_EQ_OQ);
+            let mine = _mm256_cmpeq_epi32(label, ids[j]);
             for (acc, &v) in sums[j].iter_mut().zip(&weighted) {
-                *acc = _mm256_add_pd(*acc, _mm256_and_pd(v, mine));
+                *acc = _mm256_add_epi32(*acc, _mm256_and_si256(v, mine));
             }
         }
     }
-    // The last centre's: all minus the others' (exact: integers).
+    // The last centre's: all minus the others'.
     for ch in 0..4 {
-        let others = (0..K - 1).fold(zero, |a, j| _mm256_add_pd(a, sums[j][ch]));
-        sums[K - 1][ch] = _mm256_sub_pd(totals[ch], others);
+        let others = (0..K - 1).fold(zero, |a, j| _mm256_add_epi32(a, sums[j][ch]));
+        sums[K - 1][ch] = _mm256_sub_epi32(totals[ch], others);
     }
     let mut acc = chunk_sums(colours, whole..end, centroids);
     for (a, s) in acc.iter_mut().zip(&sums) {
-        let total = |v: __m256d| {
-            let lanes: [f64; 4] = std::mem::transmute(v);
-            lanes.iter().sum::<f64>()
+        let total = |v: __m256i| {
+            let lanes = std::mem::transmute::<__m256i, [i32; 8]>(v);
+            lanes.iter().map(|&l| i64::from(l)).sum::<i64>() as f64
         };
         for ch in 0..3 {
             a.0[ch] += total(s[ch]);
@@ -413,7 +461,8 @@ unsafe fn chunk_sums_avx2<const K: usize>(
     acc
 }
 
-/// [`chunk_sums`], with the AVX2 copy for 2 to 8 centres when `avx2`.
+/// [`chunk_sums`], with the AVX2 copy for 2 to 8 centres when `avx2` (the
+/// caller checks that 255 times the pixel count fits `i32`).
 fn lloyd_sums(
     colours: &Colours,
     range: std::ops::Range<usize>,
@@ -422,7 +471,8 @@ fn lloyd_sums(
 ) -> Vec<([f64; 3], f64)> {
     #[cfg(target_arch = "x86_64")]
     if avx2 && centroids.len() >= 2 {
-        // SAFETY: AVX2 was detected at run time; the arm matches the count.
+        // SAFETY: AVX2 was detected at run time; the arm matches the count;
+        // the caller checked the lane sums' range.
         let sums = unsafe {
             with_centres!(centroids.len(), K => chunk_sums_avx2::<K>(colours, range.clone(), centroids))
         };
@@ -444,6 +494,8 @@ pub fn cluster(image: &RgbImage, k: usize, seed: u64) -> Result<KMeans, SegmentE
     }
     let soa = colour_counts(image);
     let avx2 = avx2_available();
+    // The AVX2 Lloyd step sums in i32 lanes: up to 255 · pixels.
+    let narrow = 255 * image.len() as u64 <= i32::MAX as u64;
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     // k-means++: first centre by pixel count, then by count · D².
     let counts: Vec<f64> = soa.n.iter().map(|&n| f64::from(n)).collect();
@@ -469,7 +521,7 @@ pub fn cluster(image: &RgbImage, k: usize, seed: u64) -> Result<KMeans, SegmentE
             .into_par_iter()
             .map(|c| {
                 let range = c * CHUNK..((c + 1) * CHUNK).min(soa.len());
-                lloyd_sums(&soa, range, &centroids, avx2)
+                lloyd_sums(&soa, range, &centroids, avx2 && narrow)
             })
             .reduce(empty, |mut a, b| {
                 for (x, y) in a.iter_mut().zip(b) {
