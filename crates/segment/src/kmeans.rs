@@ -91,13 +91,41 @@ fn colour_counts(image: &RgbImage) -> Colours {
     out
 }
 
-fn pick(rng: &mut ChaCha8Rng, weights: &[f64], sum: f64) -> usize {
-    let mut r = rng.gen_range(0.0..sum);
-    for (i, w) in weights.iter().enumerate() {
-        if r < *w {
-            return i;
+/// Weights summed per block by [`pick`] and [`exact_sum`].
+const PICK_BLOCK: usize = 256;
+
+/// The sum of whole-number weights (exact below 2⁵³, so any order gives
+/// it): four accumulators, so that the additions do not wait on each other.
+fn exact_sum(weights: &[f64]) -> f64 {
+    let mut acc = [0.0f64; 4];
+    let blocks = weights.chunks_exact(4);
+    let rest: f64 = blocks.remainder().iter().sum();
+    for b in blocks {
+        for (a, &w) in acc.iter_mut().zip(b) {
+            *a += w;
         }
-        r -= w;
+    }
+    acc.iter().sum::<f64>() + rest
+}
+
+/// Index `i` drawn with probability `weights[i] / sum`: the first whose
+/// running total passes a uniform draw in `[0, sum)`. Weights are whole
+/// numbers, so block totals are exact and the block holding the draw is
+/// found before stepping through its weights one by one.
+fn pick(rng: &mut ChaCha8Rng, weights: &[f64], sum: f64) -> usize {
+    let r = rng.gen_range(0.0..sum);
+    let mut before = 0.0;
+    for (b, block) in weights.chunks(PICK_BLOCK).enumerate() {
+        let total = exact_sum(block);
+        if r < before + total {
+            for (i, &w) in block.iter().enumerate() {
+                before += w;
+                if r < before {
+                    return b * PICK_BLOCK + i;
+                }
+            }
+        }
+        before += total;
     }
     weights.len() - 1
 }
@@ -499,14 +527,14 @@ pub fn cluster(image: &RgbImage, k: usize, seed: u64) -> Result<KMeans, SegmentE
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
     // k-means++: first centre by pixel count, then by count · D².
     let counts: Vec<f64> = soa.n.iter().map(|&n| f64::from(n)).collect();
-    let total: f64 = counts.iter().sum();
+    let total = exact_sum(&counts);
     let mut centroids = vec![soa.get(pick(&mut rng, &counts, total)).0];
     while centroids.len() < k {
         let weights: Vec<f64> = assign(&soa, &centroids, avx2)
             .into_iter()
             .map(|a| a.1)
             .collect();
-        let sum: f64 = weights.iter().sum();
+        let sum = exact_sum(&weights);
         if sum <= 0.0 {
             break; // fewer distinct colours than k: every colour is a centre already
         }
