@@ -45,20 +45,22 @@ fn nearest(c: [f64; 3], centroids: &[[f64; 3]]) -> (usize, f64) {
 }
 
 /// Sorts values below 2²⁴ (packed RGB): three stable counting passes, one
-/// per byte, from the lowest.
+/// per byte, from the lowest, with the three histograms taken in one read.
 fn radix_sort_24(values: &mut Vec<u32>) {
     let mut other = vec![0u32; values.len()];
-    for shift in [0, 8, 16] {
-        let mut start = [0usize; 256];
-        for &v in values.iter() {
-            start[(v >> shift & 0xFF) as usize] += 1;
+    let mut starts = [[0usize; 256]; 3];
+    for &v in values.iter() {
+        for (byte, start) in starts.iter_mut().enumerate() {
+            start[(v >> (8 * byte) & 0xFF) as usize] += 1;
         }
+    }
+    for (byte, start) in starts.iter_mut().enumerate() {
         let mut at = 0;
         for s in start.iter_mut() {
             (*s, at) = (at, at + *s);
         }
         for &v in values.iter() {
-            let b = (v >> shift & 0xFF) as usize;
+            let b = (v >> (8 * byte) & 0xFF) as usize;
             other[start[b]] = v;
             start[b] += 1;
         }
@@ -75,11 +77,12 @@ fn colour_counts(image: &RgbImage) -> Colours {
         .map(|p| u32::from_be_bytes([0, p[0], p[1], p[2]]))
         .collect();
     radix_sort_24(&mut packed);
+    let distinct = 1 + packed.windows(2).filter(|p| p[0] != p[1]).count();
     let mut out = Colours {
-        r: Vec::new(),
-        g: Vec::new(),
-        b: Vec::new(),
-        n: Vec::new(),
+        r: Vec::with_capacity(distinct),
+        g: Vec::with_capacity(distinct),
+        b: Vec::with_capacity(distinct),
+        n: Vec::with_capacity(distinct),
     };
     for chunk in packed.chunk_by(|a, b| a == b) {
         let [_, r, g, b] = chunk[0].to_be_bytes();
@@ -178,27 +181,38 @@ impl Colours {
 /// For every colour (in parallel), its nearest centre and its weighted
 /// squared distance `n·d²` to it: [`nearest`] for all, with the AVX2 copy
 /// for up to 8 centres (bit-identical).
-fn assign(colours: &Colours, centroids: &[[f64; 3]], avx2: bool) -> Vec<(u32, f64)> {
-    let mut out = vec![(0u32, 0.0f64); colours.len()];
+struct Assignment {
+    labels: Vec<u32>,
+    weighted: Vec<f64>,
+}
+
+fn assign(colours: &Colours, centroids: &[[f64; 3]], avx2: bool) -> Assignment {
+    let mut labels = vec![0u32; colours.len()];
+    let mut weighted = vec![0.0f64; colours.len()];
     const CHUNK: usize = 4096;
-    out.par_chunks_mut(CHUNK).enumerate().for_each(|(c, out)| {
-        let range = c * CHUNK..c * CHUNK + out.len();
+    let chunks = labels
+        .par_chunks_mut(CHUNK)
+        .zip(weighted.par_chunks_mut(CHUNK));
+    chunks.enumerate().for_each(|(c, (labels, weighted))| {
+        let range = c * CHUNK..c * CHUNK + labels.len();
         #[cfg(target_arch = "x86_64")]
         if avx2 {
             // SAFETY: AVX2 was detected at run time; the arm matches the count.
-            let done = unsafe { with_centres!(centroids.len(), K => assign_avx2::<K>(colours, range.clone(), centroids, out)) };
+            let done = unsafe {
+                with_centres!(centroids.len(), K => assign_avx2::<K>(colours, range.clone(), centroids, labels, weighted))
+            };
             if done.is_some() {
                 return;
             }
         }
         let _ = avx2;
-        for (o, i) in out.iter_mut().zip(range) {
+        for ((l, w), i) in labels.iter_mut().zip(weighted.iter_mut()).zip(range) {
             let (c, n) = colours.get(i);
             let (j, d) = nearest(c, centroids);
-            *o = (j as u32, n * d);
+            (*l, *w) = (j as u32, n * d);
         }
     });
-    out
+    Assignment { labels, weighted }
 }
 
 /// The nearest of `centres` to `c` in `f32` (the first on ties): the
@@ -366,38 +380,37 @@ unsafe fn broadcast<const K: usize>(
     )
 }
 
-/// [`assign`] of colours `range` into `out` for `K` centres, four at a time.
+/// [`assign`] of colours `range` for `K` centres, four at a time.
 ///
 /// # Safety
-/// The CPU must have AVX2; `centroids.len() == K`, `out.len() == range.len()`.
+/// The CPU must have AVX2; `centroids.len() == K`; `labels` and `weighted`
+/// as long as `range`.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 unsafe fn assign_avx2<const K: usize>(
     colours: &Colours,
     range: std::ops::Range<usize>,
     centroids: &[[f64; 3]],
-    out: &mut [(u32, f64)],
+    labels: &mut [u32],
+    weighted: &mut [f64],
 ) {
     use std::arch::x86_64::*;
-    assert_eq!(out.len(), range.len());
+    assert!(labels.len() == range.len() && weighted.len() == range.len());
     let (centres, ids) = broadcast::<K>(centroids);
     let whole = range.len() / 4 * 4;
-    for (o, i) in out[..whole]
-        .chunks_exact_mut(4)
-        .zip(range.clone().step_by(4))
-    {
-        let [cr, cg, cb, cn] = load4(colours, i);
+    for k in (0..whole).step_by(4) {
+        let [cr, cg, cb, cn] = load4(colours, range.start + k);
         let (label, d) = nearest4::<K>([cr, cg, cb], &centres, &ids);
-        let lanes = |v: __m256d| std::mem::transmute::<__m256d, [f64; 4]>(v);
-        let (label, d) = (lanes(label), lanes(_mm256_mul_pd(cn, d)));
-        for (o, (l, d)) in o.iter_mut().zip(label.into_iter().zip(d)) {
-            *o = (l as u32, d);
-        }
+        _mm_storeu_si128(
+            labels[k..k + 4].as_mut_ptr().cast(),
+            _mm256_cvtpd_epi32(label),
+        );
+        _mm256_storeu_pd(weighted[k..k + 4].as_mut_ptr(), _mm256_mul_pd(cn, d));
     }
-    for (o, i) in out[whole..].iter_mut().zip(range.start + whole..range.end) {
-        let (c, n) = colours.get(i);
+    for k in whole..range.len() {
+        let (c, n) = colours.get(range.start + k);
         let (j, d) = nearest(c, centroids);
-        *o = (j as u32, n * d);
+        (labels[k], weighted[k]) = (j as u32, n * d);
     }
 }
 
@@ -530,10 +543,7 @@ pub fn cluster(image: &RgbImage, k: usize, seed: u64) -> Result<KMeans, SegmentE
     let total = exact_sum(&counts);
     let mut centroids = vec![soa.get(pick(&mut rng, &counts, total)).0];
     while centroids.len() < k {
-        let weights: Vec<f64> = assign(&soa, &centroids, avx2)
-            .into_iter()
-            .map(|a| a.1)
-            .collect();
+        let weights = assign(&soa, &centroids, avx2).weighted;
         let sum = exact_sum(&weights);
         if sum <= 0.0 {
             break; // fewer distinct colours than k: every colour is a centre already
@@ -572,7 +582,8 @@ pub fn cluster(image: &RgbImage, k: usize, seed: u64) -> Result<KMeans, SegmentE
             break;
         }
     }
-    let objective = assign(&soa, &centroids, avx2).iter().map(|a| a.1).sum();
+    // Not whole numbers: summed in order, for a deterministic value.
+    let objective = assign(&soa, &centroids, avx2).weighted.iter().sum();
     Ok(KMeans {
         centroids,
         objective,
@@ -584,10 +595,7 @@ pub fn cluster(image: &RgbImage, k: usize, seed: u64) -> Result<KMeans, SegmentE
 pub fn kmeans(image: &RgbImage, k: usize, seed: u64) -> Result<Segmentation, SegmentError> {
     let km = cluster(image, k, seed)?;
     let pixels = Colours::pixels(image);
-    let data: Vec<u32> = assign(&pixels, &km.centroids, avx2_available())
-        .into_iter()
-        .map(|a| a.0)
-        .collect();
+    let data = assign(&pixels, &km.centroids, avx2_available()).labels;
     let labels = Plane::from_vec(image.width(), image.height(), data).expect("one label per pixel");
     let image = compact(labels, |l| {
         km.centroids[l as usize].map(|v| v.round().clamp(0.0, 255.0) as u8)
@@ -643,10 +651,11 @@ mod tests {
                 let portable = chunk_sums(&soa, 0..len, &centroids);
                 let fast = lloyd_sums(&soa, 0..len, &centroids, true);
                 assert_eq!(portable, fast, "{len} colours, k {k}");
-                assert_eq!(
+                let (a, b) = (
                     assign(&soa, &centroids, false),
-                    assign(&soa, &centroids, true)
+                    assign(&soa, &centroids, true),
                 );
+                assert_eq!((a.labels, a.weighted), (b.labels, b.weighted));
             }
         }
     }
