@@ -14,14 +14,16 @@
 //!   view's map comes from the same `S` for the left-right check.
 //!
 //! Memory is the `u8` cost volume (census costs computed once for all
-//! paths) and the `u16` sum volume, `3·W·H·D` bytes, plus a few rows of path
-//! costs (`u8`, see `step`); both volumes are kept in [`SgmBuffers`]
-//! between frames. 211 MiB peak for the 741×497 Motorcycle scene at 190
-//! disparities. Aggregation is two sweeps, down and up, that run in
-//! parallel and each add all their paths into a pixel's sums in one visit
-//! (see `sweep`); the second sweep to visit a row picks its disparities.
-//! Inner loops run along the disparity axis and are compiled for AVX2 and
-//! POPCNT when the CPU has them.
+//! paths) and the `u16` sum volume, `3·W·H·D'` bytes with `D'` the
+//! disparities padded to 32 lanes, plus a few rows of path costs (`u8`, see
+//! `step`); both volumes are kept in [`SgmBuffers`] between frames:
+//! 215 MiB peak RSS for the 741×497 Motorcycle scene at 190 disparities.
+//!
+//! Aggregation is two sweeps, down and up, that run in parallel and each
+//! add all their paths into a pixel's sums in one visit (see `sweep`); the
+//! second sweep to visit a row picks its disparities while the sums are in
+//! cache. Census, costs, path steps and the winner search have AVX2 kernels
+//! (runtime-detected) with portable twins that give the same bits (tested).
 
 use rayon::prelude::*;
 use std::sync::Mutex;
