@@ -17,7 +17,7 @@
 //! paths) and the `u16` sum volume, `3·W·H·D'` bytes with `D'` the
 //! disparities padded to 32 lanes, plus a few rows of path costs (`u8`, see
 //! `step`); both volumes are kept in [`SgmBuffers`] between frames:
-//! 215 MiB peak RSS for the 741×497 Motorcycle scene at 190 disparities.
+//! 220 MiB peak RSS for the 741×497 Motorcycle scene at 190 disparities.
 //!
 //! Aggregation is two sweeps, down and up, that run in parallel and each
 //! add all their paths into a pixel's sums in one visit (see `sweep`); the
