@@ -1,5 +1,5 @@
 //! One benchmark per matcher on a deterministic synthetic 320x240 pair, 32
-//! disparities, and one per refinement step on the raw WTA map of it.
+//! disparities, and one per refinement step on its LR-checked WTA map.
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use std::hint::black_box;
@@ -25,8 +25,12 @@ fn matchers(c: &mut Criterion) {
     }
     g.finish();
 
+    // The refinement steps' input: the WTA map after the LR check, holes included.
     let mut spec = MatchSpec::new(Algorithm::Wta, 0, 31).unwrap();
-    spec.refine = Refinement::NONE;
+    spec.refine = Refinement {
+        lr_check: Some(1.0),
+        ..Refinement::NONE
+    };
     let raw = compute_disparity(&s.left, &s.right, &spec).unwrap();
     let mut g = c.benchmark_group("refine_320x240");
     g.bench_function("median_5x5", |b| {
@@ -34,6 +38,9 @@ fn matchers(c: &mut Criterion) {
     });
     g.bench_function("fill_holes", |b| {
         b.iter(|| refine::fill_holes(&mut black_box(raw.clone())))
+    });
+    g.bench_function("fill_from_directions", |b| {
+        b.iter(|| refine::fill_from_directions(&mut black_box(raw.clone())))
     });
     g.finish();
 }
