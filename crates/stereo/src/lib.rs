@@ -255,17 +255,22 @@ impl Matcher {
         spec.validate(left.width(), left.height())?;
         let raw = match spec.algorithm {
             Algorithm::Wta => {
-                let (l, r) = (color::rgb_to_gray(left), color::rgb_to_gray(right));
+                let (l, r) = gray_pair(left, right);
                 wta_with_check(&mut self.wta, &l, &r, spec)
             }
             Algorithm::LineGrowing => line_growing::line_growing(left, right, spec),
             Algorithm::Sgm => {
-                let (l, r) = (color::rgb_to_gray(left), color::rgb_to_gray(right));
+                let (l, r) = gray_pair(left, right);
                 sgm::sgm(&l, &r, spec, &mut self.sgm)
             }
         };
         Ok(refine::postprocess(raw, spec))
     }
+}
+
+/// Both views in gray, converted in parallel.
+fn gray_pair(left: &RgbImage, right: &RgbImage) -> (GrayImage, GrayImage) {
+    rayon::join(|| color::rgb_to_gray(left), || color::rgb_to_gray(right))
 }
 
 /// WTA on gray views, with the right view's map for the left-right check

@@ -47,7 +47,7 @@ fn median_with(map: &DisparityMap, size: usize, avx2: bool) -> DisparityMap {
     let network = built.as_deref().map(Network::pairs);
     let keys: Vec<u32> = map
         .as_slice()
-        .iter()
+        .par_iter()
         .map(|&v| if v.is_finite() { order_key(v) } else { HOLE })
         .collect();
     out.as_mut_slice()
