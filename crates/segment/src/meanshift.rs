@@ -93,11 +93,13 @@ impl MeanShiftSpec {
             || self.spatial > 200
             || self.range.is_nan()
             || self.range <= 0.0
+            || self.threshold.is_nan()
             || self.threshold < 0.0
         {
             return Err(SegmentError::Parameter(format!(
-                "mean shift needs bandwidths h_s in 1..=200 and h_r > 0 (got {} and {})",
-                self.spatial, self.range
+                "mean shift needs h_s in 1..=200, h_r > 0 and a threshold >= 0 \
+                 (got h_s {}, h_r {}, threshold {})",
+                self.spatial, self.range, self.threshold
             )));
         }
         Ok(())

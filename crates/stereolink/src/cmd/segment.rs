@@ -6,7 +6,8 @@ use std::time::Instant;
 use anyhow::Context;
 use serde::Serialize;
 use stereolink_image::{io, metrics::psnr_rgb, RgbImage, Scene};
-use stereolink_segment::{meanshift::MeanShiftSpec, segment, Method, Segmentation};
+use stereolink_segment::meanshift::{ColourSpace, Kernel, MeanShiftSpec};
+use stereolink_segment::{segment, Method, Segmentation};
 
 /// Segmentation options shared by the commands that segment.
 #[derive(Debug, Clone, clap::Args)]
@@ -20,7 +21,8 @@ pub struct SegmentArgs {
     /// Seed of the stochastic methods (same seed, same result).
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
-    /// Swarm iterations (pso, dpso, fodpso).
+    /// Iterations: of the swarm (pso, dpso, fodpso), or the most per pixel
+    /// (meanshift).
     #[arg(long)]
     pub iterations: Option<usize>,
     /// Fractional order α (fodpso).
@@ -32,6 +34,18 @@ pub struct SegmentArgs {
     /// Mean shift range bandwidth h_r.
     #[arg(long)]
     pub range: Option<f32>,
+    /// Mean shift: a pixel stops when its shift is below this.
+    #[arg(long)]
+    pub threshold: Option<f32>,
+    /// Mean shift range domain: luv or rgb.
+    #[arg(long, value_parser = ["luv", "rgb"])]
+    pub colour_space: Option<String>,
+    /// Mean shift range kernel: uniform or gaussian.
+    #[arg(long, value_parser = ["uniform", "gaussian"])]
+    pub kernel: Option<String>,
+    /// Mean shift: regions smaller than this many pixels join a neighbour.
+    #[arg(long)]
+    pub min_region: Option<usize>,
     /// Mean shift with the paper's preset (h_s 40, h_r 3, threshold 3).
     #[arg(long)]
     pub paper_preset: bool,
@@ -54,6 +68,19 @@ impl SegmentArgs {
                 }
                 s.spatial = self.spatial.unwrap_or(s.spatial);
                 s.range = self.range.unwrap_or(s.range);
+                s.threshold = self.threshold.unwrap_or(s.threshold);
+                s.max_iterations = self.iterations.unwrap_or(s.max_iterations);
+                s.min_region = self.min_region.unwrap_or(s.min_region);
+                match self.colour_space.as_deref() {
+                    Some("rgb") => s.colour_space = ColourSpace::Rgb,
+                    Some(_) => s.colour_space = ColourSpace::Luv,
+                    None => {}
+                }
+                match self.kernel.as_deref() {
+                    Some("gaussian") => s.kernel = Kernel::Gaussian,
+                    Some(_) => s.kernel = Kernel::Uniform,
+                    None => {}
+                }
             }
             Method::KMeans | Method::Otsu => {}
         }
