@@ -28,12 +28,12 @@ fn bad1(s: &Scene, algo: Algorithm) -> f64 {
     .unwrap()
 }
 
-/// SGM bad > 1 px (non-occluded, dense): the targets are 4.0 / 1.5 /
-/// 8.0 / 4.0 %; Tsukuba measures 4.17 %, so its guard is 4.5 %.
+/// SGM bad > 1 px (non-occluded, dense) at the targets of 4.0 / 1.5 /
+/// 8.0 / 4.0 % (measured 3.05 / 0.94 / 6.04 / 3.60 %).
 #[test]
 fn sgm_on_the_v2_scenes() {
     for (name, limit) in [
-        ("tsukuba", 4.5),
+        ("tsukuba", 4.0),
         ("venus", 1.5),
         ("teddy", 8.0),
         ("cones", 4.0),

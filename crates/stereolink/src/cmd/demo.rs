@@ -70,7 +70,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
             method: args.segment.method()?,
             levels: args.segment.levels,
             seed: args.segment.seed,
-            matcher: args.matcher.spec(0, max_disp)?,
+            matcher: args.matcher.depth_spec(0, max_disp)?,
             roi: None,
             levels_spec: LevelSpec::default(),
         },

@@ -27,6 +27,11 @@ pub struct MatcherArgs {
     /// Median filter size (0 disables).
     #[arg(long)]
     pub median: Option<usize>,
+    /// Subpixel parabola fit through the winner's neighbouring costs
+    /// (default: off for match, eval and bench, where it raises the bad > 1
+    /// px rate; on for the depth report of send and demo).
+    #[arg(long, value_name = "BOOL")]
+    pub subpixel: Option<bool>,
     /// Leave invalid pixels invalid instead of filling them.
     #[arg(long, conflicts_with = "fill")]
     pub no_fill: bool,
@@ -58,6 +63,17 @@ fn parse_algorithm(s: &str) -> Result<Algorithm, String> {
 }
 
 impl MatcherArgs {
+    /// [`Self::spec`] for a depth report: the subpixel fit on unless
+    /// `--subpixel false`, so that distances are not rounded to whole
+    /// disparities.
+    pub fn depth_spec(&self, min_disp: usize, max_disp: usize) -> anyhow::Result<MatchSpec> {
+        let mut spec = self.spec(min_disp, max_disp)?;
+        spec.refine.subpixel = self
+            .subpixel
+            .unwrap_or(spec.algorithm != Algorithm::LineGrowing);
+        Ok(spec)
+    }
+
     /// The validated spec for a disparity range.
     pub fn spec(&self, min_disp: usize, max_disp: usize) -> anyhow::Result<MatchSpec> {
         let mut spec = MatchSpec::new(self.algo, min_disp, max_disp)?;
@@ -72,6 +88,9 @@ impl MatcherArgs {
         }
         if let Some(m) = self.median {
             spec.refine.median = m;
+        }
+        if let Some(s) = self.subpixel {
+            spec.refine.subpixel = s;
         }
         if let Some(f) = self.fill {
             spec.refine.fill = Some(f);

@@ -75,7 +75,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         method: args.segment.method()?,
         levels: args.segment.levels,
         seed: args.segment.seed,
-        matcher: args.matcher.spec(0, args.max_disp)?,
+        matcher: args.matcher.depth_spec(0, args.max_disp)?,
         roi: args.roi,
         levels_spec: LevelSpec::default(),
     };
