@@ -46,6 +46,11 @@ pub struct SegmentArgs {
     /// Mean shift: regions smaller than this many pixels join a neighbour.
     #[arg(long)]
     pub min_region: Option<usize>,
+    /// Mean shift coarse-to-fine levels, as OpenCV's pyrMeanShiftFiltering
+    /// maxLevel (0: filter every pixel, exact; 1 or more: filter a half-size
+    /// copy first, then only the pixels near its boundaries).
+    #[arg(long)]
+    pub pyramid: Option<usize>,
     /// Mean shift with the paper's preset (h_s 40, h_r 3, threshold 3).
     #[arg(long)]
     pub paper_preset: bool,
@@ -71,6 +76,7 @@ impl SegmentArgs {
                 s.threshold = self.threshold.unwrap_or(s.threshold);
                 s.max_iterations = self.iterations.unwrap_or(s.max_iterations);
                 s.min_region = self.min_region.unwrap_or(s.min_region);
+                s.pyramid = self.pyramid.unwrap_or(s.pyramid);
                 match self.colour_space.as_deref() {
                     Some("rgb") => s.colour_space = ColourSpace::Rgb,
                     Some(_) => s.colour_space = ColourSpace::Luv,
