@@ -178,3 +178,74 @@ fn demo_on_a_small_synthetic_scene() {
         io::read_rgb(out.join("received/left.png")).unwrap()
     );
 }
+
+/// `send --watch` sends the pairs a camera writes into a folder, in name
+/// order, skipping one that cannot be read; the receiver shows both frames.
+#[test]
+fn send_watches_a_camera_folder() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("scene");
+    synth(&scene);
+    let camera = dir.path().join("camera");
+    std::fs::create_dir(&camera).unwrap();
+    for i in 1..=2 {
+        for side in ["left", "right"] {
+            std::fs::copy(
+                scene.join(format!("{side}.png")),
+                camera.join(format!("{side}_{i}.png")),
+            )
+            .unwrap();
+        }
+    }
+    // First in name order, and not images: skipped with a message.
+    std::fs::write(camera.join("left_0.png"), b"not a png").unwrap();
+    std::fs::write(camera.join("right_0.png"), b"nor this").unwrap();
+    let shots = dir.path().join("screens");
+    let (a, b) = (free_port(), free_port());
+    let rx = spawn(&strings(&[
+        "receive",
+        "--link",
+        &format!("udp:127.0.0.1:{b}?peer=127.0.0.1:{a}"),
+        "--robot",
+        "sim",
+        "--frames",
+        "2",
+        "--max-disp",
+        "24",
+        "--timeout-s",
+        "60",
+        "--display",
+        &format!("png:{}", shots.display()),
+    ]));
+    std::thread::sleep(Duration::from_millis(200));
+    let tx = spawn(&strings(&[
+        "send",
+        "--link",
+        &format!("udp:127.0.0.1:{a}?peer=127.0.0.1:{b}"),
+        "--watch",
+        camera.to_str().unwrap(),
+        "--frames",
+        "2",
+        "--max-disp",
+        "23",
+        "--method",
+        "kmeans",
+    ]));
+    let out = tx.wait_with_output().unwrap();
+    let (sent, errors) = (
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr),
+    );
+    assert!(out.status.success(), "send failed: {sent}{errors}");
+    assert!(
+        errors.contains("skipping") && errors.contains("left_0.png"),
+        "{errors}"
+    );
+    assert!(
+        sent.contains("frame 1:") && sent.contains("frame 2:"),
+        "{sent}"
+    );
+    assert!(!sent.contains("frame 3:"), "{sent}");
+    finish(rx, "receive");
+    assert!(shots.join("screen-00002.png").is_file());
+}

@@ -1,10 +1,13 @@
-//! `stereolink send`: the sender on a real link.
+//! `stereolink send`: the sender on a real link, for one pair (sent
+//! `--repeat` times) or for every pair a camera writes into a folder
+//! (`--watch`).
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::time::Duration;
 
 use anyhow::Context;
 use serde::Serialize;
-use stereolink_image::{io, Calibration};
+use stereolink_image::{io, Calibration, RgbImage};
 use stereolink_link::endpoint::Endpoint;
 use stereolink_link::spec;
 use stereolink_stereo::depth::{LevelSpec, Roi};
@@ -12,6 +15,7 @@ use stereolink_stereo::depth::{LevelSpec, Roi};
 use super::matching::MatcherArgs;
 use super::segment::SegmentArgs;
 use crate::pipeline::sender::{prepare, SenderConfig};
+use crate::pipeline::watch::Watcher;
 
 /// Arguments of `stereolink send`.
 #[derive(Debug, clap::Args)]
@@ -20,11 +24,22 @@ pub struct Args {
     #[arg(long)]
     pub link: String,
     /// Left image.
-    #[arg(long)]
-    pub left: PathBuf,
+    #[arg(long, required_unless_present = "watch", conflicts_with = "watch")]
+    pub left: Option<PathBuf>,
     /// Right image.
-    #[arg(long)]
-    pub right: PathBuf,
+    #[arg(long, required_unless_present = "watch", conflicts_with = "watch")]
+    pub right: Option<PathBuf>,
+    /// A camera folder: send each new pair written into it (`left*.png` with
+    /// the `right*.png` of the same name, in name order; a rewritten pair is
+    /// sent again) until --frames pairs are sent or the program is stopped.
+    #[arg(long, value_name = "DIR")]
+    pub watch: Option<PathBuf>,
+    /// With --watch: how often the folder is read, in milliseconds.
+    #[arg(long, default_value_t = 200, requires = "watch")]
+    pub poll_ms: u64,
+    /// With --watch: stop after this many pairs.
+    #[arg(long, requires = "watch")]
+    pub frames: Option<u32>,
     /// Largest disparity searched for the depth report.
     #[arg(long, default_value_t = 64)]
     pub max_disp: usize,
@@ -41,7 +56,7 @@ pub struct Args {
     #[arg(long)]
     pub save: Option<PathBuf>,
     /// Send the pair this many times (frame ids 1, 2, ...).
-    #[arg(long, default_value_t = 1)]
+    #[arg(long, default_value_t = 1, conflicts_with = "watch")]
     pub repeat: u32,
     #[command(flatten)]
     pub segment: SegmentArgs,
@@ -60,11 +75,9 @@ struct Sent {
     retransmissions: u64,
 }
 
-/// Prepares and sends the pair.
+/// Prepares and sends the pair, or each pair of the watched folder.
 pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     let spec = super::link_spec(&args.link)?;
-    let left = io::read_rgb(&args.left)?;
-    let right = io::read_rgb(&args.right)?;
     let calib = Calibration {
         focal_px: args.focal_px,
         baseline_m: args.baseline_m,
@@ -79,22 +92,58 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         roi: args.roi,
         levels_spec: LevelSpec::default(),
     };
-    let mut ep = Endpoint::new(
-        spec::open(&spec).with_context(|| format!("cannot open link {}", args.link))?,
-    );
-    let mut sent = Vec::new();
-    for frame_id in 1..=args.repeat {
-        let p = prepare(&left, &right, &calib, &cfg, frame_id)?;
-        if let Some(dir) = &args.save {
+    let mut sender = Sender {
+        ep: Endpoint::new(
+            spec::open(&spec).with_context(|| format!("cannot open link {}", args.link))?,
+        ),
+        calib,
+        cfg,
+        save: args.save.clone(),
+        json: out.json,
+        sent: Vec::new(),
+    };
+    match (&args.watch, &args.left, &args.right) {
+        (Some(dir), _, _) => sender.watch(dir, Duration::from_millis(args.poll_ms), args.frames)?,
+        (None, Some(left), Some(right)) => {
+            let (left, right) = (io::read_rgb(left)?, io::read_rgb(right)?);
+            for frame_id in 1..=args.repeat {
+                sender.send(&left, &right, frame_id)?;
+            }
+        }
+        _ => anyhow::bail!("give --left and --right, or --watch DIR"),
+    }
+    if out.json {
+        out.emit(&sender.sent, String::new)?;
+    }
+    Ok(())
+}
+
+/// The open link and what every frame is prepared with.
+struct Sender {
+    ep: Endpoint,
+    calib: Calibration,
+    cfg: SenderConfig,
+    save: Option<PathBuf>,
+    json: bool,
+    sent: Vec<Sent>,
+}
+
+impl Sender {
+    /// Prepares one pair and sends its frame and depth report.
+    fn send(&mut self, left: &RgbImage, right: &RgbImage, frame_id: u32) -> anyhow::Result<()> {
+        let p = prepare(left, right, &self.calib, &self.cfg, frame_id)?;
+        if let Some(dir) = &self.save {
             std::fs::create_dir_all(dir)
                 .with_context(|| format!("cannot create {}", dir.display()))?;
             io::write_rgb(dir.join("sent-left.png"), &p.sent.0)?;
             io::write_rgb(dir.join("sent-right.png"), &p.sent.1)?;
         }
-        let a = ep
+        let a = self
+            .ep
             .send_message(&p.frame_bytes)
             .with_context(|| format!("sending frame {frame_id}"))?;
-        let b = ep
+        let b = self
+            .ep
             .send_message(&p.report_bytes)
             .with_context(|| format!("sending depth report {frame_id}"))?;
         let seconds = (a.elapsed + b.elapsed).as_secs_f64();
@@ -107,7 +156,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
             goodput_bps: (a.bytes + b.bytes) as f64 * 8.0 / seconds.max(1e-9),
             retransmissions: a.retransmissions + b.retransmissions,
         };
-        if !out.json {
+        if !self.json {
             println!(
                 "frame {}: {} B + {} B report sent in {:.2} s ({:.1} kb/s, {} retransmissions), distance {:.3} m",
                 s.frame_id,
@@ -119,10 +168,48 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
                 s.distance_m
             );
         }
-        sent.push(s);
+        self.sent.push(s);
+        Ok(())
     }
-    if out.json {
-        out.emit(&sent, String::new)?;
+
+    /// Sends each new pair of `dir`, reading it every `poll`, until `frames`
+    /// pairs are sent (or forever). A pair that cannot be read (a file half
+    /// written, views of different sizes) is reported and skipped until its
+    /// files change.
+    fn watch(&mut self, dir: &Path, poll: Duration, frames: Option<u32>) -> anyhow::Result<()> {
+        let mut watcher = Watcher::new();
+        let mut frame_id = 0;
+        loop {
+            let pending = watcher
+                .pending(dir)
+                .with_context(|| format!("cannot read the camera folder {}", dir.display()))?;
+            for pair in pending {
+                if frames.is_some_and(|n| frame_id >= n) {
+                    return Ok(());
+                }
+                watcher
+                    .take(&pair)
+                    .with_context(|| format!("cannot read {}", pair.left.display()))?;
+                let views =
+                    io::read_rgb(&pair.left).and_then(|l| Ok((l, io::read_rgb(&pair.right)?)));
+                let (left, right) = match views {
+                    Ok(views) if views.0.dims() == views.1.dims() => views,
+                    Ok(_) => {
+                        eprintln!("skipping {}: the views differ in size", pair.left.display());
+                        continue;
+                    }
+                    Err(e) => {
+                        eprintln!("skipping {}: {e}", pair.left.display());
+                        continue;
+                    }
+                };
+                frame_id += 1;
+                self.send(&left, &right, frame_id)?;
+            }
+            if frames.is_some_and(|n| frame_id >= n) {
+                return Ok(());
+            }
+            std::thread::sleep(poll);
+        }
     }
-    Ok(())
 }

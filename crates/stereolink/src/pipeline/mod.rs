@@ -1,8 +1,10 @@
 //! The pipelines that join the crates, as library functions the CLI and the
 //! tests call: the sender ([`sender`]: segment, encode, match, depth report)
 //! and the board's receiver ([`receiver`]: decode, rebuild, match, render,
-//! drive the axis), and the whole system in one process ([`demo`]).
+//! drive the axis), the whole system in one process ([`demo`]), and the
+//! pairs arriving in a camera folder ([`watch`]).
 
 pub mod demo;
 pub mod receiver;
 pub mod sender;
+pub mod watch;
