@@ -10,8 +10,9 @@
 //!   `S(p, d)` (`u16`). `P2` adapts to the intensity step along the path:
 //!   `P2(p) = max(P1 + 1, P2 · γ / (γ + |I(p) − I(p−r)|))`, so depth may jump
 //!   where the image has an edge.
-//! * **Disparity**: winner-take-all on `S`, with a parabola fit; the right
-//!   view's map comes from the same `S` for the left-right check.
+//! * **Disparity**: winner-take-all on `S`, with a parabola fit when the
+//!   refinement asks for it; the right view's map comes from the same `S`
+//!   for the left-right check.
 //!
 //! Memory is the `u8` cost volume (census costs computed once for all
 //! paths) and the `u16` sum volume, `3·W·H·D'` bytes with `D'` the
