@@ -36,6 +36,7 @@
 
 #![deny(missing_docs)]
 
+mod calib_yaml;
 pub mod color;
 pub mod colormap;
 mod error;

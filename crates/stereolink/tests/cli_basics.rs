@@ -96,3 +96,55 @@ fn truncated_image_is_a_clear_error() {
     let err = String::from_utf8(out.stderr).unwrap();
     assert!(err.contains("right.png"), "{err}");
 }
+
+/// `depth` takes its calibration from flags or from an OpenCV
+/// `stereoRectify` YAML (here in millimetres) and gives the same distance,
+/// Z = f·b / d.
+#[test]
+fn depth_reads_an_opencv_calibration() {
+    let dir = tempfile::tempdir().unwrap();
+    let disp = dir.path().join("d.pfm");
+    stereolink_image::pfm::write(&disp, &stereolink_image::DisparityMap::new(8, 6, 10.0)).unwrap();
+    let yaml = dir.path().join("rectify.yml");
+    std::fs::write(
+        &yaml,
+        "%YAML:1.0\n---\nP1: !!opencv-matrix\n   rows: 3\n   cols: 4\n   dt: d\n   \
+         data: [ 700., 0., 4., 0., 0., 700., 3., 0., 0., 0., 1., 0. ]\n\
+         P2: !!opencv-matrix\n   rows: 3\n   cols: 4\n   dt: d\n   \
+         data: [ 700., 0., 4., -4.2e+04, 0., 700., 3., 0., 0., 0., 1., 0. ]\n",
+    )
+    .unwrap();
+    let distance = |calib: &[&str]| {
+        let out = stereolink()
+            .args([
+                "--json",
+                "depth",
+                disp.to_str().unwrap(),
+                "--roi",
+                "0,0,4,4",
+            ])
+            .args(calib)
+            .output()
+            .unwrap();
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        v["regions"][0][1].as_f64().unwrap()
+    };
+    let from_yaml = distance(&[
+        "--calib-yaml",
+        yaml.to_str().unwrap(),
+        "--calib-units",
+        "mm",
+    ]);
+    assert!((from_yaml - 4.2).abs() < 1e-9, "{from_yaml}");
+    assert_eq!(
+        distance(&["--focal-px", "700", "--baseline-m", "0.06"]),
+        from_yaml
+    );
+    // The wrong unit gives a thousandfold distance, not a silent default.
+    assert!((distance(&["--calib-yaml", yaml.to_str().unwrap()]) - 4200.0).abs() < 1e-6);
+}

@@ -5,31 +5,20 @@ use std::path::PathBuf;
 
 use anyhow::Context;
 use serde::Serialize;
-use stereolink_image::{io, pfm, Calibration, RgbImage};
+use stereolink_image::{io, pfm, RgbImage};
 use stereolink_stereo::depth::{
     depth_levels, depth_map, region_distance, write_ply, LevelSpec, Roi,
 };
+
+use super::calib::CalibArgs;
 
 /// Arguments of `stereolink depth`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
     /// Disparity map (PFM, `inf` = invalid).
     pub disparity: PathBuf,
-    /// Focal length in pixels.
-    #[arg(long)]
-    pub focal_px: Option<f64>,
-    /// Baseline in metres.
-    #[arg(long)]
-    pub baseline_m: Option<f64>,
-    /// Disparity offset between the principal points (Middlebury 2014 `doffs`).
-    #[arg(long, default_value_t = 0.0)]
-    pub doffs: f64,
-    /// Read focal length, baseline and doffs from a Middlebury calib.txt.
-    #[arg(long)]
-    pub calib: Option<PathBuf>,
-    /// Read them from a TOML file with keys focal_px, baseline_m, doffs.
-    #[arg(long)]
-    pub calib_toml: Option<PathBuf>,
+    #[command(flatten)]
+    pub calib: CalibArgs,
     /// Write the depth map (metres, PFM).
     #[arg(short, long)]
     pub output: Option<PathBuf>,
@@ -61,48 +50,10 @@ struct Report {
     points: Option<usize>,
 }
 
-#[derive(serde::Deserialize)]
-struct TomlCalib {
-    focal_px: f64,
-    baseline_m: f64,
-    #[serde(default)]
-    doffs: f64,
-}
-
-fn calibration(args: &Args) -> anyhow::Result<Calibration> {
-    let mut c = Calibration {
-        focal_px: args.focal_px,
-        baseline_m: args.baseline_m,
-        doffs: args.doffs,
-        ndisp: 0,
-    };
-    if let Some(p) = &args.calib {
-        let text =
-            std::fs::read_to_string(p).with_context(|| format!("cannot read {}", p.display()))?;
-        c = Calibration::parse_middlebury(&text)
-            .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?;
-    }
-    if let Some(p) = &args.calib_toml {
-        let text =
-            std::fs::read_to_string(p).with_context(|| format!("cannot read {}", p.display()))?;
-        let t: TomlCalib = toml::from_str(&text)
-            .with_context(|| format!("{}: expected focal_px, baseline_m, doffs", p.display()))?;
-        c = Calibration {
-            focal_px: Some(t.focal_px),
-            baseline_m: Some(t.baseline_m),
-            doffs: t.doffs,
-            ndisp: 0,
-        };
-    }
-    c.focal_px = args.focal_px.or(c.focal_px);
-    c.baseline_m = args.baseline_m.or(c.baseline_m);
-    Ok(c)
-}
-
 /// Computes and writes what was asked.
 pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     let disp = pfm::read(&args.disparity)?;
-    let calib = calibration(&args)?;
+    let calib = args.calib.calibration(0)?;
     if let Some(o) = &args.output {
         pfm::write(o, &depth_map(&disp, &calib)?)?;
     }

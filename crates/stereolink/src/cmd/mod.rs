@@ -4,6 +4,7 @@
 use clap::{Parser, Subcommand};
 
 pub mod bench;
+pub mod calib;
 pub mod codec;
 pub mod demo;
 pub mod depth;
@@ -115,7 +116,7 @@ pub enum Command {
     /// Send test messages over a link and report goodput, loss and retransmissions.
     LinkTest(link_test::Args),
     /// Sender: segment, encode, match and send frames and depth reports.
-    Send(send::Args),
+    Send(Box<send::Args>),
     /// Receiver: rebuild, match, display and drive the axis.
     Receive(receive::Args),
     /// Reproduce the paper's tables on a data folder as an HTML report.
@@ -139,7 +140,7 @@ impl Command {
             Command::Encode(args) => codec::run(args, out),
             Command::Decode(args) => codec::run_decode(args, out),
             Command::LinkTest(args) => link_test::run(args, out),
-            Command::Send(args) => send::run(args, out),
+            Command::Send(args) => send::run(*args, out),
             Command::Receive(args) => receive::run(args, out),
             Command::Report(args) => report::run(args, out),
             Command::Bench(target) => bench::run(target, out),

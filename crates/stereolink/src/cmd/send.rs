@@ -12,6 +12,7 @@ use stereolink_link::endpoint::Endpoint;
 use stereolink_link::spec;
 use stereolink_stereo::depth::{LevelSpec, Roi};
 
+use super::calib::CalibArgs;
 use super::matching::MatcherArgs;
 use super::segment::SegmentArgs;
 use crate::pipeline::sender::{prepare, SenderConfig};
@@ -43,12 +44,8 @@ pub struct Args {
     /// Largest disparity searched for the depth report.
     #[arg(long, default_value_t = 64)]
     pub max_disp: usize,
-    /// Focal length in pixels (for distances).
-    #[arg(long)]
-    pub focal_px: Option<f64>,
-    /// Baseline in metres (for distances).
-    #[arg(long)]
-    pub baseline_m: Option<f64>,
+    #[command(flatten)]
+    pub calib: CalibArgs,
     /// Target region x,y,w,h (default: the central ninth of the image).
     #[arg(long)]
     pub roi: Option<Roi>,
@@ -78,12 +75,7 @@ struct Sent {
 /// Prepares and sends the pair, or each pair of the watched folder.
 pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     let spec = super::link_spec(&args.link)?;
-    let calib = Calibration {
-        focal_px: args.focal_px,
-        baseline_m: args.baseline_m,
-        doffs: 0.0,
-        ndisp: args.max_disp + 1,
-    };
+    let calib = args.calib.calibration(args.max_disp + 1)?;
     let cfg = SenderConfig {
         method: args.segment.method()?,
         levels: args.segment.levels,
