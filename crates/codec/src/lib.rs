@@ -34,6 +34,7 @@
 
 pub mod container;
 pub mod labels;
+pub mod mixer;
 pub mod rangecoder;
 pub mod rgb;
 
