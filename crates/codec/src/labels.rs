@@ -61,8 +61,17 @@ const CANDIDATES: usize = OWN.len() + REF.len();
 const RANKS: usize = 4;
 /// Context bits besides the rank of the three mixed models: the own mask;
 /// W, N, NW, NE of it and the prediction's mask; both masks.
-const CONTEXT_BITS: [u32; 4] = [8, 14, OWN_LEN as u32 + 6, LABEL_HASH_BITS - 2];
+const CONTEXT_BITS: [u32; 5] = [
+    8,
+    14,
+    OWN_LEN as u32 + 6,
+    LABEL_HASH_BITS - 2,
+    LABEL_HASH_BITS - 2,
+];
 const LABEL_HASH_BITS: u32 = 18;
+/// Context bits besides the rank of the fast mode: W, N, NW, NE, WW, NN,
+/// NEE, NWW of the own mask and the prediction's mask.
+const FAST_BITS: u32 = 14;
 /// Mixer weight sets: rank, candidate at W, candidate at P.
 const MIX_SETS: usize = RANKS * 32;
 /// Palettes up to this size send a missed label label by label.
@@ -70,8 +79,13 @@ const SEQUENTIAL_MAX: usize = 32;
 
 struct Model {
     /// The candidate decisions' counters: small, medium and full contexts.
-    flags: [Vec<Counter>; 4],
+    flags: [Vec<Counter>; 5],
     mixer: Mixer,
+    /// The fast mode's counters.
+    fast: Vec<Counter>,
+    /// The own-mask bits of the fast context: W, N, NW, NE when coding
+    /// conditioned (the prediction's mask takes the place), else the eight nearest.
+    fast_own: usize,
     explicit: Vec<Counter>,
     same_shift: Counter,
     shift: Vec<Counter>,
@@ -80,8 +94,10 @@ struct Model {
 impl Model {
     fn new() -> Self {
         Model {
-            flags: [Vec::new(), Vec::new(), Vec::new(), Vec::new()],
+            flags: [Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new()],
             mixer: Mixer::new(0),
+            fast: Vec::new(),
+            fast_own: 0,
             explicit: Vec::new(),
             same_shift: Counter::default(),
             shift: Vec::new(),
@@ -89,12 +105,22 @@ impl Model {
     }
 
     /// Back to the initial state for `n_labels` labels, reusing the storage.
-    fn reset(&mut self, n_labels: usize) {
-        for (f, bits) in self.flags.iter_mut().zip(CONTEXT_BITS) {
-            f.clear();
-            f.resize(RANKS << bits, Counter::default());
+    fn reset(&mut self, n_labels: usize, strong: bool, conditioned: bool) {
+        self.fast_own = if conditioned { 15 } else { 255 };
+        let mut sizes = [0; 5];
+        if strong {
+            sizes = CONTEXT_BITS.map(|b| RANKS << b);
+            self.mixer.reset(MIX_SETS);
         }
-        self.mixer.reset(MIX_SETS);
+        for (f, size) in self.flags.iter_mut().zip(sizes) {
+            f.clear();
+            f.resize(size, Counter::default());
+        }
+        self.fast.clear();
+        self.fast.resize(
+            if strong { 0 } else { RANKS << FAST_BITS },
+            Counter::default(),
+        );
         self.explicit.clear();
         self.explicit
             .resize(explicit_size(n_labels), Counter::default());
@@ -201,6 +227,20 @@ fn own_template(data: &[u16], w: usize, x: usize, y: usize) -> [u32; OWN_LEN] {
     }
 }
 
+/// The label of W if (x, y) is inside and its whole template holds it (most
+/// pixels: a quick test without gathering the template).
+#[inline(always)]
+fn flat_inside(data: &[u16], w: usize, x: usize, y: usize) -> Option<u32> {
+    if x < 3 || x + 3 >= w || y < 2 {
+        return None;
+    }
+    let (r0, r1, r2) = (y * w + x, (y - 1) * w + x, (y - 2) * w + x);
+    let wv = data[r0 - 1];
+    let same = |s: &[u16]| s.iter().fold(true, |a, &v| a & (v == wv));
+    (same(&data[r0 - 3..r0 - 1]) & same(&data[r1 - 2..r1 + 4]) & same(&data[r2 - 1..r2 + 2]))
+        .then_some(wv as u32)
+}
+
 /// The labels of the prediction's template around (`xs`, y).
 #[inline(always)]
 fn ref_template(reference: &LabelMap, xs: usize, y: usize) -> [u32; 6] {
@@ -232,6 +272,24 @@ fn label_hash(r: usize, c: u32, own: &[u32; OWN_LEN], p: u32) -> usize {
     (h >> (32 - LABEL_HASH_BITS)) as usize
 }
 
+#[inline(always)]
+fn label_hash2(r: usize, c: u32, own: &[u32; OWN_LEN], rf: &[u32; 6]) -> usize {
+    let h = [c, own[0], own[1], own[4], own[5], rf[1], rf[3]]
+        .iter()
+        .fold(r as u32 + 77, |h, &v| (h ^ v).wrapping_mul(0x9E37_79B1));
+    (h >> (32 - LABEL_HASH_BITS)) as usize
+}
+
+/// Which positions of `t` hold `c`, as bits.
+#[inline(always)]
+fn mask(t: &[u32], c: u32) -> usize {
+    let mut m = 0;
+    for (k, &v) in t.iter().enumerate() {
+        m |= ((v == c) as usize) << k;
+    }
+    m
+}
+
 /// Codes the decision "label = `c`" for the `rank`-th candidate, given the
 /// templates: which positions hold `c` select the contexts of the mixed models.
 #[inline(always)]
@@ -240,34 +298,31 @@ fn code_candidate<I: BitIo, const STRONG: bool>(
     model: &mut Model,
     rank: usize,
     c: u32,
-    own: &[u32; OWN_LEN],
-    rf: &[u32; 6],
+    (own, rf): (&[u32; OWN_LEN], &[u32; 6]),
+    (mo, mr): (usize, usize),
     bit: bool,
 ) -> bool {
-    let mask = |t: &[u32]| {
-        let mut m = 0;
-        for (k, &v) in t.iter().enumerate() {
-            m |= ((v == c) as usize) << k;
-        }
-        m
-    };
-    let (mo, mr) = (mask(own), mask(rf));
     let r = rank.min(RANKS - 1);
     if !STRONG {
-        return io.bit(&mut model.flags[1][r << 14 | (mo & 255) << 6 | mr], bit);
+        return io.bit(
+            &mut model.fast[r << FAST_BITS | (mo & model.fast_own) << 6 | mr],
+            bit,
+        );
     }
     let ctx = [
         r << 8 | (mo & 255),
         r << 10 | (mo & 15) << 6 | mr,
         r << (OWN_LEN + 6) | mo << 6 | mr,
         label_hash(r, c, own, rf[0]),
+        label_hash2(r, c, own, rf),
     ];
-    let [a, b, d, e] = &mut model.flags;
+    let [a, b, d, e, f] = &mut model.flags;
     let counters = [
         &mut a[ctx[0]],
         &mut b[ctx[1]],
         &mut d[ctx[2]],
         &mut e[ctx[3]],
+        &mut f[ctx[4]],
     ];
     let mix = model.mixer.mix(
         r << 5 | (mo & 15) << 1 | (mr & 1),
@@ -279,6 +334,19 @@ fn code_candidate<I: BitIo, const STRONG: bool>(
         c.update(bit);
     }
     bit
+}
+
+/// `l` as a label, if below `n_labels`.
+#[inline(always)]
+fn checked(l: u32, n_labels: usize) -> Result<u16, CodecError> {
+    if (l as usize) < n_labels {
+        Ok(l as u16)
+    } else {
+        Err(CodecError::LabelOutOfRange {
+            label: l,
+            labels: n_labels,
+        })
+    }
 }
 
 /// `1 << v` for a label below 64, else 0.
@@ -293,25 +361,35 @@ fn code_pixel<I: BitIo, const STRONG: bool>(
     io: &mut I,
     model: &mut Model,
     n_labels: usize,
-    own: &[u32; OWN_LEN],
+    (own, flat): (&[u32; OWN_LEN], bool),
     rf: &[u32; 6],
     v: u32,
 ) -> Result<u16, CodecError> {
     let order = [
-        own[0], rf[0], own[1], own[3], own[2], own[4], own[5], own[6], own[7], rf[1], rf[2], rf[3],
-        rf[4], rf[5], own[8], own[9], own[10], own[11],
+        rf[0], own[1], own[3], own[2], own[4], own[5], own[6], own[7], rf[1], rf[2], rf[3], rf[4],
+        rf[5], own[8], own[9], own[10], own[11],
     ];
-    let mut list = [NONE; CANDIDATES];
-    let mut n = 0;
     // The listed labels below 64, as bits (larger ones are looked up).
     let mut seen = 0u64;
     let wv = own[0];
-    if wv != NONE && own.iter().all(|&v| v == wv) && rf.iter().all(|&v| v == wv || v == NONE) {
-        // Flat (most pixels): what the general case below gives, without its work.
-        list[0] = wv;
-        n = 1;
+    // W first (most pixels end there), with its masks: all set when flat.
+    if wv != NONE {
+        let masks = if flat {
+            ((1 << OWN_LEN) - 1, mask(rf, wv))
+        } else {
+            (mask(own, wv), mask(rf, wv))
+        };
+        if code_candidate::<I, STRONG>(io, model, 0, wv, (own, rf), masks, wv == v) {
+            return checked(wv, n_labels);
+        }
         seen = bit64(wv);
-    } else {
+    }
+    if !(flat && rf.iter().all(|&v| v == wv || v == NONE)) {
+        // The other candidates (a flat template has none).
+        let mut list = [NONE; CANDIDATES];
+        list[0] = wv;
+        let mut n = (wv != NONE) as usize;
+        let first = n;
         for c in order {
             let listed = if c < 64 {
                 seen & bit64(c) != 0
@@ -324,17 +402,11 @@ fn code_pixel<I: BitIo, const STRONG: bool>(
                 seen |= bit64(c);
             }
         }
-    }
-    for (rank, &c) in list[..n].iter().enumerate() {
-        if code_candidate::<I, STRONG>(io, model, rank, c, own, rf, c == v) {
-            return if (c as usize) < n_labels {
-                Ok(c as u16)
-            } else {
-                Err(CodecError::LabelOutOfRange {
-                    label: c,
-                    labels: n_labels,
-                })
-            };
+        for (rank, &c) in list[..n].iter().enumerate().skip(first) {
+            let masks = (mask(own, c), mask(rf, c));
+            if code_candidate::<I, STRONG>(io, model, rank, c, (own, rf), masks, c == v) {
+                return checked(c, n_labels);
+            }
         }
     }
     if n_labels <= SEQUENTIAL_MAX {
@@ -352,15 +424,10 @@ fn code_pixel<I: BitIo, const STRONG: bool>(
         }
         Err(CodecError::Invalid("label stream: no label left".into()))
     } else {
-        let l = tree(io, &mut model.explicit, tree_bits(n_labels), v);
-        if (l as usize) < n_labels {
-            Ok(l as u16)
-        } else {
-            Err(CodecError::LabelOutOfRange {
-                label: l,
-                labels: n_labels,
-            })
-        }
+        checked(
+            tree(io, &mut model.explicit, tree_bits(n_labels), v),
+            n_labels,
+        )
     }
 }
 
@@ -376,7 +443,7 @@ fn code_map<I: BitIo, const STRONG: bool>(
     (data, w, n_labels, reference, plan): MapArgs,
     shifts: &mut Vec<u8>,
 ) -> Result<(), CodecError> {
-    model.reset(n_labels);
+    model.reset(n_labels, STRONG, reference.is_some());
     let blocks = w.div_ceil(BLOCK);
     shifts.clear();
     shifts.resize(blocks, 0);
@@ -391,13 +458,20 @@ fn code_map<I: BitIo, const STRONG: bool>(
             }
         }
         for x in 0..w {
-            let own = own_template(data, w, x, y);
+            let (own, flat) = match flat_inside(data, w, x, y) {
+                Some(wv) => ([wv; OWN_LEN], true),
+                None => {
+                    let t = own_template(data, w, x, y);
+                    (t, t[0] != NONE && t.iter().all(|&v| v == t[0]))
+                }
+            };
             let rf = match reference {
                 Some(r) => ref_template(r, x + shifts[x / BLOCK] as usize, y),
                 None => [NONE; 6],
             };
             let i = y * w + x;
-            data[i] = code_pixel::<I, STRONG>(io, model, n_labels, &own, &rf, data[i] as u32)?;
+            let v = data[i] as u32;
+            data[i] = code_pixel::<I, STRONG>(io, model, n_labels, (&own, flat), &rf, v)?;
         }
         if io.overrun() {
             return Err(CodecError::Truncated("label stream"));

@@ -7,7 +7,7 @@
 //! one speak where it has statistics and the small ones elsewhere.
 
 /// Number of mixed inputs.
-pub const INPUTS: usize = 4;
+pub const INPUTS: usize = 5;
 /// Weight of 1.0.
 const ONE: i32 = 1 << 16;
 /// Bound of a weight's magnitude (256.0), so that no input overflows the sums.
