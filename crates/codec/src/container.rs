@@ -18,7 +18,7 @@ use crate::{
 /// The magic bytes.
 pub const MAGIC: [u8; 4] = *b"SLNK";
 /// The format version this build writes and reads.
-pub const VERSION: u8 = 1;
+pub const VERSION: u8 = 2;
 /// Header length in bytes.
 pub const HEADER_LEN: usize = 28;
 
@@ -729,11 +729,11 @@ mod tests {
         let mut bad = bytes.clone();
         bad[HEADER_LEN + 5] ^= 0x10;
         assert_eq!(decode(&bad, &l).unwrap_err(), CodecError::Crc);
-        let mut v2 = bytes.clone();
-        v2[4] = 2;
+        let mut v1 = bytes.clone();
+        v1[4] = 1;
         assert_eq!(
-            decode(&v2, &l).unwrap_err(),
-            CodecError::UnsupportedVersion(2)
+            decode(&v1, &l).unwrap_err(),
+            CodecError::UnsupportedVersion(1)
         );
         assert_eq!(decode(b"PNG....", &l).unwrap_err(), CodecError::BadMagic);
         assert!(matches!(
@@ -773,7 +773,7 @@ mod tests {
         let hex: String = bytes.iter().map(|b| format!("{b:02x}")).collect();
         assert_eq!(
             hex,
-            "534c4e4b01020000040302010500000000000000210000006237a12c\
+            "534c4e4b02020000040302010500000000000000210000006237a12c\
              0000003f01000200030004000100000040\
              0000803f0000003f0100000007000000"
         );

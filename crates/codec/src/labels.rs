@@ -3,17 +3,22 @@
 //! Each pixel is coded as a short sequence of binary decisions with the
 //! [range coder](crate::rangecoder): "is it the same label as candidate i?"
 //! over the distinct labels of a causal template of the map (W, N, NW, NE,
-//! WW, NN, NEE, NWW) and, when the map is the right view of a pair, of the
-//! **stereo prediction** around P, the left view's label at `x + s` (with one
-//! shift `s` per block of [`BLOCK`] columns of a row, chosen by the encoder
-//! and sent with the row): P itself, its neighbours E, W, S (the row below:
-//! the whole left view is known) and N, and EE. A decision's context is the
-//! candidate's rank and which template positions hold the candidate's label,
-//! so flat areas cost a few thousandths of a bit per pixel and edges that
-//! the left view already shows cost little more. A label matching no
-//! candidate is sent explicitly: label by label among the others for small
-//! palettes, as a binary tree for large ones. Probabilities are [`Counter`]s,
-//! which learn fast in rare contexts.
+//! WW, NN, NEE, NWW, NNW, NNE, WWW, NEEE) and, when the map is the right view
+//! of a pair, of the **stereo prediction** around P, the left view's label at
+//! `x + s` (one shift `s` per block of [`BLOCK`] columns of a row, chosen by
+//! the encoder and sent with the row): P, its neighbours E, W, S (the row
+//! below: the whole left view is known), N and EE. A decision's context is
+//! the candidate's rank and which template positions hold the candidate's
+//! label, so flat areas cost a few thousandths of a bit per pixel and edges
+//! that the left view already shows cost little more. A label matching no
+//! candidate is sent explicitly: label by label among the others (context:
+//! the W label) for palettes up to 32 colours, as a binary tree above.
+//!
+//! Two [`Mode`]s: *fast* gives each decision one context; *strong* mixes
+//! five ([`crate::mixer`]: the two masks at three sizes and two hashes of
+//! the neighbours' labels), about 7 % smaller and 3–4x slower to decode.
+//! Probabilities are [`Counter`]s, which learn fast in rare contexts.
+//! `docs/wire-format.md` specifies the stream bit for bit.
 
 use stereolink_image::LabelMap;
 
@@ -25,10 +30,10 @@ use crate::CodecError;
 /// first byte: decode speed against size.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Mode {
-    /// One context per decision (the full template): the fast decoder.
+    /// One context per decision: the fast decoder (what a receiver wants).
     #[default]
     Fast = 0,
-    /// Four contexts per decision, logistically mixed: smaller, slower.
+    /// Five contexts per decision, logistically mixed: smaller, slower.
     Strong = 1,
 }
 
@@ -59,26 +64,29 @@ const REF: [(isize, isize); 6] = [(0, 0), (1, 0), (-1, 0), (0, 1), (0, -1), (2, 
 const CANDIDATES: usize = OWN.len() + REF.len();
 /// Ranks told apart by the contexts (later ones share the last).
 const RANKS: usize = 4;
-/// Context bits besides the rank of the three mixed models: the own mask;
-/// W, N, NW, NE of it and the prediction's mask; both masks.
+/// Context bits besides the rank of the strong mode's mixed models: W … NWW
+/// of the own mask; W, N, NW, NE of it and the prediction's mask; both
+/// masks; the two label hashes (which include the rank).
 const CONTEXT_BITS: [u32; 5] = [
     8,
-    14,
+    10,
     OWN_LEN as u32 + 6,
     LABEL_HASH_BITS - 2,
     LABEL_HASH_BITS - 2,
 ];
+/// Bits of the label hashes.
 const LABEL_HASH_BITS: u32 = 18;
-/// Context bits besides the rank of the fast mode: W, N, NW, NE, WW, NN,
-/// NEE, NWW of the own mask and the prediction's mask.
+/// Context bits besides the rank of the fast mode: eight bits of the own
+/// mask and the prediction's mask.
 const FAST_BITS: u32 = 14;
-/// Mixer weight sets: rank, candidate at W, candidate at P.
+/// Mixer weight sets: rank, W, N, NW, NE of the own mask, P of the prediction's.
 const MIX_SETS: usize = RANKS * 32;
 /// Palettes up to this size send a missed label label by label.
 const SEQUENTIAL_MAX: usize = 32;
 
 struct Model {
-    /// The candidate decisions' counters: small, medium and full contexts.
+    /// The strong mode's counters of the candidate decisions, one table per
+    /// mixed context.
     flags: [Vec<Counter>; 5],
     mixer: Mixer,
     /// The fast mode's counters.
@@ -94,7 +102,7 @@ struct Model {
 impl Model {
     fn new() -> Self {
         Model {
-            flags: [Vec::new(), Vec::new(), Vec::new(), Vec::new(), Vec::new()],
+            flags: Default::default(),
             mixer: Mixer::new(0),
             fast: Vec::new(),
             fast_own: 0,
@@ -262,21 +270,13 @@ fn ref_template(reference: &LabelMap, xs: usize, y: usize) -> [u32; 6] {
     })
 }
 
-/// The context of the labels themselves: rank, candidate, W, N, NW, NE, P,
-/// hashed to [`LABEL_HASH_BITS`] bits.
+/// A context from labels themselves: `values` folded from 0 by
+/// `h = (h ^ v) · 0x9E3779B1` (mod 2^32), the top [`LABEL_HASH_BITS`] bits.
 #[inline(always)]
-fn label_hash(r: usize, c: u32, own: &[u32; OWN_LEN], p: u32) -> usize {
-    let h = [c, own[0], own[1], own[2], own[3], p]
+fn label_hash(values: &[u32]) -> usize {
+    let h = values
         .iter()
-        .fold(r as u32, |h, &v| (h ^ v).wrapping_mul(0x9E37_79B1));
-    (h >> (32 - LABEL_HASH_BITS)) as usize
-}
-
-#[inline(always)]
-fn label_hash2(r: usize, c: u32, own: &[u32; OWN_LEN], rf: &[u32; 6]) -> usize {
-    let h = [c, own[0], own[1], own[4], own[5], rf[1], rf[3]]
-        .iter()
-        .fold(r as u32 + 77, |h, &v| (h ^ v).wrapping_mul(0x9E37_79B1));
+        .fold(0u32, |h, &v| (h ^ v).wrapping_mul(0x9E37_79B1));
     (h >> (32 - LABEL_HASH_BITS)) as usize
 }
 
@@ -313,8 +313,17 @@ fn code_candidate<I: BitIo, const STRONG: bool>(
         r << 8 | (mo & 255),
         r << 10 | (mo & 15) << 6 | mr,
         r << (OWN_LEN + 6) | mo << 6 | mr,
-        label_hash(r, c, own, rf[0]),
-        label_hash2(r, c, own, rf),
+        label_hash(&[r as u32, c, own[0], own[1], own[2], own[3], rf[0]]),
+        label_hash(&[
+            (RANKS + r) as u32,
+            c,
+            own[0],
+            own[1],
+            own[4],
+            own[5],
+            rf[1],
+            rf[3],
+        ]),
     ];
     let [a, b, d, e, f] = &mut model.flags;
     let counters = [
@@ -676,6 +685,29 @@ mod tests {
             let reference = LabelMap::from_fn(w, h, |x, y| ((x * 7 + y) % (n + 3)) as u16);
             let _ = decode(&stream, w, h, n, Some(&reference));
         }
+    }
+
+    /// Pins the label streams of `docs/wire-format.md`'s example: a 6×3 map
+    /// of 3 labels alone in both modes, and a right view conditioned on it.
+    #[test]
+    fn golden_label_streams() {
+        let rows = [[0, 0, 1, 1, 2, 2], [0, 0, 1, 1, 1, 2], [0, 1, 1, 1, 2, 2]];
+        let left = LabelMap::from_fn(6, 3, |x, y| rows[y][x]);
+        let right = LabelMap::from_fn(6, 3, |x, y| rows[y][(x + 1).min(5)]);
+        let hex = |b: Vec<u8>| b.iter().map(|b| format!("{b:02x}")).collect::<String>();
+        let streams = [
+            encode(&left, 3, None, 0, Mode::Fast),
+            encode(&left, 3, None, 0, Mode::Strong),
+            encode(&right, 3, Some(&left), 4, Mode::Fast),
+        ];
+        for s in &streams[..2] {
+            assert_eq!(decode(s, 6, 3, 3, None).unwrap(), left);
+        }
+        assert_eq!(decode(&streams[2], 6, 3, 3, Some(&left)).unwrap(), right);
+        assert_eq!(
+            streams.map(hex),
+            ["00d79196c5c800", "01d0b702d1158000", "0000db8ed295bd5d50"]
+        );
     }
 
     #[test]
