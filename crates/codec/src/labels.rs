@@ -16,7 +16,7 @@
 //!
 //! Two [`Mode`]s: *fast* gives each decision one context; *strong* mixes
 //! five ([`crate::mixer`]: the two masks at three sizes and two hashes of
-//! the neighbours' labels), about 7 % smaller and 3–4x slower to decode.
+//! the neighbours' labels), about 7 % smaller and about 3x slower to decode.
 //! Probabilities are [`Counter`]s, which learn fast in rare contexts.
 //! `docs/wire-format.md` specifies the stream bit for bit.
 
