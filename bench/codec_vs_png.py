@@ -10,11 +10,12 @@ FO-DPSO 3 levels per channel) it segments the left view with
     the smallest wins;
   * zstd -19 of the raw label map (one byte per pixel);
   * ours: `stereolink bench codec` (left view alone, right view alone and
-    conditioned on the left);
+    conditioned on the left), label maps in the strong mode unless
+    `--mode fast` is given;
 and prints bits per pixel, the ratios, and the pair's reduction against the
 original PNG files beside the paper's 79-86 % (PSO family) / 51-62 % (k-means).
 
-    cargo build --release && python3 bench/codec_vs_png.py [DATA_DIR]
+    cargo build --release && python3 bench/codec_vs_png.py [DATA_DIR] [--mode fast|strong]
 
 Needs `pip install pillow numpy opencv-python-headless zstandard`.
 """
@@ -51,7 +52,14 @@ def best_png(rgb):
 
 
 def main():
-    data = sys.argv[1] if len(sys.argv) > 1 else os.environ.get("STEREOLINK_DATA", "../shared/data/middlebury")
+    args = sys.argv[1:]
+    mode = "strong"
+    if "--mode" in args:
+        i = args.index("--mode")
+        mode = args[i + 1]
+        del args[i:i + 2]
+    data = args[0] if args else os.environ.get("STEREOLINK_DATA", "../shared/data/middlebury")
+    print(f"label coding mode: {mode}")
     print(f"{'scene':<9} {'method':<7} {'ours bpp':>8} {'PNG bpp':>8} {'zstd bpp':>8} {'PNG/ours':>8} {'zstd/ours':>9} "
           f"{'cond gain':>9} {'pair reduction':>14}")
     totals = {}
@@ -67,7 +75,7 @@ def main():
             png, labels = best_png(rgb)
             zstd = len(zstandard.ZstdCompressor(level=19).compress(labels.tobytes()))
             r = json.loads(subprocess.run([BIN, "--json", "bench", "codec", "--scene", folder, "--method", method,
-                                           "--levels", "3", "--iters", "3"], check=True, capture_output=True,
+                                           "--levels", "3", "--iters", "3", "--mode", mode], check=True, capture_output=True,
                                           text=True).stdout)
             px = labels.size
             ours = r["bytes_left"]

@@ -18,7 +18,7 @@ use crate::{
 /// The magic bytes.
 pub const MAGIC: [u8; 4] = *b"SLNK";
 /// The format version this build writes and reads.
-pub const VERSION: u8 = 1;
+pub const VERSION: u8 = 2;
 /// Header length in bytes.
 pub const HEADER_LEN: usize = 28;
 
@@ -133,16 +133,22 @@ fn check(what: &'static str, value: usize, max: usize) -> Result<(), CodecError>
     }
 }
 
-/// Serialises a message with its header.
+/// Serialises a message with its header, label maps in the default
+/// [`labels::Mode`] (the fast one).
 ///
 /// # Panics
 /// If the frame's views differ in size, exceed 65535 px a side, or `params`
 /// exceeds 255 bytes (the encoder's own inputs, not external data).
 pub fn encode(msg: &Message, frame_id: u32, timestamp_us: u64) -> Vec<u8> {
+    encode_with(msg, frame_id, timestamp_us, labels::Mode::default())
+}
+
+/// [`encode`] with the label maps coded in `mode`.
+pub fn encode_with(msg: &Message, frame_id: u32, timestamp_us: u64, mode: labels::Mode) -> Vec<u8> {
     let mut body = Writer(Vec::new());
     let kind = match msg {
         Message::StereoFrame(f) => {
-            encode_frame(&mut body, f);
+            encode_frame(&mut body, f, mode);
             kind::STEREO_FRAME
         }
         Message::DepthReport(r) => {
@@ -168,7 +174,7 @@ pub fn encode(msg: &Message, frame_id: u32, timestamp_us: u64) -> Vec<u8> {
     out.0
 }
 
-fn encode_frame(w: &mut Writer, f: &StereoFrame) {
+fn encode_frame(w: &mut Writer, f: &StereoFrame, mode: labels::Mode) {
     let (width, height) = f.left.dims();
     assert_eq!(f.right.dims(), (width, height), "views differ in size");
     w.u16(u16::try_from(width).expect("width fits 16 bits"));
@@ -198,15 +204,15 @@ fn encode_frame(w: &mut Writer, f: &StereoFrame) {
             w.u16(c.ndisp.min(u16::MAX as usize) as u16);
         }
     }
-    encode_view(w, &f.left, None);
+    encode_view(w, &f.left, None, mode);
     let reference = match &f.left {
         View::Indexed(l) => Some(l),
         View::Rgb(_) => None,
     };
-    encode_view(w, &f.right, reference);
+    encode_view(w, &f.right, reference, mode);
 }
 
-fn encode_view(w: &mut Writer, view: &View, reference: Option<&IndexedImage>) {
+fn encode_view(w: &mut Writer, view: &View, reference: Option<&IndexedImage>, mode: labels::Mode) {
     let (code, palette, payload): (u8, &[Rgb], Vec<u8>) = match view {
         View::Indexed(img) => {
             let n = img.palette().len();
@@ -214,12 +220,12 @@ fn encode_view(w: &mut Writer, view: &View, reference: Option<&IndexedImage>) {
                 Some(r) => (
                     coding::LABELS_CONDITIONED,
                     img.palette(),
-                    conditioned_payload(r, img),
+                    conditioned_payload(r, img, mode),
                 ),
                 None => (
                     coding::LABELS,
                     img.palette(),
-                    labels::encode(img.labels(), n, None, 0),
+                    labels::encode(img.labels(), n, None, 0, mode),
                 ),
             }
         }
@@ -236,7 +242,11 @@ fn encode_view(w: &mut Writer, view: &View, reference: Option<&IndexedImage>) {
 
 /// The payload of a right view coded conditioned on the left: the label
 /// table, then the labels predicted through it.
-pub fn conditioned_payload(left: &IndexedImage, right: &IndexedImage) -> Vec<u8> {
+pub fn conditioned_payload(
+    left: &IndexedImage,
+    right: &IndexedImage,
+    mode: labels::Mode,
+) -> Vec<u8> {
     let table = label_table(left, right);
     let predicted = left.labels().map(|l| table[l as usize]);
     let mut payload: Vec<u8> = table.iter().flat_map(|t| t.to_le_bytes()).collect();
@@ -245,6 +255,7 @@ pub fn conditioned_payload(left: &IndexedImage, right: &IndexedImage) -> Vec<u8>
         right.palette().len(),
         Some(&predicted),
         SHIFT_SEARCH,
+        mode,
     ));
     payload
 }
@@ -718,11 +729,11 @@ mod tests {
         let mut bad = bytes.clone();
         bad[HEADER_LEN + 5] ^= 0x10;
         assert_eq!(decode(&bad, &l).unwrap_err(), CodecError::Crc);
-        let mut v2 = bytes.clone();
-        v2[4] = 2;
+        let mut v1 = bytes.clone();
+        v1[4] = 1;
         assert_eq!(
-            decode(&v2, &l).unwrap_err(),
-            CodecError::UnsupportedVersion(2)
+            decode(&v1, &l).unwrap_err(),
+            CodecError::UnsupportedVersion(1)
         );
         assert_eq!(decode(b"PNG....", &l).unwrap_err(), CodecError::BadMagic);
         assert!(matches!(
@@ -762,7 +773,7 @@ mod tests {
         let hex: String = bytes.iter().map(|b| format!("{b:02x}")).collect();
         assert_eq!(
             hex,
-            "534c4e4b01020000040302010500000000000000210000006237a12c\
+            "534c4e4b02020000040302010500000000000000210000006237a12c\
              0000003f01000200030004000100000040\
              0000803f0000003f0100000007000000"
         );

@@ -2,120 +2,491 @@
 //!
 //! Each pixel is coded as a short sequence of binary decisions with the
 //! [range coder](crate::rangecoder): "is it the same label as candidate i?"
-//! for the causal neighbours W, N, NE, NW (duplicates skipped), and, when the
-//! map is the right view of a pair, right after W the **stereo prediction** P: the
-//! left view's label at `x + s`, with one shift `s` per block of
-//! [`BLOCK`] columns of a row chosen by the encoder (the dominant disparity
-//! there) and sent with the row. Each decision's context is the candidate's
-//! rank and the equality pattern of the neighbours, so flat areas cost a few
-//! hundredths of a bit per pixel (an implicit run mode) and edges that the
-//! left view already shows cost little more. A label matching no candidate is
-//! sent explicitly with a binary tree of adaptive probabilities.
+//! over the distinct labels of a causal template of the map (W, N, NW, NE,
+//! WW, NN, NEE, NWW, NNW, NNE, WWW, NEEE) and, when the map is the right view
+//! of a pair, of the **stereo prediction** around P, the left view's label at
+//! `x + s` (one shift `s` per block of [`BLOCK`] columns of a row, chosen by
+//! the encoder and sent with the row): P, its neighbours E, W, S (the row
+//! below: the whole left view is known), N and EE. A decision's context is
+//! the candidate's rank and which template positions hold the candidate's
+//! label, so flat areas cost a few thousandths of a bit per pixel and edges
+//! that the left view already shows cost little more. A label matching no
+//! candidate is sent explicitly: label by label among the others (context:
+//! the W label) for palettes up to 32 colours, as a binary tree above.
+//!
+//! Two [`Mode`]s: *fast* gives each decision one context; *strong* mixes
+//! five ([`crate::mixer`]: the two masks at three sizes and two hashes of
+//! the neighbours' labels), about 7 % smaller and about 3x slower to decode.
+//! Probabilities are [`Counter`]s, which learn fast in rare contexts.
+//! `docs/wire-format.md` specifies the stream bit for bit.
 
 use stereolink_image::LabelMap;
 
-use crate::rangecoder::{BitTree, Decoder, Encoder, Prob};
+use crate::mixer::Mixer;
+use crate::rangecoder::{Counter, Decoder, Encoder};
 use crate::CodecError;
+
+/// How hard the model works, chosen by the sender and sent as the payload's
+/// first byte: decode speed against size.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Mode {
+    /// One context per decision: the fast decoder (what a receiver wants).
+    #[default]
+    Fast = 0,
+    /// Five contexts per decision, logistically mixed: smaller, slower.
+    Strong = 1,
+}
 
 /// Columns per stereo-shift block.
 pub const BLOCK: usize = 32;
 /// Largest stereo shift searched and coded (8 bits).
 pub const MAX_SHIFT: usize = 255;
 
-const CANDIDATES: usize = 5;
-const PATTERNS: usize = 128;
+/// The causal template of the map: W, N, NW, NE, WW, NN, NEE, NWW, NNW,
+/// NNE, WWW, NEEE.
+const OWN: [(isize, isize); OWN_LEN] = [
+    (-1, 0),
+    (0, -1),
+    (-1, -1),
+    (1, -1),
+    (-2, 0),
+    (0, -2),
+    (2, -1),
+    (-2, -1),
+    (-1, -2),
+    (1, -2),
+    (-3, 0),
+    (3, -1),
+];
+const OWN_LEN: usize = 12;
+/// The template of the stereo prediction around `(x + s, y)`: P, E, W, S, N, EE.
+const REF: [(isize, isize); 6] = [(0, 0), (1, 0), (-1, 0), (0, 1), (0, -1), (2, 0)];
+const CANDIDATES: usize = OWN.len() + REF.len();
+/// Ranks told apart by the contexts (later ones share the last).
+const RANKS: usize = 4;
+/// Context bits besides the rank of the strong mode's mixed models: W … NWW
+/// of the own mask; W, N, NW, NE of it and the prediction's mask; both
+/// masks; the two label hashes (which include the rank).
+const CONTEXT_BITS: [u32; 5] = [
+    8,
+    10,
+    OWN_LEN as u32 + 6,
+    LABEL_HASH_BITS - 2,
+    LABEL_HASH_BITS - 2,
+];
+/// Bits of the label hashes.
+const LABEL_HASH_BITS: u32 = 18;
+/// Context bits besides the rank of the fast mode: eight bits of the own
+/// mask and the prediction's mask.
+const FAST_BITS: u32 = 14;
+/// Mixer weight sets: rank, W, N, NW, NE of the own mask, P of the prediction's.
+const MIX_SETS: usize = RANKS * 32;
+/// Palettes up to this size send a missed label label by label.
+const SEQUENTIAL_MAX: usize = 32;
 
 struct Model {
-    flags: Vec<Prob>,
-    explicit: BitTree,
-    same_shift: Prob,
-    shift: BitTree,
+    /// The strong mode's counters of the candidate decisions, one table per
+    /// mixed context.
+    flags: [Vec<Counter>; 5],
+    mixer: Mixer,
+    /// The fast mode's counters.
+    fast: Vec<Counter>,
+    /// The own-mask bits of the fast context: W, N, NW, NE when coding
+    /// conditioned (the prediction's mask takes the place), else the eight nearest.
+    fast_own: usize,
+    explicit: Vec<Counter>,
+    same_shift: Counter,
+    shift: Vec<Counter>,
 }
 
 impl Model {
-    fn new(n_labels: usize) -> Self {
-        let mut model = Model {
-            flags: Vec::new(),
-            explicit: BitTree::new(0),
-            same_shift: Prob::default(),
-            shift: BitTree::new(8),
-        };
-        model.reset(n_labels);
-        model
+    fn new() -> Self {
+        Model {
+            flags: Default::default(),
+            mixer: Mixer::new(0),
+            fast: Vec::new(),
+            fast_own: 0,
+            explicit: Vec::new(),
+            same_shift: Counter::default(),
+            shift: Vec::new(),
+        }
     }
 
     /// Back to the initial state for `n_labels` labels, reusing the storage.
-    fn reset(&mut self, n_labels: usize) {
-        let bits = usize::BITS - (n_labels.max(1) - 1).leading_zeros();
-        self.flags.clear();
-        self.flags.resize(CANDIDATES * PATTERNS, Prob::default());
-        self.explicit.reset(bits);
-        self.same_shift = Prob::default();
-        self.shift.reset(8);
+    fn reset(&mut self, n_labels: usize, strong: bool, conditioned: bool) {
+        self.fast_own = if conditioned { 15 } else { 255 };
+        let mut sizes = [0; 5];
+        if strong {
+            sizes = CONTEXT_BITS.map(|b| RANKS << b);
+            self.mixer.reset(MIX_SETS);
+        }
+        for (f, size) in self.flags.iter_mut().zip(sizes) {
+            f.clear();
+            f.resize(size, Counter::default());
+        }
+        self.fast.clear();
+        self.fast.resize(
+            if strong { 0 } else { RANKS << FAST_BITS },
+            Counter::default(),
+        );
+        self.explicit.clear();
+        self.explicit
+            .resize(explicit_size(n_labels), Counter::default());
+        self.same_shift = Counter::default();
+        self.shift.clear();
+        self.shift.resize(256, Counter::default());
     }
 }
 
-/// Stands for a neighbour outside the map (or no prediction).
+/// Bits of the binary tree of a missed label (palettes over [`SEQUENTIAL_MAX`]).
+fn tree_bits(n_labels: usize) -> u32 {
+    usize::BITS - (n_labels.max(1) - 1).leading_zeros()
+}
+
+fn explicit_size(n_labels: usize) -> usize {
+    if n_labels <= SEQUENTIAL_MAX {
+        (SEQUENTIAL_MAX + 1) * SEQUENTIAL_MAX
+    } else {
+        1 << tree_bits(n_labels)
+    }
+}
+
+/// Stands for a template position outside the map (or no prediction).
 const NONE: u32 = u32::MAX;
 
-/// The candidates of pixel (x, y), in coding order, and the context pattern.
+/// The two ends of the range coder behind one interface, so that the
+/// encoder and the decoder run the same model code: the encoder codes the
+/// bit it is given, the decoder ignores it and returns the decoded one.
+trait BitIo {
+    /// Codes a bit whose probability of being 0 is `p0` / 2^16.
+    fn code(&mut self, p0: u32, bit: bool) -> bool;
+    fn overrun(&self) -> bool;
+
+    /// Codes a bit with an adaptive counter.
+    #[inline(always)]
+    fn bit(&mut self, c: &mut Counter, bit: bool) -> bool {
+        let bit = self.code(c.p0(), bit);
+        c.update(bit);
+        bit
+    }
+}
+
+impl BitIo for Encoder {
+    #[inline(always)]
+    fn code(&mut self, p0: u32, bit: bool) -> bool {
+        Encoder::code(self, p0, bit);
+        bit
+    }
+    fn overrun(&self) -> bool {
+        false
+    }
+}
+
+impl BitIo for Decoder<'_> {
+    #[inline(always)]
+    fn code(&mut self, p0: u32, _: bool) -> bool {
+        Decoder::code(self, p0)
+    }
+    fn overrun(&self) -> bool {
+        Decoder::overrun(self)
+    }
+}
+
+/// Codes `value` (`bits` bits, most significant first) with a tree of counters.
+fn tree<I: BitIo>(io: &mut I, probs: &mut [Counter], bits: u32, value: u32) -> u32 {
+    let mut node = 1usize;
+    for i in (0..bits).rev() {
+        let bit = io.bit(&mut probs[node], (value >> i) & 1 == 1);
+        node = (node << 1) | bit as usize;
+    }
+    (node - (1 << bits)) as u32
+}
+
+/// The labels of the map's template around (x, y).
 #[inline(always)]
-fn candidates(
-    map: &[u16],
-    w: usize,
-    x: usize,
-    y: usize,
-    predicted: Option<u16>,
-) -> ([u16; CANDIDATES], usize, usize) {
-    let p = predicted.map_or(NONE, u32::from);
-    let (wv, nv, nw, ne) = if y > 0 && x > 0 && x + 1 < w {
-        // Inside: direct reads (most pixels).
-        let up = &map[(y - 1) * w + x - 1..(y - 1) * w + x + 2];
-        let [nw, nv, ne] = [up[0], up[1], up[2]].map(u32::from);
-        let wv = u32::from(map[y * w + x - 1]);
-        if wv == nv && nv == nw && nv == ne {
-            // Flat (most of a segmented map): what the general case below
-            // gives, without its work.
-            let same = (p == wv) as usize;
-            let pattern = 0b1111 | ((p != NONE) as usize) << 4 | same << 5 | same << 6;
-            let mut list = [wv as u16; CANDIDATES];
-            let n = if p != NONE && same == 0 {
-                list[1] = p as u16;
-                2
-            } else {
-                1
-            };
-            return (list, n, pattern);
-        }
-        (wv, nv, nw, ne)
+fn own_template(data: &[u16], w: usize, x: usize, y: usize) -> [u32; OWN_LEN] {
+    if x >= 3 && x + 3 < w && y >= 2 {
+        // Inside (most pixels): direct reads, in the order of OWN.
+        let (r0, r1, r2) = (y * w + x, (y - 1) * w + x, (y - 2) * w + x);
+        let g = |i: usize| u32::from(data[i]);
+        [
+            g(r0 - 1),
+            g(r1),
+            g(r1 - 1),
+            g(r1 + 1),
+            g(r0 - 2),
+            g(r2),
+            g(r1 + 2),
+            g(r1 - 2),
+            g(r2 - 1),
+            g(r2 + 1),
+            g(r0 - 3),
+            g(r1 + 3),
+        ]
     } else {
-        let at = |dx: isize, dy: isize| {
+        OWN.map(|(dx, dy)| {
             let (xx, yy) = (x as isize + dx, y as isize + dy);
             if xx >= 0 && yy >= 0 && (xx as usize) < w {
-                u32::from(map[yy as usize * w + xx as usize])
+                u32::from(data[yy as usize * w + xx as usize])
             } else {
                 NONE
             }
+        })
+    }
+}
+
+/// The label of W if (x, y) is inside and its whole template holds it (most
+/// pixels: a quick test without gathering the template).
+#[inline(always)]
+fn flat_inside(data: &[u16], w: usize, x: usize, y: usize) -> Option<u32> {
+    if x < 3 || x + 3 >= w || y < 2 {
+        return None;
+    }
+    let (r0, r1, r2) = (y * w + x, (y - 1) * w + x, (y - 2) * w + x);
+    let wv = data[r0 - 1];
+    let same = |s: &[u16]| s.iter().fold(true, |a, &v| a & (v == wv));
+    (same(&data[r0 - 3..r0 - 1]) & same(&data[r1 - 2..r1 + 4]) & same(&data[r2 - 1..r2 + 2]))
+        .then_some(wv as u32)
+}
+
+/// The labels of the prediction's template around (`xs`, y).
+#[inline(always)]
+fn ref_template(reference: &LabelMap, xs: usize, y: usize) -> [u32; 6] {
+    let (w, h) = reference.dims();
+    let data = reference.as_slice();
+    if xs >= 1 && xs + 2 < w && y >= 1 && y + 1 < h {
+        // Inside: direct reads, in the order of REF.
+        let i = y * w + xs;
+        let g = |i: usize| u32::from(data[i]);
+        return [g(i), g(i + 1), g(i - 1), g(i + w), g(i - w), g(i + 2)];
+    }
+    REF.map(|(dx, dy)| {
+        let (xx, yy) = (xs as isize + dx, y as isize + dy);
+        if xx >= 0 && yy >= 0 && (xx as usize) < w && (yy as usize) < h {
+            u32::from(data[yy as usize * w + xx as usize])
+        } else {
+            NONE
+        }
+    })
+}
+
+/// A context from labels themselves: `values` folded from 0 by
+/// `h = (h ^ v) · 0x9E3779B1` (mod 2^32), the top [`LABEL_HASH_BITS`] bits.
+#[inline(always)]
+fn label_hash(values: &[u32]) -> usize {
+    let h = values
+        .iter()
+        .fold(0u32, |h, &v| (h ^ v).wrapping_mul(0x9E37_79B1));
+    (h >> (32 - LABEL_HASH_BITS)) as usize
+}
+
+/// Which positions of `t` hold `c`, as bits.
+#[inline(always)]
+fn mask(t: &[u32], c: u32) -> usize {
+    let mut m = 0;
+    for (k, &v) in t.iter().enumerate() {
+        m |= ((v == c) as usize) << k;
+    }
+    m
+}
+
+/// Codes the decision "label = `c`" for the `rank`-th candidate, given the
+/// templates: which positions hold `c` select the contexts of the mixed models.
+#[inline(always)]
+fn code_candidate<I: BitIo, const STRONG: bool>(
+    io: &mut I,
+    model: &mut Model,
+    rank: usize,
+    c: u32,
+    (own, rf): (&[u32; OWN_LEN], &[u32; 6]),
+    (mo, mr): (usize, usize),
+    bit: bool,
+) -> bool {
+    let r = rank.min(RANKS - 1);
+    if !STRONG {
+        return io.bit(
+            &mut model.fast[r << FAST_BITS | (mo & model.fast_own) << 6 | mr],
+            bit,
+        );
+    }
+    let ctx = [
+        r << 8 | (mo & 255),
+        r << 10 | (mo & 15) << 6 | mr,
+        r << (OWN_LEN + 6) | mo << 6 | mr,
+        label_hash(&[r as u32, c, own[0], own[1], own[2], own[3], rf[0]]),
+        label_hash(&[
+            (RANKS + r) as u32,
+            c,
+            own[0],
+            own[1],
+            own[4],
+            own[5],
+            rf[1],
+            rf[3],
+        ]),
+    ];
+    let [a, b, d, e, f] = &mut model.flags;
+    let counters = [
+        &mut a[ctx[0]],
+        &mut b[ctx[1]],
+        &mut d[ctx[2]],
+        &mut e[ctx[3]],
+        &mut f[ctx[4]],
+    ];
+    let mix = model.mixer.mix(
+        r << 5 | (mo & 15) << 1 | (mr & 1),
+        counters.each_ref().map(|c| c.p0()),
+    );
+    let bit = io.code(mix.p0(), bit);
+    model.mixer.update(&mix, bit);
+    for c in counters {
+        c.update(bit);
+    }
+    bit
+}
+
+/// `l` as a label, if below `n_labels`.
+#[inline(always)]
+fn checked(l: u32, n_labels: usize) -> Result<u16, CodecError> {
+    if (l as usize) < n_labels {
+        Ok(l as u16)
+    } else {
+        Err(CodecError::LabelOutOfRange {
+            label: l,
+            labels: n_labels,
+        })
+    }
+}
+
+/// `1 << v` for a label below 64, else 0.
+#[inline(always)]
+fn bit64(v: u32) -> u64 {
+    1u64.checked_shl(v).unwrap_or(0)
+}
+
+/// Codes the label of one pixel: `v` for the encoder, ignored by the decoder.
+#[inline(always)]
+fn code_pixel<I: BitIo, const STRONG: bool>(
+    io: &mut I,
+    model: &mut Model,
+    n_labels: usize,
+    (own, flat): (&[u32; OWN_LEN], bool),
+    rf: &[u32; 6],
+    v: u32,
+) -> Result<u16, CodecError> {
+    let order = [
+        rf[0], own[1], own[3], own[2], own[4], own[5], own[6], own[7], rf[1], rf[2], rf[3], rf[4],
+        rf[5], own[8], own[9], own[10], own[11],
+    ];
+    // The listed labels below 64, as bits (larger ones are looked up).
+    let mut seen = 0u64;
+    let wv = own[0];
+    // W first (most pixels end there), with its masks: all set when flat.
+    if wv != NONE {
+        let masks = if flat {
+            ((1 << OWN_LEN) - 1, mask(rf, wv))
+        } else {
+            (mask(own, wv), mask(rf, wv))
         };
-        (at(-1, 0), at(0, -1), at(-1, -1), at(1, -1))
-    };
-    let eq = |a: u32, b: u32| (a == b && a != NONE) as usize;
-    let pattern = eq(wv, nv)
-        | eq(nv, ne) << 1
-        | eq(wv, nw) << 2
-        | eq(nv, nw) << 3
-        | ((p != NONE) as usize) << 4
-        | eq(p, wv) << 5
-        | eq(p, nv) << 6;
-    let mut list = [0u16; CANDIDATES];
-    let mut n = 0;
-    for c in [wv, p, nv, ne, nw] {
-        if c != NONE && !list[..n].contains(&(c as u16)) {
-            list[n] = c as u16;
-            n += 1;
+        if code_candidate::<I, STRONG>(io, model, 0, wv, (own, rf), masks, wv == v) {
+            return checked(wv, n_labels);
+        }
+        seen = bit64(wv);
+    }
+    if !(flat && rf.iter().all(|&v| v == wv || v == NONE)) {
+        // The other candidates (a flat template has none).
+        let mut list = [NONE; CANDIDATES];
+        list[0] = wv;
+        let mut n = (wv != NONE) as usize;
+        let first = n;
+        for c in order {
+            let listed = if c < 64 {
+                seen & bit64(c) != 0
+            } else {
+                c == NONE || list[..n].contains(&c)
+            };
+            if !listed {
+                list[n] = c;
+                n += 1;
+                seen |= bit64(c);
+            }
+        }
+        for (rank, &c) in list[..n].iter().enumerate().skip(first) {
+            let masks = (mask(own, c), mask(rf, c));
+            if code_candidate::<I, STRONG>(io, model, rank, c, (own, rf), masks, c == v) {
+                return checked(c, n_labels);
+            }
         }
     }
-    (list, n, pattern)
+    if n_labels <= SEQUENTIAL_MAX {
+        // One decision per label not already refused, the last one implied.
+        let mut remaining = n_labels - (seen & (bit64(n_labels as u32) - 1)).count_ones() as usize;
+        let row = wv.min(SEQUENTIAL_MAX as u32) as usize * SEQUENTIAL_MAX;
+        for l in 0..n_labels as u32 {
+            if seen & bit64(l) != 0 {
+                continue;
+            }
+            if remaining == 1 || io.bit(&mut model.explicit[row + l as usize], l == v) {
+                return Ok(l as u16);
+            }
+            remaining -= 1;
+        }
+        Err(CodecError::Invalid("label stream: no label left".into()))
+    } else {
+        checked(
+            tree(io, &mut model.explicit, tree_bits(n_labels), v),
+            n_labels,
+        )
+    }
+}
+
+/// What [`code_map`] codes: the map, its width, the palette size, the
+/// reference and the encoder's shifts.
+type MapArgs<'a> = (&'a mut [u16], usize, usize, Option<&'a LabelMap>, &'a [u8]);
+
+/// Codes a whole map: `data` holds it for the encoder and receives it in
+/// the decoder; `plan` holds the encoder's shifts (row-major, one per block).
+fn code_map<I: BitIo, const STRONG: bool>(
+    io: &mut I,
+    model: &mut Model,
+    (data, w, n_labels, reference, plan): MapArgs,
+    shifts: &mut Vec<u8>,
+) -> Result<(), CodecError> {
+    model.reset(n_labels, STRONG, reference.is_some());
+    let blocks = w.div_ceil(BLOCK);
+    shifts.clear();
+    shifts.resize(blocks, 0);
+    let h = data.len().checked_div(w).unwrap_or(0);
+    for y in 0..h {
+        if reference.is_some() {
+            for (b, s) in shifts.iter_mut().enumerate() {
+                let want = plan.get(y * blocks + b).copied().unwrap_or(0);
+                if !io.bit(&mut model.same_shift, want == *s) {
+                    *s = tree(io, &mut model.shift, 8, want as u32) as u8;
+                }
+            }
+        }
+        for x in 0..w {
+            let (own, flat) = match flat_inside(data, w, x, y) {
+                Some(wv) => ([wv; OWN_LEN], true),
+                None => {
+                    let t = own_template(data, w, x, y);
+                    (t, t[0] != NONE && t.iter().all(|&v| v == t[0]))
+                }
+            };
+            let rf = match reference {
+                Some(r) => ref_template(r, x + shifts[x / BLOCK] as usize, y),
+                None => [NONE; 6],
+            };
+            let i = y * w + x;
+            let v = data[i] as u32;
+            data[i] = code_pixel::<I, STRONG>(io, model, n_labels, (&own, flat), &rf, v)?;
+        }
+        if io.overrun() {
+            return Err(CodecError::Truncated("label stream"));
+        }
+    }
+    Ok(())
 }
 
 /// How many more pixels a new shift must predict than the block's current
@@ -155,10 +526,10 @@ fn best_shifts(
                 .filter(|&&x| x + s < w && row[x] == refrow[x + s])
                 .count()
         };
-        // Without a block above (the first row) every shift is sent anyway.
-        let (keep, margin) = match above.get(b) {
-            Some(&s) => (s as usize, SHIFT_CHANGE_GAIN),
-            None => (0, 0),
+        // The first row has no block above: every shift is sent anyway.
+        let (keep, margin) = match y {
+            0 => (0, 0),
+            _ => (above[b] as usize, SHIFT_CHANGE_GAIN),
         };
         let kept = hits(keep);
         // The best shift (the smallest among equals) replaces the kept one
@@ -178,47 +549,31 @@ pub fn encode(
     n_labels: usize,
     reference: Option<&LabelMap>,
     max_shift: usize,
+    mode: Mode,
 ) -> Vec<u8> {
     let (w, h) = map.dims();
-    let mut model = Model::new(n_labels);
-    let mut enc = Encoder::new();
-    let data = map.as_slice();
-    let mut shifts = Vec::new();
-    let mut above: Vec<u8> = Vec::new();
-    for y in 0..h {
-        if let Some(r) = reference {
-            best_shifts(map, r, y, max_shift.min(MAX_SHIFT), &above, &mut shifts);
-            for (b, &s) in shifts.iter().enumerate() {
-                let same = above.get(b) == Some(&s);
-                enc.bit(&mut model.same_shift, same);
-                if !same {
-                    model.shift.encode(&mut enc, s as u32);
-                }
-            }
-            above.clone_from(&shifts);
-        }
-        for x in 0..w {
-            let predicted = reference.and_then(|r| {
-                let xs = x + shifts[x / BLOCK] as usize;
-                (xs < w).then(|| r.get(xs, y))
-            });
-            let (list, n, pattern) = candidates(data, w, x, y, predicted);
-            let v = data[y * w + x];
-            let mut found = false;
-            for (i, &c) in list[..n].iter().enumerate() {
-                let hit = c == v;
-                enc.bit(&mut model.flags[i * PATTERNS + pattern], hit);
-                if hit {
-                    found = true;
-                    break;
-                }
-            }
-            if !found {
-                model.explicit.encode(&mut enc, v as u32);
-            }
+    let mut plan = Vec::new();
+    if let Some(r) = reference {
+        let mut above = vec![0; w.div_ceil(BLOCK)];
+        let mut row = Vec::new();
+        for y in 0..h {
+            best_shifts(map, r, y, max_shift.min(MAX_SHIFT), &above, &mut row);
+            plan.extend_from_slice(&row);
+            std::mem::swap(&mut above, &mut row);
         }
     }
-    enc.finish()
+    let mut enc = Encoder::new();
+    let mut data = map.as_slice().to_vec();
+    let (model, shifts) = (&mut Model::new(), &mut Vec::new());
+    let args = (&mut data[..], w, n_labels, reference, &plan[..]);
+    match mode {
+        Mode::Fast => code_map::<_, false>(&mut enc, model, args, shifts),
+        Mode::Strong => code_map::<_, true>(&mut enc, model, args, shifts),
+    }
+    .expect("the encoder codes its own labels");
+    let mut out = vec![mode as u8];
+    out.extend(enc.finish());
+    out
 }
 
 /// Decodes a `w`×`h` map written by [`encode`] (with the same reference).
@@ -256,7 +611,7 @@ pub struct LabelDecoder {
 impl Default for LabelDecoder {
     fn default() -> Self {
         LabelDecoder {
-            model: Model::new(1),
+            model: Model::new(),
             shifts: Vec::new(),
         }
     }
@@ -277,54 +632,17 @@ impl LabelDecoder {
                 return Err(CodecError::Invalid("reference view size differs".into()));
             }
         }
-        let model = &mut self.model;
-        model.reset(n_labels);
-        let mut dec = Decoder::new(bytes);
-        let shifts = &mut self.shifts;
-        shifts.clear();
-        shifts.resize(w.div_ceil(BLOCK), 0);
-        let data = out.as_mut_slice();
-        for y in 0..h {
-            if reference.is_some() {
-                for s in shifts.iter_mut() {
-                    if !dec.bit(&mut model.same_shift) {
-                        *s = model.shift.decode(&mut dec) as u8;
-                    }
-                }
-            }
-            for x in 0..w {
-                let predicted = reference.and_then(|r| {
-                    let xs = x + shifts[x / BLOCK] as usize;
-                    (xs < w).then(|| r.get(xs, y))
-                });
-                let (list, n, pattern) = candidates(data, w, x, y, predicted);
-                let mut value = None;
-                for (i, &c) in list[..n].iter().enumerate() {
-                    if dec.bit(&mut model.flags[i * PATTERNS + pattern]) {
-                        value = Some(c);
-                        break;
-                    }
-                }
-                let v = match value {
-                    Some(v) => v,
-                    None => {
-                        let v = model.explicit.decode(&mut dec);
-                        if v as usize >= n_labels {
-                            return Err(CodecError::LabelOutOfRange {
-                                label: v,
-                                labels: n_labels,
-                            });
-                        }
-                        v as u16
-                    }
-                };
-                data[y * w + x] = v;
-            }
-            if dec.overrun() {
-                return Err(CodecError::Truncated("label stream"));
-            }
+        let (&mode, coded) = bytes
+            .split_first()
+            .ok_or(CodecError::Truncated("label stream"))?;
+        let mut dec = Decoder::new(coded);
+        let (model, shifts) = (&mut self.model, &mut self.shifts);
+        let args = (out.as_mut_slice(), w, n_labels, reference, &[][..]);
+        match mode {
+            0 => code_map::<_, false>(&mut dec, model, args, shifts),
+            1 => code_map::<_, true>(&mut dec, model, args, shifts),
+            m => Err(CodecError::Invalid(format!("label coding mode {m}"))),
         }
-        Ok(())
     }
 }
 
@@ -342,7 +660,8 @@ mod tests {
 
     proptest! {
         #[test]
-        fn round_trip_alone_and_conditioned(w in 1usize..70, h in 1usize..20, n in 1u16..40, seed in any::<u64>(), noise in any::<u64>()) {
+        fn round_trip_alone_and_conditioned(w in 1usize..70, h in 1usize..20, n in 1u16..100, seed in any::<u64>(), noise in any::<u64>(), strong in any::<bool>()) {
+            let mode = if strong { Mode::Strong } else { Mode::Fast };
             let left = blobs(w, h, n, seed);
             // The right view: the left shifted by 3, plus sparse noise.
             let mut s = noise | 1;
@@ -350,24 +669,58 @@ mod tests {
                 s ^= s << 13; s ^= s >> 7; s ^= s << 17;
                 if s % 17 == 0 { (s >> 20) as u16 % n } else { left.get((x + 3).min(w - 1), y) }
             });
-            let a = encode(&left, n as usize, None, 0);
+            let a = encode(&left, n as usize, None, 0, mode);
+            prop_assert_eq!(a[0], mode as u8);
             prop_assert_eq!(decode(&a, w, h, n as usize, None).unwrap(), left.clone());
-            let b = encode(&right, n as usize, Some(&left), 16);
+            let b = encode(&right, n as usize, Some(&left), 16, mode);
             prop_assert_eq!(decode(&b, w, h, n as usize, Some(&left)).unwrap(), right);
         }
 
         #[test]
-        fn garbage_never_panics(bytes in proptest::collection::vec(any::<u8>(), 0..64), w in 1usize..30, h in 1usize..30) {
-            let _ = decode(&bytes, w, h, 5, None);
+        fn garbage_never_panics(bytes in proptest::collection::vec(any::<u8>(), 0..64), mode in 0u8..3, w in 1usize..30, h in 1usize..30, n in 1usize..80) {
+            let mut stream = vec![mode];
+            stream.extend(&bytes);
+            let _ = decode(&stream, w, h, n, None);
+            // A reference whose labels exceed the palette must not panic either.
+            let reference = LabelMap::from_fn(w, h, |x, y| ((x * 7 + y) % (n + 3)) as u16);
+            let _ = decode(&stream, w, h, n, Some(&reference));
         }
+    }
+
+    /// Pins the label streams of `docs/wire-format.md`'s example: a 6×3 map
+    /// of 3 labels alone in both modes, and a right view conditioned on it.
+    #[test]
+    fn golden_label_streams() {
+        let rows = [[0, 0, 1, 1, 2, 2], [0, 0, 1, 1, 1, 2], [0, 1, 1, 1, 2, 2]];
+        let left = LabelMap::from_fn(6, 3, |x, y| rows[y][x]);
+        let right = LabelMap::from_fn(6, 3, |x, y| rows[y][(x + 1).min(5)]);
+        let hex = |b: Vec<u8>| b.iter().map(|b| format!("{b:02x}")).collect::<String>();
+        let streams = [
+            encode(&left, 3, None, 0, Mode::Fast),
+            encode(&left, 3, None, 0, Mode::Strong),
+            encode(&right, 3, Some(&left), 4, Mode::Fast),
+        ];
+        for s in &streams[..2] {
+            assert_eq!(decode(s, 6, 3, 3, None).unwrap(), left);
+        }
+        assert_eq!(decode(&streams[2], 6, 3, 3, Some(&left)).unwrap(), right);
+        assert_eq!(
+            streams.map(hex),
+            ["00d79196c5c800", "01d0b702d1158000", "0000db8ed295bd5d50"]
+        );
     }
 
     #[test]
     fn conditioning_on_the_left_view_pays() {
         let left = blobs(200, 100, 6, 1);
         let right = LabelMap::from_fn(200, 100, |x, y| left.get((x + 9).min(199), y));
-        let alone = encode(&right, 6, None, 0).len();
-        let cond = encode(&right, 6, Some(&left), 32).len();
-        assert!(cond * 2 < alone, "alone {alone} conditioned {cond}");
+        for mode in [Mode::Fast, Mode::Strong] {
+            let alone = encode(&right, 6, None, 0, mode).len();
+            let cond = encode(&right, 6, Some(&left), 32, mode).len();
+            assert!(
+                cond * 2 < alone,
+                "{mode:?}: alone {alone} conditioned {cond}"
+            );
+        }
     }
 }

@@ -4,9 +4,9 @@
 //! # Brief overview
 //!
 //! * [`labels`] codes a label map with an adaptive context model and a binary
-//!   range coder; the right view can be coded *conditioned on the left*
-//!   (predicted through per-block disparity shifts), which is where most of
-//!   the saving on a stereo pair comes from.
+//!   range coder, in a fast or a strong ([`mixer`]: contexts mixed) mode;
+//!   the right view can be coded *conditioned on the left* (predicted
+//!   through per-block disparity shifts).
 //! * [`rgb`] codes unsegmented RGB losslessly (MED predictor), so the
 //!   original pair can be sent for comparison.
 //! * [`container`] frames [`Message`]s ([`StereoFrame`], [`DepthReport`],
@@ -34,6 +34,7 @@
 
 pub mod container;
 pub mod labels;
+pub mod mixer;
 pub mod rangecoder;
 pub mod rgb;
 

@@ -20,6 +20,62 @@ impl Default for Prob {
     }
 }
 
+/// Precision of the probabilities given to [`Encoder::code`] and [`Decoder::code`].
+pub const P16_BITS: u32 = 16;
+/// Smallest probability [`Counter`] yields (and 2^16 minus it, the largest).
+const P16_MIN: u32 = 32;
+/// Largest state count of a [`Counter`]: its slowest adaptation rate is
+/// 1/(`COUNT_LIMIT` + 1.5).
+const COUNT_LIMIT: u8 = 120;
+
+/// An adaptive probability (16 bits) that the next bit is 0 which adapts
+/// fast while young: after `n` bits it moves by 1/(n + 1.5) per bit, down to
+/// 1/(`COUNT_LIMIT` + 1.5), so rare contexts learn quickly and frequent ones
+/// settle close to their frequency.
+#[derive(Clone, Copy, Debug)]
+pub struct Counter {
+    p: u16,
+    n: u8,
+}
+
+impl Default for Counter {
+    fn default() -> Self {
+        Counter { p: 1 << 15, n: 0 }
+    }
+}
+
+/// `65536 / (n + 1.5)` for each state count `n`.
+const RATES: [u32; COUNT_LIMIT as usize + 1] = {
+    let mut t = [0; COUNT_LIMIT as usize + 1];
+    let mut n = 0;
+    while n <= COUNT_LIMIT as usize {
+        t[n] = 2 * 65536 / (2 * n as u32 + 3);
+        n += 1;
+    }
+    t
+};
+
+impl Counter {
+    /// The probability of a 0, in 1/2^16, clamped to [32, 65504].
+    #[inline(always)]
+    pub fn p0(self) -> u32 {
+        (self.p as u32).clamp(P16_MIN, (1 << P16_BITS) - P16_MIN)
+    }
+
+    /// Learns `bit`.
+    #[inline(always)]
+    pub fn update(&mut self, bit: bool) {
+        let rate = RATES[self.n as usize];
+        let p = self.p as u32;
+        self.p = if bit {
+            p - ((p * rate) >> 16)
+        } else {
+            p + ((((1 << 16) - 1 - p) * rate) >> 16)
+        } as u16;
+        self.n += (self.n < COUNT_LIMIT) as u8;
+    }
+}
+
 /// Encodes bits into a byte vector.
 pub struct Encoder {
     low: u64,
@@ -76,6 +132,22 @@ impl Encoder {
             self.low += bound as u64;
             self.range -= bound;
             p.0 -= p.0 >> MOVE_BITS;
+        }
+        while self.range < TOP {
+            self.range <<= 8;
+            self.shift_low();
+        }
+    }
+
+    /// Encodes `bit` whose probability of being 0 is `p0` / 2^16 (0 < `p0` < 2^16).
+    #[inline]
+    pub fn code(&mut self, p0: u32, bit: bool) {
+        let bound = (self.range >> P16_BITS) * p0;
+        if !bit {
+            self.range = bound;
+        } else {
+            self.low += bound as u64;
+            self.range -= bound;
         }
         while self.range < TOP {
             self.range <<= 8;
@@ -157,6 +229,24 @@ impl<'a> Decoder<'a> {
             p.0 -= p.0 >> MOVE_BITS;
             true
         };
+        while self.range < TOP {
+            self.range <<= 8;
+            self.code = (self.code << 8) | self.next_byte() as u32;
+        }
+        bit
+    }
+
+    /// Decodes a bit written by [`Encoder::code`] with the same `p0`.
+    #[inline]
+    pub fn code(&mut self, p0: u32) -> bool {
+        let bound = (self.range >> P16_BITS) * p0;
+        let bit = self.code >= bound;
+        if bit {
+            self.code -= bound;
+            self.range -= bound;
+        } else {
+            self.range = bound;
+        }
         while self.range < TOP {
             self.range <<= 8;
             self.code = (self.code << 8) | self.next_byte() as u32;

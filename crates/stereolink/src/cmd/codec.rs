@@ -24,6 +24,9 @@ pub struct Args {
     /// Send the original views losslessly instead of segmenting them.
     #[arg(long)]
     pub original: bool,
+    /// Label-map coding: `fast` (the receiver decodes fastest) or `strong` (smallest).
+    #[arg(long, default_value = "fast", value_parser = ["fast", "strong"])]
+    pub mode: String,
     #[command(flatten)]
     pub segment: SegmentArgs,
 }
@@ -79,7 +82,12 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         };
         (f, Some(psnr))
     };
-    let bytes = container::encode(&Message::StereoFrame(Box::new(frame)), 1, 0);
+    let bytes = container::encode_with(
+        &Message::StereoFrame(Box::new(frame)),
+        1,
+        0,
+        label_mode(&args.mode),
+    );
     std::fs::write(&args.output, &bytes)
         .with_context(|| format!("cannot write {}", args.output.display()))?;
     let original = std::fs::metadata(&args.left)?.len() + std::fs::metadata(&args.right)?.len();
@@ -102,6 +110,14 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
             e.psnr_db.map_or(String::new(), |(l, r)| format!("; PSNR {l:.2} / {r:.2} dB"))
         )
     })
+}
+
+/// The label coding mode named `name` (`strong`, else fast).
+fn label_mode(name: &str) -> labels::Mode {
+    match name {
+        "strong" => labels::Mode::Strong,
+        _ => labels::Mode::Fast,
+    }
 }
 
 /// Arguments of `stereolink decode`.
@@ -186,6 +202,9 @@ pub struct BenchArgs {
     /// Timed runs after a warm-up.
     #[arg(long, default_value_t = 10)]
     pub iters: usize,
+    /// Label-map coding: `fast` (the receiver decodes fastest) or `strong` (smallest).
+    #[arg(long, default_value = "fast", value_parser = ["fast", "strong"])]
+    pub mode: String,
     #[command(flatten)]
     pub segment: SegmentArgs,
 }
@@ -194,6 +213,7 @@ pub struct BenchArgs {
 struct CodecBench {
     scene: String,
     method: String,
+    mode: String,
     width: usize,
     height: usize,
     palette_left: usize,
@@ -224,8 +244,9 @@ pub fn run_bench(args: BenchArgs, out: &super::Output) -> anyhow::Result<()> {
     let (l, r) = (&sl.image, &sr.image);
     let nl = l.palette().len();
     let nr = r.palette().len();
-    let left_bytes = labels::encode(l.labels(), nl, None, 0);
-    let right_alone = labels::encode(r.labels(), nr, None, 0);
+    let mode = label_mode(&args.mode);
+    let left_bytes = labels::encode(l.labels(), nl, None, 0, mode);
+    let right_alone = labels::encode(r.labels(), nr, None, 0, mode);
     let frame = StereoFrame {
         kind: SegmentationKind::None,
         levels: 0,
@@ -236,12 +257,12 @@ pub fn run_bench(args: BenchArgs, out: &super::Output) -> anyhow::Result<()> {
         right: View::Indexed(r.clone()),
     };
     let msg = Message::StereoFrame(Box::new(frame));
-    let bytes = container::encode(&msg, 1, 0);
-    let right_cond = container::conditioned_payload(l, r).len();
+    let bytes = container::encode_with(&msg, 1, 0, mode);
+    let right_cond = container::conditioned_payload(l, r, mode).len();
     let (mut enc, mut dec) = (Vec::new(), Vec::new());
     for _ in 0..=args.iters.max(1) {
         let t = Instant::now();
-        let b = container::encode(&msg, 1, 0);
+        let b = container::encode_with(&msg, 1, 0, mode);
         enc.push(t.elapsed().as_secs_f64() * 1e3);
         let t = Instant::now();
         std::hint::black_box(container::decode(&b, &Limits::default())?);
@@ -252,6 +273,7 @@ pub fn run_bench(args: BenchArgs, out: &super::Output) -> anyhow::Result<()> {
     let b = CodecBench {
         scene: scene.name.clone(),
         method: args.segment.method()?.name().into(),
+        mode: args.mode.clone(),
         width: scene.left.width(),
         height: scene.left.height(),
         palette_left: nl,
@@ -268,9 +290,10 @@ pub fn run_bench(args: BenchArgs, out: &super::Output) -> anyhow::Result<()> {
     };
     out.emit(&b, || {
         format!(
-            "{} {} ({}x{}): left {} B ({:.3} bit/px), right alone {} B, conditioned {} B ({:.1} % smaller); encode {:.2} ms, decode {:.2} ms ({:.0} Mpixel/s)\n",
+            "{} {} {} ({}x{}): left {} B ({:.3} bit/px), right alone {} B, conditioned {} B ({:.1} % smaller); encode {:.2} ms, decode {:.2} ms ({:.0} Mpixel/s)\n",
             b.scene,
             b.method,
+            b.mode,
             b.width,
             b.height,
             b.bytes_left,
