@@ -94,6 +94,9 @@ struct Model {
     /// The own-mask bits of the fast context: W, N, NW, NE when coding
     /// conditioned (the prediction's mask takes the place), else the eight nearest.
     fast_own: usize,
+    /// Coding a right view against the left one (else the prediction's
+    /// template is all NONE).
+    conditioned: bool,
     explicit: Vec<Counter>,
     same_shift: Counter,
     shift: Vec<Counter>,
@@ -106,6 +109,7 @@ impl Model {
             mixer: Mixer::new(0),
             fast: Vec::new(),
             fast_own: 0,
+            conditioned: false,
             explicit: Vec::new(),
             same_shift: Counter::default(),
             shift: Vec::new(),
@@ -115,6 +119,7 @@ impl Model {
     /// Back to the initial state for `n_labels` labels, reusing the storage.
     fn reset(&mut self, n_labels: usize, strong: bool, conditioned: bool) {
         self.fast_own = if conditioned { 15 } else { 255 };
+        self.conditioned = conditioned;
         let mut sizes = [0; 5];
         if strong {
             sizes = CONTEXT_BITS.map(|b| RANKS << b);
@@ -374,12 +379,6 @@ fn code_pixel<I: BitIo, const STRONG: bool>(
     rf: &[u32; 6],
     v: u32,
 ) -> Result<u16, CodecError> {
-    let order = [
-        rf[0], own[1], own[3], own[2], own[4], own[5], own[6], own[7], rf[1], rf[2], rf[3], rf[4],
-        rf[5], own[8], own[9], own[10], own[11],
-    ];
-    // The listed labels below 64, as bits (larger ones are looked up).
-    let mut seen = 0u64;
     let wv = own[0];
     // W first (most pixels end there), with its masks: all set when flat.
     if wv != NONE {
@@ -391,8 +390,65 @@ fn code_pixel<I: BitIo, const STRONG: bool>(
         if code_candidate::<I, STRONG>(io, model, 0, wv, (own, rf), masks, wv == v) {
             return checked(wv, n_labels);
         }
-        seen = bit64(wv);
     }
+    code_after_w::<I, STRONG>(io, model, n_labels, (own, flat), rf, v)
+}
+
+/// [`code_pixel`] in the fast mode, whose context for W needs only a few own
+/// positions (W, N, NW, NE conditioned, the eight nearest alone) and the
+/// prediction's mask: those are read first, and the whole template only
+/// when the label is not W's (the same stream, at a fraction of the reads).
+#[inline(always)]
+fn code_pixel_fast<I: BitIo>(
+    io: &mut I,
+    model: &mut Model,
+    n_labels: usize,
+    (data, w, x, y): (&[u16], usize, usize, usize),
+    rf: &[u32; 6],
+    v: u32,
+) -> Result<u16, CodecError> {
+    if x >= 2 && x + 2 < w && y >= 2 {
+        // Inside: which of W, N, NW, NE (and, coding alone, WW, NN, NEE,
+        // NWW) hold W's label, read straight from the map.
+        let (r0, r1) = (y * w + x, (y - 1) * w + x);
+        let wv = data[r0 - 1];
+        let eq = |i: usize| (data[i] == wv) as usize;
+        let mut mo = 1 | eq(r1) << 1 | eq(r1 - 1) << 2 | eq(r1 + 1) << 3;
+        if !model.conditioned {
+            mo |= eq(r0 - 2) << 4 | eq(r1 - w) << 5 | eq(r1 + 2) << 6 | eq(r1 - 2) << 7;
+        }
+        let wv = u32::from(wv);
+        let mr = if model.conditioned { mask(rf, wv) } else { 0 };
+        if io.bit(&mut model.fast[mo << 6 | mr], wv == v) {
+            return checked(wv, n_labels);
+        }
+        let own = own_template(data, w, x, y);
+        let flat = own.iter().all(|&l| l == wv);
+        return code_after_w::<I, false>(io, model, n_labels, (&own, flat), rf, v);
+    }
+    let own = own_template(data, w, x, y);
+    let flat = own[0] != NONE && own.iter().all(|&l| l == own[0]);
+    code_pixel::<I, false>(io, model, n_labels, (&own, flat), rf, v)
+}
+
+/// The rest of [`code_pixel`] once the label is known not to be W's (or
+/// there is no W): the other candidates, then the label itself.
+#[inline(always)]
+fn code_after_w<I: BitIo, const STRONG: bool>(
+    io: &mut I,
+    model: &mut Model,
+    n_labels: usize,
+    (own, flat): (&[u32; OWN_LEN], bool),
+    rf: &[u32; 6],
+    v: u32,
+) -> Result<u16, CodecError> {
+    let order = [
+        rf[0], own[1], own[3], own[2], own[4], own[5], own[6], own[7], rf[1], rf[2], rf[3], rf[4],
+        rf[5], own[8], own[9], own[10], own[11],
+    ];
+    let wv = own[0];
+    // The listed labels below 64, as bits (larger ones are looked up).
+    let mut seen = if wv != NONE { bit64(wv) } else { 0 };
     if !(flat && rf.iter().all(|&v| v == wv || v == NONE)) {
         // The other candidates (a flat template has none).
         let mut list = [NONE; CANDIDATES];
@@ -412,7 +468,9 @@ fn code_pixel<I: BitIo, const STRONG: bool>(
             }
         }
         for (rank, &c) in list[..n].iter().enumerate().skip(first) {
-            let masks = (mask(own, c), mask(rf, c));
+            // The fast context reads only the eight nearest own positions.
+            let own_bits = if STRONG { OWN_LEN } else { 8 };
+            let masks = (mask(&own[..own_bits], c), mask(rf, c));
             if code_candidate::<I, STRONG>(io, model, rank, c, (own, rf), masks, c == v) {
                 return checked(c, n_labels);
             }
@@ -467,20 +525,24 @@ fn code_map<I: BitIo, const STRONG: bool>(
             }
         }
         for x in 0..w {
-            let (own, flat) = match flat_inside(data, w, x, y) {
-                Some(wv) => ([wv; OWN_LEN], true),
-                None => {
-                    let t = own_template(data, w, x, y);
-                    (t, t[0] != NONE && t.iter().all(|&v| v == t[0]))
-                }
-            };
             let rf = match reference {
                 Some(r) => ref_template(r, x + shifts[x / BLOCK] as usize, y),
                 None => [NONE; 6],
             };
             let i = y * w + x;
             let v = data[i] as u32;
-            data[i] = code_pixel::<I, STRONG>(io, model, n_labels, (&own, flat), &rf, v)?;
+            data[i] = if STRONG {
+                let (own, flat) = match flat_inside(data, w, x, y) {
+                    Some(wv) => ([wv; OWN_LEN], true),
+                    None => {
+                        let t = own_template(data, w, x, y);
+                        (t, t[0] != NONE && t.iter().all(|&v| v == t[0]))
+                    }
+                };
+                code_pixel::<I, true>(io, model, n_labels, (&own, flat), &rf, v)?
+            } else {
+                code_pixel_fast(io, model, n_labels, (data, w, x, y), &rf, v)?
+            };
         }
         if io.overrun() {
             return Err(CodecError::Truncated("label stream"));
