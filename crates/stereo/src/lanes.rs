@@ -19,6 +19,8 @@ pub const LANES: usize = 16;
 pub(crate) trait LaneOps {
     /// `col[k] += |l − r[k]|`, and `−= |ls − rs[k]|` for a leaving row.
     unsafe fn accumulate(col: &mut [u16], l: u16, r: &[u16], leaving: Option<(u16, &[u16])>);
+    /// `out[k] = base[k] + a[k] − s[k]`.
+    unsafe fn add_sub_from(out: &mut [u16], base: &[u16], a: &[u16], s: &[u16]);
     /// `acc[k] = min(acc[k], a[k])`.
     unsafe fn min_assign(acc: &mut [u16], a: &[u16]);
     /// `acc[k] += a[k]`, and `−= s[k]` when given.
@@ -49,6 +51,13 @@ impl LaneOps for Portable {
                     *c = c.wrapping_add(l.abs_diff(rv)).wrapping_sub(ls.abs_diff(sv));
                 }
             }
+        }
+    }
+
+    #[inline(always)]
+    unsafe fn add_sub_from(out: &mut [u16], base: &[u16], a: &[u16], s: &[u16]) {
+        for (((o, &b), &av), &sv) in out.iter_mut().zip(base).zip(a).zip(s) {
+            *o = b.wrapping_add(av).wrapping_sub(sv);
         }
     }
 
@@ -155,6 +164,22 @@ impl LaneOps for Avx2 {
                     _mm256_storeu_si256(p, _mm256_sub_epi16(v, load(s)));
                 }
             }
+        }
+    }
+
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn add_sub_from(out: &mut [u16], base: &[u16], a: &[u16], s: &[u16]) {
+        use std::arch::x86_64::*;
+        let load = |b: &[u16]| _mm256_loadu_si256(b.as_ptr().cast());
+        let ins = base.chunks_exact(LANES).zip(a.chunks_exact(LANES));
+        for ((o, (b, a)), s) in out
+            .chunks_exact_mut(LANES)
+            .zip(ins)
+            .zip(s.chunks_exact(LANES))
+        {
+            let v = _mm256_sub_epi16(_mm256_add_epi16(load(b), load(a)), load(s));
+            _mm256_storeu_si256(o.as_mut_ptr().cast(), v);
         }
     }
 
@@ -276,6 +301,10 @@ mod tests {
                 Portable::add_sub(&mut a, &col, sub);
                 Avx2::add_sub(&mut b, &col, sub);
                 prop_assert_eq!(&a, &b);
+                let (mut fa, mut fb) = (vec![0; n], vec![0; n]);
+                Portable::add_sub_from(&mut fa, &a, &col, &r);
+                Avx2::add_sub_from(&mut fb, &b, &col, &r);
+                prop_assert_eq!(&fa, &fb);
                 Portable::min_assign(&mut a, &r);
                 Avx2::min_assign(&mut b, &r);
                 prop_assert_eq!(&a, &b);

@@ -136,7 +136,6 @@ impl WtaParams {
 #[derive(Default)]
 struct Band {
     colsum: Vec<u16>,
-    hsum: Vec<u16>,
     /// The window sums of the last `min_filter` rows, `W × lanes` each.
     ring: Vec<u16>,
     /// Their per-lane minimum over those rows (with the min filter on).
@@ -270,7 +269,6 @@ impl WtaMatcher {
                     y0: i * band_rows,
                 };
                 band.colsum.resize(w * nl, 0);
-                band.hsum.resize(nl, 0);
                 let m = params.min_filter.max(1);
                 band.ring.resize(m * w * nl, 0);
                 band.vmin.resize(if m > 1 { w * nl } else { 0 }, 0);
@@ -368,7 +366,6 @@ unsafe fn band_with<K: LaneOps>(
     let clamp_y = |y: isize| y.clamp(0, h as isize - 1) as usize;
     let clamp_x = |x: isize| x.clamp(0, w as isize - 1) as usize;
     let colsum = &mut band.colsum[..w * nd];
-    let hsum = &mut band.hsum[..nd];
     let ring = &mut band.ring[..m * w * nd];
     let vmin = &mut band.vmin[..if m > 1 { w * nd } else { 0 }];
     let cost = &mut band.cost[..nd];
@@ -396,19 +393,20 @@ unsafe fn band_with<K: LaneOps>(
             }
             let col = |x: isize| &colsum[clamp_x(x) * nd..][..nd];
             let slot = &mut ring[(next % m) * w * nd..][..w * nd];
-            // Horizontal window sum at x = 0, then slide.
-            hsum.fill(0);
+            // Horizontal window sum at x = 0, then slide: each column's
+            // sums are the previous column's plus the entering minus the
+            // leaving column.
+            slot[..nd].fill(0);
             for dx in -r..=r {
                 // SAFETY: as above.
-                unsafe { K::add_sub(hsum, col(dx), None) };
+                unsafe { K::add_sub(&mut slot[..nd], col(dx), None) };
             }
-            for (x, c) in slot.chunks_exact_mut(nd).enumerate() {
-                if x > 0 {
-                    let x = x as isize;
-                    // SAFETY: as above.
-                    unsafe { K::add_sub(hsum, col(x + r), Some(col(x - r - 1))) };
-                }
-                c.copy_from_slice(hsum);
+            for x in 1..w {
+                let (done, rest) = slot.split_at_mut(x * nd);
+                let xi = x as isize;
+                let (prev, leaving) = (&done[(x - 1) * nd..], col(xi - r - 1));
+                // SAFETY: as above.
+                unsafe { K::add_sub_from(&mut rest[..nd], prev, col(xi + r), leaving) };
             }
             next += 1;
         }
@@ -432,11 +430,16 @@ unsafe fn band_with<K: LaneOps>(
             }
             let at_col = |x: isize| &costs[clamp_x(x) * nd..][..nd];
             let xi = x as isize;
-            cost.copy_from_slice(at_col(xi - mr as isize));
-            for dx in 1 - mr as isize..=mr as isize {
-                // SAFETY: as above.
-                unsafe { K::min_assign(cost, at_col(xi + dx)) };
-            }
+            let cost: &[u16] = if mr == 0 {
+                at_col(xi)
+            } else {
+                cost.copy_from_slice(at_col(xi - mr as isize));
+                for dx in 1 - mr as isize..=mr as isize {
+                    // SAFETY: as above.
+                    unsafe { K::min_assign(cost, at_col(xi + dx)) };
+                }
+                cost
+            };
             let valid = p.ndisp.min(x - p.min_disp + 1);
             // SAFETY: as above.
             *d = winner(cost, valid, unsafe { K::argmin(cost, valid) }, p);
