@@ -69,15 +69,15 @@ impl WeightedMedian {
     }
 }
 
-/// Interleaved histogram copies per pixel (see [`weighted_median`]).
-const BANKS: usize = 4;
-
 /// Largest summed RGB difference.
 const MAX_DIFF: usize = 3 * 255;
 
 /// The weighted median of `map` guided by `guide` (same size; checked by
 /// the caller). Invalid pixels take a value when some valid neighbour has
-/// weight; pixels without any stay invalid. Rows run in parallel.
+/// weight; pixels without any stay invalid. A map whose values span 65535
+/// px or more is returned unchanged. Windows whose samples all lie in one
+/// bin (most of a smooth map) are settled from per-pixel bin ranges
+/// without a histogram. Rows run in parallel.
 ///
 /// # Panics
 /// If the sizes differ.
@@ -92,17 +92,26 @@ pub fn weighted_median(map: &DisparityMap, guide: &RgbImage, p: &WeightedMedian)
         return map.clone();
     };
     let bins = (hi - lo) as usize + 1;
+    if bins >= u16::MAX as usize {
+        // Not a disparity map of any image this crate matches: left as is.
+        return map.clone();
+    }
     let (r, step) = (p.radius, p.step);
-    // Border-replicated copies, so that a window row is one slice; invalid
-    // pixels go to the extra bin `bins`, which never counts.
+    // Border-replicated copies, so that the samples at one offset from a
+    // row's pixels are one slice; colour planes apart, so that the colour
+    // differences of a whole row vectorise. Invalid pixels go to the extra
+    // bin `bins`, which never counts.
     let (wp, hp) = (w + 2 * r, h + 2 * r);
-    let src = |x: usize, y: usize| (y.clamp(r, r + h - 1) - r) * w + x.clamp(r, r + w - 1) - r;
-    let guide_pad: Vec<[u8; 3]> = (0..wp * hp)
-        .map(|i| guide.as_slice()[src(i % wp, i / wp)])
-        .collect();
+    let src = |i: usize| {
+        let (x, y) = (i % wp, i / wp);
+        (y.clamp(r, r + h - 1) - r) * w + x.clamp(r, r + w - 1) - r
+    };
+    let plane =
+        |k: usize| -> Vec<u8> { (0..wp * hp).map(|i| guide.as_slice()[src(i)][k]).collect() };
+    let planes = [plane(0), plane(1), plane(2)];
     let bin_pad: Vec<u16> = (0..wp * hp)
         .map(|i| {
-            let d = map.as_slice()[src(i % wp, i / wp)];
+            let d = map.as_slice()[src(i)];
             if d.is_finite() {
                 (d.round() - lo) as u16
             } else {
@@ -114,54 +123,138 @@ pub fn weighted_median(map: &DisparityMap, guide: &RgbImage, p: &WeightedMedian)
         .map(|i| (-(i as f32) / p.sigma_color).exp())
         .collect();
     let n = 2 * r + 1;
+    let spans = sample_spans(&bin_pad, (w, h), r, step, bins as u16);
+    // The window's samples, as offsets from its top-left corner in the padded images.
+    let samples: Vec<usize> = (0..n)
+        .step_by(step)
+        .flat_map(|dy| (0..n).step_by(step).map(move |dx| dy * wp + dx))
+        .collect();
+    let stride = bins + 1;
     let mut out = map.clone();
     out.as_mut_slice()
         .par_chunks_mut(w)
         .enumerate()
-        .for_each_init(
-            || vec![0f32; (bins + 1) * BANKS],
-            |hist, (y, row)| {
-                for (x, d) in row.iter_mut().enumerate() {
-                    let c = guide.get(x, y);
-                    let (mut first, mut last) = (u16::MAX, 0u16);
-                    for yy in (y..y + n).step_by(step) {
-                        let at = yy * wp + x;
-                        let (g, b) = (&guide_pad[at..at + n], &bin_pad[at..at + n]);
-                        // `BANKS` interleaved histograms: consecutive
-                        // samples of one bin would chain through memory.
-                        for (k, i) in (0..n).step_by(step).enumerate() {
-                            let (q, bq) = (g[i], b[i]);
-                            let diff = c[0].abs_diff(q[0]) as usize
-                                + c[1].abs_diff(q[1]) as usize
-                                + c[2].abs_diff(q[2]) as usize;
-                            hist[bq as usize * BANKS + k % BANKS] += weight[diff];
-                            (first, last) = (first.min(bq), last.max(bq));
-                        }
-                    }
-                    let (first, last) = (first as usize, last as usize);
-                    let top = last.min(bins - 1);
-                    let bin_weight =
-                        |b: usize| hist[b * BANKS..(b + 1) * BANKS].iter().sum::<f32>();
-                    let total: f32 = (first..=top).map(bin_weight).sum();
-                    if total > 0.0 {
-                        // The first bin where the cumulative weight reaches half.
-                        let (mut acc, mut median) = (0f32, top);
-                        for b in first..=top {
-                            acc += bin_weight(b);
-                            if acc >= total / 2.0 {
-                                median = b;
-                                break;
-                            }
-                        }
-                        if bin_pad[(y + r) * wp + x + r] as usize != median {
-                            *d = lo + median as f32;
-                        }
-                    }
-                    hist[first * BANKS..(last + 1) * BANKS].fill(0.0);
+        .for_each_init(RowScratch::default, |scratch, (y, row)| {
+            let RowScratch {
+                todo,
+                hist,
+                diffs,
+                weights,
+            } = scratch;
+            // Windows of one bin (or none valid) are settled at once.
+            todo.clear();
+            for (x, d) in row.iter_mut().enumerate() {
+                let (a, b) = spans[y * w + x];
+                let own = bin_pad[(y + r) * wp + x + r];
+                if a < b {
+                    todo.push(x);
+                } else if a == b && own != a {
+                    *d = lo + a as f32;
                 }
-            },
-        );
+            }
+            if todo.is_empty() {
+                return;
+            }
+            // One histogram of `stride` bins per pixel to do, filled one
+            // sample offset at a time for the whole row.
+            hist.clear();
+            hist.resize(todo.len() * stride, 0.0);
+            // Only the columns from the first to the last pixel to do.
+            let (x0, x1) = (todo[0], todo[todo.len() - 1] + 1);
+            diffs.resize(x1 - x0, 0);
+            weights.resize(x1 - x0, 0.0);
+            let centre = (y + r) * wp + r;
+            let centres = planes.each_ref().map(|p| &p[centre + x0..centre + x1]);
+            for &o in &samples {
+                let at = y * wp + o + x0;
+                let w = x1 - x0;
+                let [r0, g0, b0] = centres;
+                let (rq, gq, bq) = (
+                    &planes[0][at..at + w],
+                    &planes[1][at..at + w],
+                    &planes[2][at..at + w],
+                );
+                // Colour differences (vectorised), then their weights.
+                for (x, dv) in diffs.iter_mut().enumerate() {
+                    *dv = r0[x].abs_diff(rq[x]) as u16
+                        + g0[x].abs_diff(gq[x]) as u16
+                        + b0[x].abs_diff(bq[x]) as u16;
+                }
+                for (wt, &dv) in weights.iter_mut().zip(diffs.iter()) {
+                    *wt = weight[(dv as usize).min(MAX_DIFF)];
+                }
+                let bin_q = &bin_pad[at..at + w];
+                for (h, &x) in hist.chunks_exact_mut(stride).zip(todo.iter()) {
+                    h[bin_q[x - x0] as usize] += weights[x - x0];
+                }
+            }
+            for (h, &x) in hist.chunks_exact(stride).zip(todo.iter()) {
+                // The valid samples' bins are a..=b; invalid ones went to `bins`.
+                let (a, b) = spans[y * w + x];
+                let h = &h[a as usize..=b as usize];
+                let total: f32 = h.iter().sum();
+                // The first bin where the cumulative weight reaches half.
+                let (mut acc, mut median) = (0f32, b as usize);
+                for (k, v) in h.iter().enumerate() {
+                    acc += v;
+                    if acc >= total / 2.0 {
+                        median = a as usize + k;
+                        break;
+                    }
+                }
+                if bin_pad[(y + r) * wp + x + r] as usize != median {
+                    row[x] = lo + median as f32;
+                }
+            }
+        });
     out
+}
+
+/// Per-row buffers of [`weighted_median`].
+#[derive(Default)]
+struct RowScratch {
+    /// The row's pixels whose samples span several bins.
+    todo: Vec<usize>,
+    /// Their histograms, `bins + 1` each.
+    hist: Vec<f32>,
+    /// The colour differences of the row's samples at one offset.
+    diffs: Vec<u16>,
+    /// Their weights.
+    weights: Vec<f32>,
+}
+
+/// For every pixel, the smallest and the largest valid bin among its
+/// window's samples (`bins`, above every valid bin, and 0 when there is
+/// none), from separable passes over the border-padded bins.
+fn sample_spans(
+    bin_pad: &[u16],
+    (w, h): (usize, usize),
+    r: usize,
+    step: usize,
+    bins: u16,
+) -> Vec<(u16, u16)> {
+    let wp = w + 2 * r;
+    let offsets = || (0..=2 * r).step_by(step);
+    // Down the window's sampled rows, for every padded column.
+    let mut columns = vec![(0u16, 0u16); wp * h];
+    columns.par_chunks_mut(wp).enumerate().for_each(|(y, row)| {
+        for (xp, span) in row.iter_mut().enumerate() {
+            let bins_down = offsets().map(|dy| bin_pad[(y + dy) * wp + xp]);
+            *span = bins_down.fold((bins, 0), |(a, b), q| {
+                (a.min(q), if q < bins { b.max(q) } else { b })
+            });
+        }
+    });
+    let mut spans = vec![(0u16, 0u16); w * h];
+    spans.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
+        let down = &columns[y * wp..(y + 1) * wp];
+        for (x, span) in row.iter_mut().enumerate() {
+            *span = offsets()
+                .map(|dx| down[x + dx])
+                .fold((bins, 0), |(a, b), (qa, qb)| (a.min(qa), b.max(qb)));
+        }
+    });
+    spans
 }
 
 #[cfg(test)]
@@ -209,6 +302,85 @@ mod tests {
             ),
             empty
         );
+    }
+
+    /// The definition, pixel by pixel, with the same summation order.
+    fn naive(map: &DisparityMap, guide: &RgbImage, p: &WeightedMedian) -> DisparityMap {
+        let (w, h) = map.dims();
+        let finite: Vec<f32> = map
+            .as_slice()
+            .iter()
+            .copied()
+            .filter(|d| d.is_finite())
+            .collect();
+        let Some(lo) = finite.iter().map(|d| d.round()).reduce(f32::min) else {
+            return map.clone();
+        };
+        let r = p.radius as isize;
+        let at = |x: isize, y: isize| {
+            (
+                x.clamp(0, w as isize - 1) as usize,
+                y.clamp(0, h as isize - 1) as usize,
+            )
+        };
+        DisparityMap::from_fn(w, h, |x, y| {
+            let c = guide.get(x, y);
+            let mut hist = vec![0f32; 70_000];
+            let mut used = Vec::new();
+            for dy in (-r..=r).step_by(p.step) {
+                for dx in (-r..=r).step_by(p.step) {
+                    let (qx, qy) = at(x as isize + dx, y as isize + dy);
+                    let d = map.get(qx, qy);
+                    if !d.is_finite() {
+                        continue;
+                    }
+                    let q = guide.get(qx, qy);
+                    let diff: u32 = (0..3).map(|k| c[k].abs_diff(q[k]) as u32).sum();
+                    let b = (d.round() - lo) as usize;
+                    hist[b] += (-(diff as f32) / p.sigma_color).exp();
+                    used.push(b);
+                }
+            }
+            let own = map.get(x, y);
+            let (Some(&a), Some(&b)) = (used.iter().min(), used.iter().max()) else {
+                return own;
+            };
+            let total: f32 = hist[a..=b].iter().sum();
+            let mut acc = 0.0;
+            let median = (a..=b)
+                .find(|&k| {
+                    acc += hist[k];
+                    acc >= total / 2.0
+                })
+                .unwrap_or(b);
+            if own.is_finite() && (own.round() - lo) as usize == median {
+                own
+            } else {
+                lo + median as f32
+            }
+        })
+    }
+
+    proptest::proptest! {
+        #[test]
+        fn equals_the_definition(
+            w in 1usize..30, h in 1usize..30, seed in proptest::prelude::any::<u64>(),
+            radius in 1usize..6, step in 1usize..4, sigma in 5f32..60.0,
+        ) {
+            let mut s = seed | 1;
+            let mut next = move || { s ^= s << 13; s ^= s >> 7; s ^= s << 17; s };
+            let guide = RgbImage::from_fn(w, h, |_, _| {
+                let v = next();
+                [v as u8 & 0xF0, (v >> 8) as u8, (v >> 16) as u8 & 0xC0]
+            });
+            let map = DisparityMap::from_fn(w, h, |x, y| match (x * 7 + y * 13 + seed as usize) % 11 {
+                0 => f32::INFINITY,
+                k => 3.0 + (k % 4) as f32 + if x > w / 2 { 0.25 } else { 0.0 },
+            });
+            let p = WeightedMedian { radius, sigma_color: sigma, step: step.min(radius) };
+            let bits = |m: &DisparityMap| m.as_slice().iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+            proptest::prop_assert_eq!(bits(&weighted_median(&map, &guide, &p)), bits(&naive(&map, &guide, &p)));
+        }
     }
 
     #[test]
