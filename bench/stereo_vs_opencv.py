@@ -68,9 +68,9 @@ def main():
     bm = cv2.StereoBM_create(numDisparities=NDISP, blockSize=9)
     sgbm = cv2.StereoSGBM_create(minDisparity=0, numDisparities=NDISP, blockSize=5,
                                  P1=8 * 5 * 5, P2=32 * 5 * 5, mode=cv2.STEREO_SGBM_MODE_SGBM_3WAY)
-    # WTA is timed twice: with its default refinement (LR check, median,
-    # fill), which the accuracy column scores, and raw (the matcher
-    # alone, as StereoBM is mostly its matcher).
+    # WTA is timed twice: with its default refinement (LR check, colour-
+    # weighted median, fill), which the accuracy column scores, and raw (the
+    # matcher alone, as StereoBM is mostly its matcher).
     print(f"{'scene':<8} {'BM ms':>7} {'WTA ms':>7} {'ratio':>6} {'raw ms':>7} {'ratio':>6} |"
           f" {'SGBM ms':>7} {'SGM ms':>7} {'ratio':>6} | bad1: {'BM':>6} {'WTA':>6} {'SGBM':>6} {'SGM':>6}")
     for name in SCENES:

@@ -36,6 +36,11 @@ fn matchers(c: &mut Criterion) {
     g.bench_function("median_5x5", |b| {
         b.iter(|| refine::median(black_box(&raw), 5))
     });
+    g.bench_function("weighted_median", |b| {
+        b.iter(|| {
+            refine::weighted_median(black_box(&raw), &s.left, &refine::WeightedMedian::DEFAULT)
+        })
+    });
     g.bench_function("fill_holes", |b| {
         b.iter(|| refine::fill_holes(&mut black_box(raw.clone())))
     });

@@ -18,7 +18,11 @@ pub const LANES: usize = 16;
 /// after: call them only when the CPU has it.
 pub(crate) trait LaneOps {
     /// `col[k] += |l − r[k]|`, and `−= |ls − rs[k]|` for a leaving row.
-    unsafe fn accumulate(col: &mut [u16], l: u8, r: &[u8], leaving: Option<(u8, &[u8])>);
+    unsafe fn accumulate(col: &mut [u16], l: u16, r: &[u16], leaving: Option<(u16, &[u16])>);
+    /// `out[k] = base[k] + a[k] − s[k]`.
+    unsafe fn add_sub_from(out: &mut [u16], base: &[u16], a: &[u16], s: &[u16]);
+    /// `acc[k] = min(acc[k], a[k])`.
+    unsafe fn min_assign(acc: &mut [u16], a: &[u16]);
     /// `acc[k] += a[k]`, and `−= s[k]` when given.
     unsafe fn add_sub(acc: &mut [u16], a: &[u16], s: Option<&[u16]>);
     /// Index of the smallest of `costs[..valid]` (`valid ≥ 1`); the lowest
@@ -35,21 +39,31 @@ pub(crate) struct Portable;
 
 impl LaneOps for Portable {
     #[inline(always)]
-    unsafe fn accumulate(col: &mut [u16], l: u8, r: &[u8], leaving: Option<(u8, &[u8])>) {
+    unsafe fn accumulate(col: &mut [u16], l: u16, r: &[u16], leaving: Option<(u16, &[u16])>) {
         match leaving {
             None => {
                 for (c, &rv) in col.iter_mut().zip(r) {
-                    *c = c.wrapping_add(l.abs_diff(rv) as u16);
+                    *c = c.wrapping_add(l.abs_diff(rv));
                 }
             }
             Some((ls, rs)) => {
                 for ((c, &rv), &sv) in col.iter_mut().zip(r).zip(rs) {
-                    *c = c
-                        .wrapping_add(l.abs_diff(rv) as u16)
-                        .wrapping_sub(ls.abs_diff(sv) as u16);
+                    *c = c.wrapping_add(l.abs_diff(rv)).wrapping_sub(ls.abs_diff(sv));
                 }
             }
         }
+    }
+
+    #[inline(always)]
+    unsafe fn add_sub_from(out: &mut [u16], base: &[u16], a: &[u16], s: &[u16]) {
+        for (((o, &b), &av), &sv) in out.iter_mut().zip(base).zip(a).zip(s) {
+            *o = b.wrapping_add(av).wrapping_sub(sv);
+        }
+    }
+
+    #[inline(always)]
+    unsafe fn min_assign(acc: &mut [u16], a: &[u16]) {
+        acc.iter_mut().zip(a).for_each(|(m, &v)| *m = (*m).min(v));
     }
 
     #[inline(always)]
@@ -99,28 +113,29 @@ pub(crate) struct Avx2;
 impl LaneOps for Avx2 {
     #[inline]
     #[target_feature(enable = "avx2")]
-    unsafe fn accumulate(col: &mut [u16], l: u8, r: &[u8], leaving: Option<(u8, &[u8])>) {
+    unsafe fn accumulate(col: &mut [u16], l: u16, r: &[u16], leaving: Option<(u16, &[u16])>) {
         use std::arch::x86_64::*;
-        let absdiff = |a: __m128i, b: __m128i| {
-            _mm256_cvtepu8_epi16(_mm_or_si128(_mm_subs_epu8(a, b), _mm_subs_epu8(b, a)))
+        let absdiff = |a: __m256i, b: __m256i| {
+            _mm256_or_si256(_mm256_subs_epu16(a, b), _mm256_subs_epu16(b, a))
         };
-        let lv = _mm_set1_epi8(l as i8);
+        let load = |b: &[u16]| _mm256_loadu_si256(b.as_ptr().cast());
+        let lv = _mm256_set1_epi16(l as i16);
         let cols = col.chunks_exact_mut(LANES);
         let rs = r.chunks_exact(LANES);
         match leaving {
             None => {
                 for (c, r) in cols.zip(rs) {
                     let p = c.as_mut_ptr().cast::<__m256i>();
-                    let d = absdiff(lv, _mm_loadu_si128(r.as_ptr().cast()));
+                    let d = absdiff(lv, load(r));
                     _mm256_storeu_si256(p, _mm256_add_epi16(_mm256_loadu_si256(p), d));
                 }
             }
             Some((ls, srs)) => {
-                let sv = _mm_set1_epi8(ls as i8);
+                let sv = _mm256_set1_epi16(ls as i16);
                 for ((c, r), s) in cols.zip(rs).zip(srs.chunks_exact(LANES)) {
                     let p = c.as_mut_ptr().cast::<__m256i>();
-                    let d = absdiff(lv, _mm_loadu_si128(r.as_ptr().cast()));
-                    let e = absdiff(sv, _mm_loadu_si128(s.as_ptr().cast()));
+                    let d = absdiff(lv, load(r));
+                    let e = absdiff(sv, load(s));
                     let v = _mm256_sub_epi16(_mm256_add_epi16(_mm256_loadu_si256(p), d), e);
                     _mm256_storeu_si256(p, v);
                 }
@@ -149,6 +164,33 @@ impl LaneOps for Avx2 {
                     _mm256_storeu_si256(p, _mm256_sub_epi16(v, load(s)));
                 }
             }
+        }
+    }
+
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn add_sub_from(out: &mut [u16], base: &[u16], a: &[u16], s: &[u16]) {
+        use std::arch::x86_64::*;
+        let load = |b: &[u16]| _mm256_loadu_si256(b.as_ptr().cast());
+        let ins = base.chunks_exact(LANES).zip(a.chunks_exact(LANES));
+        for ((o, (b, a)), s) in out
+            .chunks_exact_mut(LANES)
+            .zip(ins)
+            .zip(s.chunks_exact(LANES))
+        {
+            let v = _mm256_sub_epi16(_mm256_add_epi16(load(b), load(a)), load(s));
+            _mm256_storeu_si256(o.as_mut_ptr().cast(), v);
+        }
+    }
+
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn min_assign(acc: &mut [u16], a: &[u16]) {
+        use std::arch::x86_64::*;
+        for (m, a) in acc.chunks_exact_mut(LANES).zip(a.chunks_exact(LANES)) {
+            let p = m.as_mut_ptr().cast::<__m256i>();
+            let v = _mm256_loadu_si256(a.as_ptr().cast());
+            _mm256_storeu_si256(p, _mm256_min_epu16(_mm256_loadu_si256(p), v));
         }
     }
 
@@ -233,7 +275,7 @@ mod tests {
         fn avx2_equals_portable(
             blocks in 1usize..5,
             seed in any::<u64>(),
-            l in any::<u8>(), ls in any::<u8>(),
+            l in any::<u16>(), ls in any::<u16>(),
             leave in any::<bool>(),
             valid_frac in 0.0f64..1.0,
         ) {
@@ -243,8 +285,9 @@ mod tests {
             let n = blocks * LANES;
             let mut s = seed | 1;
             let mut next = || { s ^= s << 13; s ^= s >> 7; s ^= s << 17; s };
-            let r: Vec<u8> = (0..n).map(|_| next() as u8).collect();
-            let rs: Vec<u8> = (0..n).map(|_| next() as u8).collect();
+            // Samples anywhere in u16, so wrapping sums are exercised too.
+            let r: Vec<u16> = (0..n).map(|_| next() as u16).collect();
+            let rs: Vec<u16> = (0..n).map(|_| next() as u16).collect();
             // Small costs so ties are frequent.
             let col: Vec<u16> = (0..n).map(|_| (next() % 8) as u16).collect();
             let leaving = leave.then_some((ls, rs.as_slice()));
@@ -257,6 +300,13 @@ mod tests {
                 let sub = leave.then_some(col.as_slice());
                 Portable::add_sub(&mut a, &col, sub);
                 Avx2::add_sub(&mut b, &col, sub);
+                prop_assert_eq!(&a, &b);
+                let (mut fa, mut fb) = (vec![0; n], vec![0; n]);
+                Portable::add_sub_from(&mut fa, &a, &col, &r);
+                Avx2::add_sub_from(&mut fb, &b, &col, &r);
+                prop_assert_eq!(&fa, &fb);
+                Portable::min_assign(&mut a, &r);
+                Avx2::min_assign(&mut b, &r);
                 prop_assert_eq!(&a, &b);
                 let valid = 1 + ((n - 1) as f64 * valid_frac) as usize;
                 let ties: Vec<u16> = col.iter().map(|c| c % 3).collect();

@@ -2,8 +2,16 @@
 //!
 //! ```text
 //! SAD(x, y, d) = Σ_{(i, j) ∈ n×n window} |I_L(x + i, y + j) − I_R(x + i − d, y + j)|
-//! d*(x, y)     = argmin_{d ∈ [d_min, d_max]} SAD(x, y, d)
+//! C(x, y, d)   = min_{(i, j) ∈ m×m} SAD(x + i, y + j, d)     (optional min filter)
+//! d*(x, y)     = argmin_{d ∈ [d_min, d_max]} C(x, y, d)
 //! ```
+//!
+//! `I` is gray luma in fixed point with [`WtaParams::gray_bits`] bits: 9
+//! bits instead of the 8 of a gray image keep half a level of luma that
+//! rounding would lose. The min filter (m×m, [`WtaParams::min_filter`]) is
+//! the "shiftable window" of Scharstein & Szeliski's SSD+MF: a pixel takes,
+//! per disparity, the best window among those that contain it, which keeps
+//! windows from straddling a depth edge and so reduces edge fattening.
 //!
 //! Aggregation is O(1) per pixel and disparity: per row band, a column sum
 //! `colsum[x][d]` over the window's rows is updated incrementally (add the
@@ -20,10 +28,32 @@
 //! with `x < d_min` get no disparity (`inf`).
 
 use rayon::prelude::*;
-use stereolink_image::{DisparityMap, GrayImage};
+use stereolink_image::{DisparityMap, Plane, RgbImage};
 
 use crate::lanes::{LaneOps, Portable, LANES};
-use crate::MatchSpec;
+use crate::{MatchSpec, StereoError};
+
+/// Gray samples of a view, [`WtaParams::gray_bits`] bits each.
+pub type Samples = Plane<u16>;
+
+/// Writes the luma of `img` into `out` (resized, storage reused) in fixed
+/// point with `bits` bits (8..=10): BT.601 weights `(77 R + 150 G + 29 B) / 256`
+/// scaled by `2^(bits − 8)` and rounded; 8 bits equal
+/// [`stereolink_image::color::luma`].
+pub fn luma_samples_into(img: &RgbImage, bits: u32, out: &mut Samples) {
+    let shift = 16 - bits.clamp(8, 10);
+    img.map_into(out, |p| {
+        let sum = 77 * p[0] as u32 + 150 * p[1] as u32 + 29 * p[2] as u32;
+        ((sum + (1 << (shift - 1))) >> shift) as u16
+    });
+}
+
+/// [`luma_samples_into`] into a new image.
+pub fn luma_samples(img: &RgbImage, bits: u32) -> Samples {
+    let mut out = Samples::default();
+    luma_samples_into(img, bits, &mut out);
+    out
+}
 
 /// Parameters of [`WtaMatcher`].
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -32,8 +62,13 @@ pub struct WtaParams {
     pub min_disp: usize,
     /// Number of disparities searched (`min_disp..min_disp + ndisp`).
     pub ndisp: usize,
-    /// Odd window size n (n×n), at most 15 so sums fit in 16 bits.
+    /// Odd window size n (n×n); sums must fit in 16 bits, so at most 15 for
+    /// 8-bit gray, 11 for 9 bits and 7 for 10 ([`Self::max_block`]).
     pub block: usize,
+    /// Bits per gray sample, 8..=10 (see [`luma_samples`]).
+    pub gray_bits: u32,
+    /// Side m of the min filter over the window sums (odd; 0 or 1 = off).
+    pub min_filter: usize,
     /// Reject a winner unless every disparity more than 1 away costs at least
     /// `(100 + uniqueness) %` of it; 0 disables the test.
     pub uniqueness: u32,
@@ -48,9 +83,52 @@ impl WtaParams {
             min_disp: spec.min_disp,
             ndisp: spec.ndisp(),
             block: spec.block,
+            gray_bits: spec.gray_bits,
+            min_filter: spec.min_filter,
             uniqueness: spec.refine.uniqueness,
             subpixel: spec.refine.subpixel,
         }
+    }
+
+    /// The largest odd window whose sums of `bits`-bit differences fit in
+    /// 16 bits (`block² · (2^bits − 1) ≤ 65535`), at most 15.
+    pub fn max_block(bits: u32) -> usize {
+        let top = (1usize << bits.min(16)) - 1;
+        (1..=15)
+            .step_by(2)
+            .take_while(|b| b * b * top <= u16::MAX as usize)
+            .last()
+            .unwrap_or(1)
+    }
+
+    /// Checks the documented ranges (`ndisp` against the width is the caller's).
+    pub fn validate(&self) -> Result<(), StereoError> {
+        if !(8..=10).contains(&self.gray_bits) {
+            return Err(StereoError::Parameter(format!(
+                "gray bits {} must be 8, 9 or 10",
+                self.gray_bits
+            )));
+        }
+        if self.block == 0 || self.block % 2 == 0 || self.block > 15 {
+            return Err(StereoError::BlockSize(self.block));
+        }
+        let max = Self::max_block(self.gray_bits);
+        if self.block > max {
+            return Err(StereoError::Parameter(format!(
+                "block size {} is too large for {}-bit gray: at most {max} (window sums must fit in 16 bits)",
+                self.block, self.gray_bits
+            )));
+        }
+        if self.min_filter > 1 && (self.min_filter % 2 == 0 || self.min_filter > 15) {
+            return Err(StereoError::Parameter(format!(
+                "min filter size {} must be odd and at most 15 (0 or 1 = off)",
+                self.min_filter
+            )));
+        }
+        if self.ndisp == 0 {
+            return Err(StereoError::Parameter("no disparity to search".into()));
+        }
+        Ok(())
     }
 }
 
@@ -58,7 +136,12 @@ impl WtaParams {
 #[derive(Default)]
 struct Band {
     colsum: Vec<u16>,
-    hsum: Vec<u16>,
+    /// The window sums of the last `min_filter` rows, `W × lanes` each.
+    ring: Vec<u16>,
+    /// Their per-lane minimum over those rows (with the min filter on).
+    vmin: Vec<u16>,
+    /// The min-filtered costs of one pixel.
+    cost: Vec<u16>,
     /// Per right pixel `xr` of the current row, at `W − 1 − xr`: the
     /// smallest cost seen so far and its lane (for the right view's map).
     right_best: Vec<u16>,
@@ -70,7 +153,7 @@ struct Band {
 #[derive(Default)]
 pub struct WtaMatcher {
     /// Each right row, border-padded and reversed (see [`reversed_rows`]).
-    reversed: Vec<u8>,
+    reversed: Vec<u16>,
     bands: Vec<Band>,
     /// Never use the AVX2 kernel (to test or measure the portable one).
     portable: bool,
@@ -106,8 +189,8 @@ impl WtaMatcher {
     /// If the sizes differ or `params` violates its documented ranges.
     pub fn compute_into(
         &mut self,
-        left: &GrayImage,
-        right: &GrayImage,
+        left: &Samples,
+        right: &Samples,
         params: &WtaParams,
         out: &mut DisparityMap,
     ) {
@@ -126,8 +209,8 @@ impl WtaMatcher {
     /// from matching the mirrored pair.
     pub fn compute_both_into(
         &mut self,
-        left: &GrayImage,
-        right: &GrayImage,
+        left: &Samples,
+        right: &Samples,
         params: &WtaParams,
         out: &mut DisparityMap,
         right_out: &mut DisparityMap,
@@ -138,8 +221,8 @@ impl WtaMatcher {
 
     fn compute(
         &mut self,
-        left: &GrayImage,
-        right: &GrayImage,
+        left: &Samples,
+        right: &Samples,
         params: &WtaParams,
         out: &mut DisparityMap,
         right_out: Option<&mut DisparityMap>,
@@ -147,7 +230,9 @@ impl WtaMatcher {
         use rayon::iter::Either;
         assert_eq!(left.dims(), right.dims());
         assert_eq!(left.dims(), out.dims());
-        assert!(params.block % 2 == 1 && params.block <= 15 && params.ndisp > 0);
+        if let Err(e) = params.validate() {
+            panic!("{e}");
+        }
         let (w, h) = left.dims();
         if w == 0 || h == 0 {
             return;
@@ -184,7 +269,10 @@ impl WtaMatcher {
                     y0: i * band_rows,
                 };
                 band.colsum.resize(w * nl, 0);
-                band.hsum.resize(nl, 0);
+                let m = params.min_filter.max(1);
+                band.ring.resize(m * w * nl, 0);
+                band.vmin.resize(if m > 1 { w * nl } else { 0 }, 0);
+                band.cost.resize(nl, 0);
                 if right_rows.is_some() {
                     band.right_best.resize(w + nl, 0);
                     band.right_lane.resize(w + nl, 0);
@@ -220,7 +308,7 @@ pub fn avx2_available() -> bool {
 /// first pixel, then reversed, so that for a left column `x` the right pixels
 /// `x − d_min − k` for `k = 0..lanes` are `buf[row][W + d_min − 1 − x + k]`:
 /// contiguous in `k`.
-fn reversed_rows(right: &GrayImage, p: &WtaParams, buf: &mut Vec<u8>) {
+fn reversed_rows(right: &Samples, p: &WtaParams, buf: &mut Vec<u16>) {
     let (w, h) = right.dims();
     let pad = lanes(p.ndisp) + p.min_disp;
     let stride = w + pad;
@@ -235,8 +323,8 @@ fn reversed_rows(right: &GrayImage, p: &WtaParams, buf: &mut Vec<u8>) {
 }
 
 struct Job<'a> {
-    left: &'a GrayImage,
-    reversed: &'a [u8],
+    left: &'a Samples,
+    reversed: &'a [u16],
     stride: usize,
     params: &'a WtaParams,
     y0: usize,
@@ -258,6 +346,10 @@ fn band_portable(job: &Job, band: &mut Band, out: &mut [f32], right: Option<&mut
 /// (and `right`, the right view's map, when asked for) holds exactly those
 /// rows.
 ///
+/// The window sums of a row go into a ring of `min_filter` cost rows; the
+/// min filter takes, per lane, the minimum over the ring's rows and then
+/// over the neighbouring columns (both clamped to the image).
+///
 /// # Safety
 /// The CPU must have the instructions `K` uses.
 #[inline(always)]
@@ -270,53 +362,93 @@ unsafe fn band_with<K: LaneOps>(
     let (w, h) = job.left.dims();
     let p = job.params;
     let (nd, r) = (lanes(p.ndisp), p.block as isize / 2);
+    let (m, mr) = (p.min_filter.max(1), p.min_filter.max(1) / 2);
     let clamp_y = |y: isize| y.clamp(0, h as isize - 1) as usize;
+    let clamp_x = |x: isize| x.clamp(0, w as isize - 1) as usize;
     let colsum = &mut band.colsum[..w * nd];
-    let hsum = &mut band.hsum[..nd];
+    let ring = &mut band.ring[..m * w * nd];
+    let vmin = &mut band.vmin[..if m > 1 { w * nd } else { 0 }];
+    let cost = &mut band.cost[..nd];
     let (right_best, right_lane) = (&mut band.right_best, &mut band.right_lane);
-    // Prime the column sums with the window rows of the band's first row.
+    let rows = out.len() / w;
+    // Cost rows `first..last` feed the band's output rows.
+    let first = job.y0.saturating_sub(mr);
+    let last = (job.y0 + rows + mr).min(h);
+    // Prime the column sums with the window rows of the first cost row.
     colsum.fill(0);
     for dy in -r..=r {
         // SAFETY: forwarded from this function's contract.
-        unsafe { accumulate_row::<K>(job, colsum, clamp_y(job.y0 as isize + dy), None) };
+        unsafe { accumulate_row::<K>(job, colsum, clamp_y(first as isize + dy), None) };
     }
+    let mut next = first;
     for (i, out_row) in out.chunks_exact_mut(w).enumerate() {
-        let y = (job.y0 + i) as isize;
-        if i > 0 {
-            let (entering, leaving) = (clamp_y(y + r), clamp_y(y - r - 1));
-            // SAFETY: as above.
-            unsafe { accumulate_row::<K>(job, colsum, entering, Some(leaving)) };
+        let y = job.y0 + i;
+        // Window sums of every cost row up to y + mr, each into its ring slot.
+        while next < (y + mr + 1).min(last) {
+            let yc = next as isize;
+            if next > first {
+                let (entering, leaving) = (clamp_y(yc + r), clamp_y(yc - r - 1));
+                // SAFETY: as above.
+                unsafe { accumulate_row::<K>(job, colsum, entering, Some(leaving)) };
+            }
+            let col = |x: isize| &colsum[clamp_x(x) * nd..][..nd];
+            let slot = &mut ring[(next % m) * w * nd..][..w * nd];
+            // Horizontal window sum at x = 0, then slide: each column's
+            // sums are the previous column's plus the entering minus the
+            // leaving column.
+            slot[..nd].fill(0);
+            for dx in -r..=r {
+                // SAFETY: as above.
+                unsafe { K::add_sub(&mut slot[..nd], col(dx), None) };
+            }
+            for x in 1..w {
+                let (done, rest) = slot.split_at_mut(x * nd);
+                let xi = x as isize;
+                let (prev, leaving) = (&done[(x - 1) * nd..], col(xi - r - 1));
+                // SAFETY: as above.
+                unsafe { K::add_sub_from(&mut rest[..nd], prev, col(xi + r), leaving) };
+            }
+            next += 1;
         }
-        let col = |x: isize| {
-            let x = x.clamp(0, w as isize - 1) as usize;
-            &colsum[x * nd..(x + 1) * nd]
+        // The column minima over the rows y − mr ..= y + mr (clamped).
+        let costs: &[u16] = if m > 1 {
+            let (lo, hi) = (y.saturating_sub(mr), (y + mr).min(h - 1));
+            vmin.copy_from_slice(&ring[(lo % m) * w * nd..][..w * nd]);
+            for yy in lo + 1..=hi {
+                // SAFETY: as above.
+                unsafe { K::min_assign(vmin, &ring[(yy % m) * w * nd..][..w * nd]) };
+            }
+            vmin
+        } else {
+            ring
         };
-        // Horizontal window sum at x = 0, then slide.
-        hsum.fill(0);
-        for dx in -r..=r {
-            // SAFETY: as above.
-            unsafe { K::add_sub(hsum, col(dx), None) };
-        }
         right_best.fill(u16::MAX);
         for (x, d) in out_row.iter_mut().enumerate() {
-            if x > 0 {
-                let x = x as isize;
-                // SAFETY: as above.
-                unsafe { K::add_sub(hsum, col(x + r), Some(col(x - r - 1))) };
-            }
             if x < p.min_disp {
                 *d = f32::INFINITY;
                 continue;
             }
+            let at_col = |x: isize| &costs[clamp_x(x) * nd..][..nd];
+            let xi = x as isize;
+            let cost: &[u16] = if mr == 0 {
+                at_col(xi)
+            } else {
+                cost.copy_from_slice(at_col(xi - mr as isize));
+                for dx in 1 - mr as isize..=mr as isize {
+                    // SAFETY: as above.
+                    unsafe { K::min_assign(cost, at_col(xi + dx)) };
+                }
+                cost
+            };
             let valid = p.ndisp.min(x - p.min_disp + 1);
             // SAFETY: as above.
-            *d = winner(hsum, valid, unsafe { K::argmin(hsum, valid) }, p);
+            *d = winner(cost, valid, unsafe { K::argmin(cost, valid) }, p);
             if right.is_some() {
                 // Lane k is the right pixel x − d_min − k, at W − 1 − that.
                 let at = w - 1 - (x - p.min_disp);
                 let (best, lane) = (&mut right_best[at..at + nd], &mut right_lane[at..at + nd]);
                 // SAFETY: as above.
-                unsafe { K::min_update(best, lane, hsum, valid) };
+                unsafe { K::min_update(best, lane, cost, valid) };
             }
         }
         if let Some(right) = right.as_deref_mut() {
@@ -386,35 +518,41 @@ fn winner(costs: &[u16], valid: usize, k: usize, p: &WtaParams) -> f32 {
     d
 }
 
-/// Straightforward O(n²) per pixel SAD, the reference the fast path is tested against.
+/// Straightforward per pixel SAD and min filter (O(n²·m²) per pixel and
+/// disparity), the reference the fast path is tested against.
 #[cfg(test)]
-pub(crate) fn reference(left: &GrayImage, right: &GrayImage, p: &WtaParams) -> DisparityMap {
+pub(crate) fn reference(left: &Samples, right: &Samples, p: &WtaParams) -> DisparityMap {
     let (w, h) = left.dims();
-    let r = (p.block / 2) as isize;
-    let at = |img: &GrayImage, x: isize, y: isize| {
-        img.get(
-            x.clamp(0, w as isize - 1) as usize,
-            y.clamp(0, h as isize - 1) as usize,
-        )
+    let (r, mr) = ((p.block / 2) as isize, (p.min_filter.max(1) / 2) as isize);
+    let clamp = |v: isize, n: usize| v.clamp(0, n as isize - 1);
+    let at =
+        |img: &Samples, x: isize, y: isize| img.get(clamp(x, w) as usize, clamp(y, h) as usize);
+    // Eq. 12 at an image pixel and disparity index k. Border replication
+    // applies to the left column first, then the right pixel is taken at
+    // (clamped x) − d.
+    let sad = |x: isize, y: isize, k: usize| {
+        let d = (p.min_disp + k) as isize;
+        let mut s = 0u32;
+        for dy in -r..=r {
+            for dx in -r..=r {
+                let xl = clamp(x + dx, w);
+                s += at(left, xl, y + dy).abs_diff(at(right, (xl - d).max(0), y + dy)) as u32;
+            }
+        }
+        s as u16
     };
     DisparityMap::from_fn(w, h, |x, y| {
         if x < p.min_disp {
             return f32::INFINITY;
         }
-        let costs: Vec<u16> = (0..p.ndisp.min(x - p.min_disp + 1))
+        let (x, y) = (x as isize, y as isize);
+        let costs: Vec<u16> = (0..p.ndisp.min(x as usize - p.min_disp + 1))
             .map(|k| {
-                let d = (p.min_disp + k) as isize;
-                let mut s = 0u32;
-                for dy in -r..=r {
-                    for dx in -r..=r {
-                        let (xx, yy) = (x as isize + dx, y as isize + dy);
-                        // Border replication applies to the left column first,
-                        // then the right pixel is taken at (clamped x) − d.
-                        let xl = xx.clamp(0, w as isize - 1);
-                        s += at(left, xl, yy).abs_diff(at(right, (xl - d).max(0), yy)) as u32;
-                    }
-                }
-                s as u16
+                let around = (-mr..=mr).flat_map(|dy| (-mr..=mr).map(move |dx| (dx, dy)));
+                around
+                    .map(|(dx, dy)| sad(clamp(x + dx, w), clamp(y + dy, h), k))
+                    .min()
+                    .unwrap()
             })
             .collect();
         let k = (0..costs.len()).min_by_key(|&k| (costs[k], k)).unwrap();
@@ -427,24 +565,86 @@ mod tests {
     use super::*;
     use proptest::prelude::*;
 
-    fn image(w: usize, h: usize, seed: u64) -> GrayImage {
+    /// Noise with `bits`-bit samples.
+    fn noise(w: usize, h: usize, seed: u64, bits: u32) -> Samples {
         let mut s = seed | 1;
-        GrayImage::from_fn(w, h, |_, _| {
+        Samples::from_fn(w, h, |_, _| {
             s ^= s << 13;
             s ^= s >> 7;
             s ^= s << 17;
-            (s >> 24) as u8
+            (s >> 24) as u16 & ((1 << bits) - 1)
         })
+    }
+
+    fn image(w: usize, h: usize, seed: u64) -> Samples {
+        noise(w, h, seed, 8)
+    }
+
+    #[test]
+    fn luma_samples_refine_the_8_bit_luma() {
+        let img = RgbImage::from_fn(16, 16, |x, y| [(x * 16) as u8, (y * 16) as u8, 255]);
+        let (g8, g9) = (luma_samples(&img, 8), luma_samples(&img, 9));
+        for (x, y) in [(0, 0), (3, 5), (15, 15)] {
+            let p = img.get(x, y);
+            assert_eq!(g8.get(x, y), stereolink_image::color::luma(p) as u16);
+            assert!(g9.get(x, y).abs_diff(2 * g8.get(x, y)) <= 1);
+        }
+        assert_eq!(
+            luma_samples(&RgbImage::new(1, 1, [255; 3]), 10).get(0, 0),
+            1020
+        );
+    }
+
+    #[test]
+    fn parameters_out_of_range_are_errors() {
+        let ok = WtaParams {
+            min_disp: 0,
+            ndisp: 8,
+            block: 11,
+            gray_bits: 9,
+            min_filter: 5,
+            uniqueness: 0,
+            subpixel: false,
+        };
+        assert_eq!(ok.validate(), Ok(()));
+        assert_eq!(
+            [8, 9, 10].map(WtaParams::max_block),
+            [15, 11, 7],
+            "sums of the largest windows fit in u16"
+        );
+        for bad in [
+            WtaParams { block: 13, ..ok },
+            WtaParams { block: 4, ..ok },
+            WtaParams { block: 0, ..ok },
+            WtaParams {
+                gray_bits: 11,
+                ..ok
+            },
+            WtaParams { gray_bits: 7, ..ok },
+            WtaParams {
+                min_filter: 4,
+                ..ok
+            },
+            WtaParams {
+                min_filter: 17,
+                ..ok
+            },
+            WtaParams { ndisp: 0, ..ok },
+        ] {
+            assert!(bad.validate().is_err(), "{bad:?}");
+        }
     }
 
     #[test]
     fn shifted_noise_is_recovered_exactly() {
         let right = image(80, 40, 7);
-        let left = GrayImage::from_fn(80, 40, |x, y| right.get(x.saturating_sub(6), y));
+        let left = Samples::from_fn(80, 40, |x, y| right.get(x.saturating_sub(6), y));
         let p = WtaParams {
             min_disp: 0,
             ndisp: 16,
             block: 5,
+            gray_bits: 8,
+            min_filter: 0,
             uniqueness: 0,
             subpixel: false,
         };
@@ -464,6 +664,8 @@ mod tests {
             min_disp: 2,
             ndisp: 9,
             block: 3,
+            gray_bits: 8,
+            min_filter: 3,
             uniqueness: 0,
             subpixel: true,
         };
@@ -479,11 +681,13 @@ mod tests {
     fn right_map_equals_matching_the_mirrored_pair_inside() {
         let (w, h) = (90, 30);
         let right = image(w, h, 3);
-        let left = GrayImage::from_fn(w, h, |x, y| right.get(x.saturating_sub(5 + y % 3), y));
+        let left = Samples::from_fn(w, h, |x, y| right.get(x.saturating_sub(5 + y % 3), y));
         let p = WtaParams {
             min_disp: 1,
             ndisp: 20,
             block: 5,
+            gray_bits: 8,
+            min_filter: 0,
             uniqueness: 0,
             subpixel: false,
         };
@@ -512,15 +716,18 @@ mod tests {
 
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(48))]
-        /// Both kernels (AVX2 where present, and portable) equal the naive definition.
+        /// Both kernels (AVX2 where present, and portable) equal the naive
+        /// definition, at every gray precision and min filter size.
         #[test]
         fn fast_equals_reference(
             w in 1usize..40, h in 1usize..40, seed in any::<u64>(),
-            min_disp in 0usize..4, ndisp in 1usize..12, half in 0usize..4,
+            min_disp in 0usize..4, ndisp in 1usize..12, half in 0usize..8,
+            gray_bits in 8u32..=10, min_filter in prop_oneof![Just(0usize), Just(1), Just(3), Just(5)],
             subpixel in any::<bool>(), uniqueness in prop_oneof![Just(0u32), Just(15u32)],
         ) {
-            let (l, r) = (image(w, h, seed), image(w, h, seed ^ 0xABCD));
-            let p = WtaParams { min_disp, ndisp, block: 2 * half + 1, uniqueness, subpixel };
+            let (l, r) = (noise(w, h, seed, gray_bits), noise(w, h, seed ^ 0xABCD, gray_bits));
+            let block = (2 * half + 1).min(WtaParams::max_block(gray_bits));
+            let p = WtaParams { min_disp, ndisp, block, gray_bits, min_filter, uniqueness, subpixel };
             let slow = reference(&l, &r, &p);
             let bits = |m: &DisparityMap| m.as_slice().iter().map(|v| v.to_bits()).collect::<Vec<_>>();
             for mut matcher in [WtaMatcher::new(), WtaMatcher::portable()] {

@@ -44,14 +44,20 @@ fn sgm_on_the_v2_scenes() {
     }
 }
 
-/// WTA + refinement: below OpenCV StereoBM's 20 % on Cones (its measured
-/// figure with invalid pixels counted bad) on every v2 scene.
+/// WTA + refinement (defaults: 9-bit gray, LR check, colour-weighted
+/// median, directional fill) at or below the SSD+MF baseline of
+/// 5.23 / 3.74 / 16.5 / 10.6 % (measured 3.54 / 1.13 / 15.92 / 7.10 %).
 #[test]
 fn wta_on_the_v2_scenes() {
-    for name in ["tsukuba", "venus", "teddy", "cones"] {
+    for (name, limit) in [
+        ("tsukuba", 5.23),
+        ("venus", 3.74),
+        ("teddy", 16.5),
+        ("cones", 10.6),
+    ] {
         let Some(s) = scene(name) else { return };
         let b = bad1(&s, Algorithm::Wta);
-        assert!(b < 20.0, "{name}: {b:.2} %");
+        assert!(b <= limit, "{name}: {b:.2} % > {limit} %");
     }
 }
 

@@ -6,7 +6,7 @@ use std::time::Instant;
 use anyhow::Context;
 use serde::Serialize;
 use stereolink_image::{colormap, io, pfm, Scene};
-use stereolink_stereo::refine::HoleFill;
+use stereolink_stereo::refine::{HoleFill, WeightedMedian};
 use stereolink_stereo::{compute_disparity, Algorithm, MatchSpec, Matcher, Refinement};
 
 /// Matcher options shared by `match`, `eval` and `bench match`.
@@ -15,18 +15,36 @@ pub struct MatcherArgs {
     /// Algorithm: wta (SAD winner-take-all), lg (line growing) or sgm (semi-global).
     #[arg(long, default_value = "sgm", value_parser = parse_algorithm)]
     pub algo: Algorithm,
-    /// Window size for wta and lg (odd, 1–15); default 11 for wta, 5 for lg.
+    /// Window size for wta and lg (odd, 1–15; for wta at most 11 with
+    /// 9-bit gray, 7 with 10-bit); default 11 for wta, 5 for lg.
     #[arg(long)]
     pub block: Option<usize>,
+    /// WTA gray precision in bits (8–10; default 9).
+    #[arg(long)]
+    pub gray_bits: Option<u32>,
+    /// WTA min filter over the window sums (shiftable windows, as in
+    /// SSD+MF), odd side, 0 disables (default 0).
+    #[arg(long)]
+    pub min_filter: Option<usize>,
     /// Raw matcher output: no LR check, subpixel, median or hole filling.
     #[arg(long)]
     pub raw: bool,
-    /// LR-check tolerance in px (0 disables).
+    /// LR-check tolerance in px (0 disables; default 0.5 for wta, 1 for sgm).
     #[arg(long)]
     pub lr_check: Option<f32>,
     /// Median filter size (0 disables).
     #[arg(long)]
     pub median: Option<usize>,
+    /// Colour-weighted median radius (0 disables; default 8 for wta, off
+    /// for lg and sgm).
+    #[arg(long, value_name = "RADIUS")]
+    pub weighted_median: Option<usize>,
+    /// Colour scale σ of the weighted median (summed RGB levels; default 30).
+    #[arg(long)]
+    pub wm_sigma: Option<f32>,
+    /// Sampling step inside the weighted median's window (default 2).
+    #[arg(long)]
+    pub wm_step: Option<usize>,
     /// Subpixel parabola fit through the winner's neighbouring costs
     /// (default: off for match, eval and bench, where it raises the bad > 1
     /// px rate; on for the depth report of send and demo).
@@ -91,6 +109,21 @@ impl MatcherArgs {
         }
         if let Some(s) = self.subpixel {
             spec.refine.subpixel = s;
+        }
+        spec.gray_bits = self.gray_bits.unwrap_or(spec.gray_bits);
+        spec.min_filter = self.min_filter.unwrap_or(spec.min_filter);
+        if let Some(radius) = self.weighted_median {
+            spec.refine.weighted_median = (radius > 0).then(|| WeightedMedian {
+                radius,
+                ..spec
+                    .refine
+                    .weighted_median
+                    .unwrap_or(WeightedMedian::DEFAULT)
+            });
+        }
+        if let Some(wm) = spec.refine.weighted_median.as_mut() {
+            wm.sigma_color = self.wm_sigma.unwrap_or(wm.sigma_color);
+            wm.step = self.wm_step.unwrap_or(wm.step);
         }
         if let Some(f) = self.fill {
             spec.refine.fill = Some(f);

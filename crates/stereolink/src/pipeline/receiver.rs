@@ -14,10 +14,10 @@ use std::fmt::Write;
 use stereolink_codec::container::{self, Body, FrameDecoder, FrameRef};
 use stereolink_codec::{CodecError, Limits};
 use stereolink_display::{anaglyph_into, Anaglyph, Screen, ScreenStatus, Sink};
-use stereolink_image::{color, DisparityMap, GrayImage, RgbImage};
+use stereolink_image::{DisparityMap, RgbImage};
 use stereolink_robot::policy::{MotionPolicy, ValidatedDistance, Watchdog};
 use stereolink_robot::Axis;
-use stereolink_stereo::wta::{WtaMatcher, WtaParams};
+use stereolink_stereo::wta::{luma_samples_into, Samples, WtaMatcher, WtaParams};
 
 /// What the receiver did with one message.
 #[derive(Clone, Debug, serde::Serialize)]
@@ -50,7 +50,7 @@ pub struct BoardReceiver {
     decoder: FrameDecoder,
     matcher: WtaMatcher,
     params: WtaParams,
-    gray: (GrayImage, GrayImage),
+    gray: (Samples, Samples),
     disparity: DisparityMap,
     screen: Screen,
     mode: Anaglyph,
@@ -81,6 +81,9 @@ impl BoardReceiver {
                 min_disp: 0,
                 ndisp: max_disp + 1,
                 block,
+                // The board's fast setting: 8-bit gray, no min filter.
+                gray_bits: 8,
+                min_filter: 0,
                 uniqueness: 0,
                 subpixel: false,
             },
@@ -169,8 +172,8 @@ impl BoardReceiver {
         }
         self.decoder.decode_rgb(frame)?;
         let (left, right) = self.decoder.views();
-        color::rgb_to_gray_into(left, &mut self.gray.0);
-        color::rgb_to_gray_into(right, &mut self.gray.1);
+        luma_samples_into(left, self.params.gray_bits, &mut self.gray.0);
+        luma_samples_into(right, self.params.gray_bits, &mut self.gray.1);
         if self.disparity.dims() != (w, h) {
             self.disparity.reset(w, h, 0.0);
         }
