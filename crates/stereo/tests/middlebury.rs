@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use stereolink_image::synth::{synthesize, SynthSpec};
 use stereolink_image::{metrics::bad_pixel_rate, Scene};
 use stereolink_stereo::depth::{region_distance, Roi};
+use stereolink_stereo::refine::WeightedMedian;
 use stereolink_stereo::{compute_disparity, Algorithm, MatchSpec};
 
 fn scene(name: &str) -> Option<Scene> {
@@ -17,8 +18,11 @@ fn scene(name: &str) -> Option<Scene> {
 }
 
 fn bad1(s: &Scene, algo: Algorithm) -> f64 {
-    let spec = MatchSpec::new(algo, 0, s.calib.ndisp - 1).unwrap();
-    let d = compute_disparity(&s.left, &s.right, &spec).unwrap();
+    bad1_with(s, &MatchSpec::new(algo, 0, s.calib.ndisp - 1).unwrap())
+}
+
+fn bad1_with(s: &Scene, spec: &MatchSpec) -> f64 {
+    let d = compute_disparity(&s.left, &s.right, spec).unwrap();
     bad_pixel_rate(
         &d,
         s.gt_left.as_ref().unwrap(),
@@ -44,9 +48,10 @@ fn sgm_on_the_v2_scenes() {
     }
 }
 
-/// WTA + refinement (defaults: 9-bit gray, LR check, colour-weighted
-/// median, directional fill) at or below the SSD+MF baseline of
-/// 5.23 / 3.74 / 16.5 / 10.6 % (measured 3.54 / 1.13 / 15.92 / 7.10 %).
+/// WTA with the colour-weighted median refinement at or below the SSD+MF
+/// baseline of 5.23 / 3.74 / 16.5 / 10.6 % (measured 3.54 / 1.13 / 15.92 /
+/// 7.10 %); with the default (fast) refinement below OpenCV StereoBM's
+/// 20 % on Cones (measured 5.89 / 3.73 / 18.44 / 10.09 %).
 #[test]
 fn wta_on_the_v2_scenes() {
     for (name, limit) in [
@@ -56,8 +61,13 @@ fn wta_on_the_v2_scenes() {
         ("cones", 10.6),
     ] {
         let Some(s) = scene(name) else { return };
-        let b = bad1(&s, Algorithm::Wta);
+        let mut spec = MatchSpec::new(Algorithm::Wta, 0, s.calib.ndisp - 1).unwrap();
+        spec.refine.median = 0;
+        spec.refine.weighted_median = Some(WeightedMedian::DEFAULT);
+        let b = bad1_with(&s, &spec);
         assert!(b <= limit, "{name}: {b:.2} % > {limit} %");
+        let fast = bad1(&s, Algorithm::Wta);
+        assert!(fast < 20.0, "{name}, fast refinement: {fast:.2} %");
     }
 }
 
