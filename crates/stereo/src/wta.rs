@@ -270,7 +270,7 @@ impl WtaMatcher {
                 };
                 band.colsum.resize(w * nl, 0);
                 let m = params.min_filter.max(1);
-                band.ring.resize(m * w * nl, 0);
+                band.ring.resize(if m > 1 { m * w * nl } else { 0 }, 0);
                 band.vmin.resize(if m > 1 { w * nl } else { 0 }, 0);
                 band.cost.resize(nl, 0);
                 if right_rows.is_some() {
@@ -346,9 +346,11 @@ fn band_portable(job: &Job, band: &mut Band, out: &mut [f32], right: Option<&mut
 /// (and `right`, the right view's map, when asked for) holds exactly those
 /// rows.
 ///
-/// The window sums of a row go into a ring of `min_filter` cost rows; the
-/// min filter takes, per lane, the minimum over the ring's rows and then
-/// over the neighbouring columns (both clamped to the image).
+/// Without a min filter, a row's window sums slide along it in one buffer
+/// and are read at once. With one, the window sums of a row go into a ring
+/// of `min_filter` cost rows; the min filter takes, per lane, the minimum
+/// over the ring's rows and then over the neighbouring columns (both
+/// clamped to the image).
 ///
 /// # Safety
 /// The CPU must have the instructions `K` uses.
@@ -366,7 +368,7 @@ unsafe fn band_with<K: LaneOps>(
     let clamp_y = |y: isize| y.clamp(0, h as isize - 1) as usize;
     let clamp_x = |x: isize| x.clamp(0, w as isize - 1) as usize;
     let colsum = &mut band.colsum[..w * nd];
-    let ring = &mut band.ring[..m * w * nd];
+    let ring = &mut band.ring[..if m > 1 { m * w * nd } else { 0 }];
     let vmin = &mut band.vmin[..if m > 1 { w * nd } else { 0 }];
     let cost = &mut band.cost[..nd];
     let (right_best, right_lane) = (&mut band.right_best, &mut band.right_lane);
@@ -391,22 +393,24 @@ unsafe fn band_with<K: LaneOps>(
                 // SAFETY: as above.
                 unsafe { accumulate_row::<K>(job, colsum, entering, Some(leaving)) };
             }
-            let col = |x: isize| &colsum[clamp_x(x) * nd..][..nd];
-            let slot = &mut ring[(next % m) * w * nd..][..w * nd];
-            // Horizontal window sum at x = 0, then slide: each column's
-            // sums are the previous column's plus the entering minus the
-            // leaving column.
-            slot[..nd].fill(0);
-            for dx in -r..=r {
-                // SAFETY: as above.
-                unsafe { K::add_sub(&mut slot[..nd], col(dx), None) };
-            }
-            for x in 1..w {
-                let (done, rest) = slot.split_at_mut(x * nd);
-                let xi = x as isize;
-                let (prev, leaving) = (&done[(x - 1) * nd..], col(xi - r - 1));
-                // SAFETY: as above.
-                unsafe { K::add_sub_from(&mut rest[..nd], prev, col(xi + r), leaving) };
+            if m > 1 {
+                let col = |x: isize| &colsum[clamp_x(x) * nd..][..nd];
+                let slot = &mut ring[(next % m) * w * nd..][..w * nd];
+                // Horizontal window sum at x = 0, then slide: each column's
+                // sums are the previous column's plus the entering minus
+                // the leaving column.
+                slot[..nd].fill(0);
+                for dx in -r..=r {
+                    // SAFETY: as above.
+                    unsafe { K::add_sub(&mut slot[..nd], col(dx), None) };
+                }
+                for x in 1..w {
+                    let (done, rest) = slot.split_at_mut(x * nd);
+                    let xi = x as isize;
+                    let (prev, leaving) = (&done[(x - 1) * nd..], col(xi - r - 1));
+                    // SAFETY: as above.
+                    unsafe { K::add_sub_from(&mut rest[..nd], prev, col(xi + r), leaving) };
+                }
             }
             next += 1;
         }
@@ -422,16 +426,32 @@ unsafe fn band_with<K: LaneOps>(
         } else {
             ring
         };
+        let col = |x: isize| &colsum[clamp_x(x) * nd..][..nd];
         right_best.fill(u16::MAX);
         for (x, d) in out_row.iter_mut().enumerate() {
+            let xi = x as isize;
+            if m == 1 {
+                // No min filter: the window sum slides along the row in
+                // `cost` (no ring), the column x + r entering and x − r − 1
+                // leaving.
+                if x == 0 {
+                    cost.fill(0);
+                    for dx in -r..=r {
+                        // SAFETY: as above.
+                        unsafe { K::add_sub(cost, col(dx), None) };
+                    }
+                } else {
+                    // SAFETY: as above.
+                    unsafe { K::add_sub(cost, col(xi + r), Some(col(xi - r - 1))) };
+                }
+            }
             if x < p.min_disp {
                 *d = f32::INFINITY;
                 continue;
             }
             let at_col = |x: isize| &costs[clamp_x(x) * nd..][..nd];
-            let xi = x as isize;
-            let cost: &[u16] = if mr == 0 {
-                at_col(xi)
+            let cost: &[u16] = if m == 1 {
+                cost
             } else {
                 cost.copy_from_slice(at_col(xi - mr as isize));
                 for dx in 1 - mr as isize..=mr as isize {
