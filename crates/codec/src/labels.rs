@@ -213,7 +213,9 @@ fn own_template(data: &[u16], w: usize, x: usize, y: usize) -> [u32; OWN_LEN] {
     if x >= 3 && x + 3 < w && y >= 2 {
         // Inside (most pixels): direct reads, in the order of OWN.
         let (r0, r1, r2) = (y * w + x, (y - 1) * w + x, (y - 2) * w + x);
-        let g = |i: usize| u32::from(data[i]);
+        assert!(r0 <= data.len());
+        // SAFETY: the indices lie in r2 − 1 ..= r1 + 3, below r0 (x + 3 < w).
+        let g = |i: usize| u32::from(unsafe { *data.get_unchecked(i) });
         [
             g(r0 - 1),
             g(r1),
@@ -262,7 +264,10 @@ fn ref_template(reference: &LabelMap, xs: usize, y: usize) -> [u32; 6] {
     if xs >= 1 && xs + 2 < w && y >= 1 && y + 1 < h {
         // Inside: direct reads, in the order of REF.
         let i = y * w + xs;
-        let g = |i: usize| u32::from(data[i]);
+        assert!(i + w < data.len());
+        // SAFETY: the indices lie in i − w ..= i + w, inside the map (the
+        // test above and the assertion).
+        let g = |i: usize| u32::from(unsafe { *data.get_unchecked(i) });
         return [g(i), g(i + 1), g(i - 1), g(i + w), g(i - w), g(i + 2)];
     }
     REF.map(|(dx, dy)| {
@@ -287,10 +292,10 @@ fn label_hash(values: &[u32]) -> usize {
 
 /// Which positions of `t` hold `c`, as bits.
 #[inline(always)]
-fn mask(t: &[u32], c: u32) -> usize {
+fn mask<const N: usize>(t: &[u32; N], c: u32) -> usize {
     let mut m = 0;
-    for (k, &v) in t.iter().enumerate() {
-        m |= ((v == c) as usize) << k;
+    for k in 0..N {
+        m |= ((t[k] == c) as usize) << k;
     }
     m
 }
@@ -411,8 +416,13 @@ fn code_pixel_fast<I: BitIo>(
         // Inside: which of W, N, NW, NE (and, coding alone, WW, NN, NEE,
         // NWW) hold W's label, read straight from the map.
         let (r0, r1) = (y * w + x, (y - 1) * w + x);
+        // Rows y − 2 and y − 1 at x − 2 ..= x + 2 and row y at x − 2, x − 1
+        // lie inside the map (r1 + 2 < r0 ≤ data.len()): checked once.
+        assert!(r0 <= data.len());
         let wv = data[r0 - 1];
-        let eq = |i: usize| (data[i] == wv) as usize;
+        // SAFETY: every index below is at most r1 + 2 < r0 ≤ data.len() and
+        // at least r1 − w (y ≥ 2), as the test above established.
+        let eq = |i: usize| (unsafe { *data.get_unchecked(i) } == wv) as usize;
         let mut mo = 1 | eq(r1) << 1 | eq(r1 - 1) << 2 | eq(r1 + 1) << 3;
         if !model.conditioned {
             mo |= eq(r0 - 2) << 4 | eq(r1 - w) << 5 | eq(r1 + 2) << 6 | eq(r1 - 2) << 7;
@@ -469,8 +479,11 @@ fn code_after_w<I: BitIo, const STRONG: bool>(
         }
         for (rank, &c) in list[..n].iter().enumerate().skip(first) {
             // The fast context reads only the eight nearest own positions.
-            let own_bits = if STRONG { OWN_LEN } else { 8 };
-            let masks = (mask(&own[..own_bits], c), mask(rf, c));
+            let mo = match STRONG {
+                true => mask(own, c),
+                false => mask::<8>(own[..8].try_into().expect("eight positions"), c),
+            };
+            let masks = (mo, mask(rf, c));
             if code_candidate::<I, STRONG>(io, model, rank, c, (own, rf), masks, c == v) {
                 return checked(c, n_labels);
             }
