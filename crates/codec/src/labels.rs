@@ -294,8 +294,8 @@ fn label_hash(values: &[u32]) -> usize {
 #[inline(always)]
 fn mask<const N: usize>(t: &[u32; N], c: u32) -> usize {
     let mut m = 0;
-    for k in 0..N {
-        m |= ((t[k] == c) as usize) << k;
+    for (k, &v) in t.iter().enumerate() {
+        m |= ((v == c) as usize) << k;
     }
     m
 }
