@@ -41,11 +41,18 @@ pub type Samples = Plane<u16>;
 /// scaled by `2^(bits − 8)` and rounded; 8 bits equal
 /// [`stereolink_image::color::luma`].
 pub fn luma_samples_into(img: &RgbImage, bits: u32, out: &mut Samples) {
-    let shift = 16 - bits.clamp(8, 10);
-    img.map_into(out, |p| {
-        let sum = 77 * p[0] as u32 + 150 * p[1] as u32 + 29 * p[2] as u32;
-        ((sum + (1 << (shift - 1))) >> shift) as u16
-    });
+    // One loop per precision, with the shift a constant (it vectorises).
+    fn luma<const SHIFT: u32>(img: &RgbImage, out: &mut Samples) {
+        img.map_into(out, |p| {
+            let sum = 77 * p[0] as u32 + 150 * p[1] as u32 + 29 * p[2] as u32;
+            ((sum + (1 << (SHIFT - 1))) >> SHIFT) as u16
+        });
+    }
+    match bits.clamp(8, 10) {
+        8 => luma::<8>(img, out),
+        9 => luma::<7>(img, out),
+        _ => luma::<6>(img, out),
+    }
 }
 
 /// [`luma_samples_into`] into a new image.
