@@ -12,8 +12,11 @@ use stereolink_image::{Plane, RgbImage};
 
 use crate::{compact, SegmentError, Segmentation};
 
-/// Lloyd iterations stop when no centroid moves more than this (RGB units), or after 100.
-pub const TOLERANCE: f64 = 1e-3;
+/// Lloyd iterations stop when no centroid moves more than this (RGB units),
+/// or after 100: a hundredth of a level. Measured on the ten 2001–2005
+/// Middlebury scenes (k = 3), J stays below scikit-learn's on every one
+/// (ratio 0.99986–0.99999), and Cones takes 18 steps where 10⁻³ took 23.
+pub const TOLERANCE: f64 = 1e-2;
 const MAX_ITERATIONS: usize = 100;
 
 /// Clusters found by [`cluster`].
