@@ -80,19 +80,22 @@ fn colour_counts(image: &RgbImage) -> Colours {
         .map(|p| u32::from_be_bytes([0, p[0], p[1], p[2]]))
         .collect();
     radix_sort_24(&mut packed);
-    let distinct = 1 + packed.windows(2).filter(|p| p[0] != p[1]).count();
+    // One pass over the sorted values: each run is a colour and its count.
     let mut out = Colours {
-        r: Vec::with_capacity(distinct),
-        g: Vec::with_capacity(distinct),
-        b: Vec::with_capacity(distinct),
-        n: Vec::with_capacity(distinct),
+        r: Vec::with_capacity(packed.len()),
+        g: Vec::with_capacity(packed.len()),
+        b: Vec::with_capacity(packed.len()),
+        n: Vec::with_capacity(packed.len()),
     };
-    for chunk in packed.chunk_by(|a, b| a == b) {
-        let [_, r, g, b] = chunk[0].to_be_bytes();
-        out.r.push(r);
-        out.g.push(g);
-        out.b.push(b);
-        out.n.push(chunk.len() as u32);
+    let mut start = 0;
+    for (i, pair) in packed.windows(2).enumerate() {
+        if pair[0] != pair[1] {
+            out.push(pair[0], (i + 1 - start) as u32);
+            start = i + 1;
+        }
+    }
+    if let Some(&last) = packed.last() {
+        out.push(last, (packed.len() - start) as u32);
     }
     out
 }
@@ -168,6 +171,16 @@ impl Colours {
             b: channel(2),
             n: vec![1; image.len()],
         }
+    }
+
+    /// Appends the packed colour `rgb` (`0x00RRGGBB`) with `count`.
+    #[inline]
+    fn push(&mut self, rgb: u32, count: u32) {
+        let [_, r, g, b] = rgb.to_be_bytes();
+        self.r.push(r);
+        self.g.push(g);
+        self.b.push(b);
+        self.n.push(count);
     }
 
     /// Colour `i` and its count.
@@ -530,6 +543,25 @@ fn lloyd_sums(
 
 /// Runs k-means++ and Lloyd's algorithm on the pixels of `image`.
 pub fn cluster(image: &RgbImage, k: usize, seed: u64) -> Result<KMeans, SegmentError> {
+    let (centroids, iterations, colours) = fit(image, k, seed)?;
+    // Not whole numbers: summed in order, for a deterministic value.
+    let objective = assign(&colours, &centroids, avx2_available())
+        .weighted
+        .iter()
+        .sum();
+    Ok(KMeans {
+        centroids,
+        objective,
+        iterations,
+    })
+}
+
+/// The centres and Lloyd steps of [`cluster`], and the colours they ran on.
+fn fit(
+    image: &RgbImage,
+    k: usize,
+    seed: u64,
+) -> Result<(Vec<[f64; 3]>, usize, Colours), SegmentError> {
     if k == 0 || k > image.len() {
         return Err(SegmentError::TooManyClusters {
             k,
@@ -585,28 +617,22 @@ pub fn cluster(image: &RgbImage, k: usize, seed: u64) -> Result<KMeans, SegmentE
             break;
         }
     }
-    // Not whole numbers: summed in order, for a deterministic value.
-    let objective = assign(&soa, &centroids, avx2).weighted.iter().sum();
-    Ok(KMeans {
-        centroids,
-        objective,
-        iterations,
-    })
+    Ok((centroids, iterations, soa))
 }
 
 /// Segments into `k` clusters coloured by their rounded centres.
 pub fn kmeans(image: &RgbImage, k: usize, seed: u64) -> Result<Segmentation, SegmentError> {
-    let km = cluster(image, k, seed)?;
+    let (centroids, iterations, _) = fit(image, k, seed)?;
     let pixels = Colours::pixels(image);
-    let data = assign(&pixels, &km.centroids, avx2_available()).labels;
+    let data = assign(&pixels, &centroids, avx2_available()).labels;
     let labels = Plane::from_vec(image.width(), image.height(), data).expect("one label per pixel");
     let image = compact(labels, |l| {
-        km.centroids[l as usize].map(|v| v.round().clamp(0.0, 255.0) as u8)
+        centroids[l as usize].map(|v| v.round().clamp(0.0, 255.0) as u8)
     })?;
     Ok(Segmentation {
         image,
         channels: None,
-        iterations: km.iterations,
+        iterations,
     })
 }
 
