@@ -43,9 +43,10 @@ pub type Samples = Plane<u16>;
 pub fn luma_samples_into(img: &RgbImage, bits: u32, out: &mut Samples) {
     // One loop per precision, with the shift a constant (it vectorises).
     fn luma<const SHIFT: u32>(img: &RgbImage, out: &mut Samples) {
+        // 77 · 255 + 150 · 255 + 29 · 255 + 128 < 2¹⁶: 16-bit lanes suffice.
         img.map_into(out, |p| {
-            let sum = 77 * p[0] as u32 + 150 * p[1] as u32 + 29 * p[2] as u32;
-            ((sum + (1 << (SHIFT - 1))) >> SHIFT) as u16
+            let sum = 77 * p[0] as u16 + 150 * p[1] as u16 + 29 * p[2] as u16;
+            (sum + (1 << (SHIFT - 1))) >> SHIFT
         });
     }
     match bits.clamp(8, 10) {
