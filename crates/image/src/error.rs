@@ -11,8 +11,10 @@ pub type Result<T, E = Error> = std::result::Result<T, E>;
 #[derive(Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum Error {
-    /// The file could not be opened, read or written.
-    #[error("{}: {source}", path.display())]
+    /// The file could not be opened, read or written (the message names the
+    /// file; the I/O error is its source, which a chain such as anyhow's
+    /// `{:#}` prints after it).
+    #[error("{}", path.display())]
     Io {
         /// The file.
         path: PathBuf,

@@ -47,9 +47,7 @@ pub struct Args {
 /// Runs the demo and prints its summary.
 pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     let scene = match &args.scene {
-        Some(dir) => {
-            Scene::load(dir).with_context(|| format!("cannot load scene {}", dir.display()))?
-        }
+        Some(dir) => Scene::load(dir).context("cannot load the scene")?,
         None => synthesize(&SynthSpec {
             seed: args.sim_seed,
             ..SynthSpec::default()

@@ -30,8 +30,7 @@ struct Info {
 
 /// Loads the scene and prints its description.
 pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
-    let scene = Scene::load(&args.scene)
-        .with_context(|| format!("cannot load scene {}", args.scene.display()))?;
+    let scene = Scene::load(&args.scene).context("cannot load the scene")?;
     let gt = scene.gt_left.as_ref();
     let info = Info {
         name: scene.name.clone(),
