@@ -191,7 +191,11 @@ impl Sender {
                         continue;
                     }
                     Err(e) => {
-                        eprintln!("skipping {}: {e}", pair.left.display());
+                        eprintln!(
+                            "skipping {}: {:#}",
+                            pair.left.display(),
+                            anyhow::Error::from(e)
+                        );
                         continue;
                     }
                 };
