@@ -456,48 +456,46 @@ fn modes(
             Plane::from_vec(half.width(), half.height(), modes).expect("one mode per pixel");
         (modes, iterations)
     });
-    let Some((coarse, coarse_iterations)) = coarse else {
-        let all: Vec<([f32; 3], usize)> = (0..w * h)
-            .into_par_iter()
-            .map(|i| filter.shift(i))
-            .collect();
-        let iterations = all.iter().map(|m| m.1).max().unwrap_or(0);
-        return (all.into_iter().map(|m| m.0).collect(), iterations);
-    };
-    let (cw, ch) = coarse.dims();
-    let join = (spec.range / 2.0).powi(2);
-    let neighbours = |x: usize, y: usize| {
-        let (x0, y0) = (x.saturating_sub(1), y.saturating_sub(1));
-        (y0..(y + 2).min(ch)).flat_map(move |ny| (x0..(x + 2).min(cw)).map(move |nx| (nx, ny)))
-    };
-    let boundary = Plane::from_fn(cw, ch, |x, y| {
-        let m = coarse.get(x, y);
-        neighbours(x, y).any(|(nx, ny)| {
-            let n = coarse.get(nx, ny);
-            (0..3).map(|k| (m[k] - n[k]).powi(2)).sum::<f32>() > join
-        })
+    // The coarse modes, and which coarse pixels are near a boundary of them.
+    let coarse = coarse.map(|(coarse, iterations)| {
+        let (cw, ch) = coarse.dims();
+        let join = (spec.range / 2.0).powi(2);
+        let neighbours = |x: usize, y: usize| {
+            let (x0, y0) = (x.saturating_sub(1), y.saturating_sub(1));
+            (y0..(y + 2).min(ch)).flat_map(move |ny| (x0..(x + 2).min(cw)).map(move |nx| (nx, ny)))
+        };
+        let boundary = Plane::from_fn(cw, ch, |x, y| {
+            let m = coarse.get(x, y);
+            neighbours(x, y).any(|(nx, ny)| {
+                let n = coarse.get(nx, ny);
+                (0..3).map(|k| (m[k] - n[k]).powi(2)).sum::<f32>() > join
+            })
+        });
+        let near = Plane::from_fn(cw, ch, |x, y| {
+            neighbours(x, y).any(|(nx, ny)| boundary.get(nx, ny))
+        });
+        (coarse, near, iterations)
     });
-    let near = Plane::from_fn(cw, ch, |x, y| {
-        neighbours(x, y).any(|(nx, ny)| boundary.get(nx, ny))
-    });
-    let fine: Vec<([f32; 3], usize)> = (0..w * h)
+    let pixels: Vec<([f32; 3], usize)> = (0..w * h)
         .into_par_iter()
-        .map(|i| {
-            let (cx, cy) = (i % w / 2, i / w / 2);
-            if near.get(cx, cy) {
-                filter.shift(i)
-            } else {
-                (coarse.get(cx, cy), 0)
+        .map(|i| match &coarse {
+            Some((modes, near, _)) => {
+                let (cx, cy) = (i % w / 2, i / w / 2);
+                if near.get(cx, cy) {
+                    filter.shift(i)
+                } else {
+                    (modes.get(cx, cy), 0)
+                }
             }
+            None => filter.shift(i),
         })
         .collect();
-    let iterations = fine
+    let coarse_iterations = coarse.map_or(0, |c| c.2);
+    let iterations = pixels
         .iter()
         .map(|m| m.1)
-        .max()
-        .unwrap_or(0)
-        .max(coarse_iterations);
-    (fine.into_iter().map(|m| m.0).collect(), iterations)
+        .fold(coarse_iterations, usize::max);
+    (pixels.into_iter().map(|m| m.0).collect(), iterations)
 }
 
 /// Per root label: summed colour and pixel count.
