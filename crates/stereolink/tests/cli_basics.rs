@@ -6,6 +6,15 @@ fn stereolink() -> Command {
     Command::new(env!("CARGO_BIN_EXE_stereolink"))
 }
 
+/// Asserts that the command succeeded, showing its stderr if not.
+fn assert_success(out: &std::process::Output) {
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
 #[test]
 fn usage_errors_exit_2_and_failures_exit_1_with_one_line() {
     let out = stereolink().arg("no-such-command").output().unwrap();
@@ -38,11 +47,7 @@ fn synth_writes_a_scene_that_info_reads_back() {
         .args(["--max-disp", "16"])
         .output()
         .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    assert_success(&out);
     for f in [
         "left.png",
         "right.png",
@@ -126,11 +131,7 @@ fn depth_reads_an_opencv_calibration() {
             .args(calib)
             .output()
             .unwrap();
-        assert!(
-            out.status.success(),
-            "{}",
-            String::from_utf8_lossy(&out.stderr)
-        );
+        assert_success(&out);
         let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
         v["regions"][0][1].as_f64().unwrap()
     };
