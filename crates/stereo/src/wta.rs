@@ -432,7 +432,8 @@ unsafe fn band_with<K: LaneOps>(
             }
             vmin
         } else {
-            ring
+            // Unused: the window sum slides along the row below.
+            &[]
         };
         let col = |x: isize| &colsum[clamp_x(x) * nd..][..nd];
         right_best.fill(u16::MAX);
