@@ -350,30 +350,16 @@ mod tests {
                 d.set(x, y, 40.0);
             }
         }
-        let near = region_distance(
-            &d,
-            Roi {
-                x: 0,
+        let distance_at = |x| {
+            let roi = Roi {
+                x,
                 y: 0,
                 w: 10,
                 h: 10,
-            },
-            &calib(),
-        )
-        .unwrap()
-        .unwrap();
-        let far = region_distance(
-            &d,
-            Roi {
-                x: 10,
-                y: 0,
-                w: 10,
-                h: 10,
-            },
-            &calib(),
-        )
-        .unwrap()
-        .unwrap();
+            };
+            region_distance(&d, roi, &calib()).unwrap().unwrap()
+        };
+        let (near, far) = (distance_at(0), distance_at(10));
         assert!((near - 2.0).abs() < 1e-9 && (far - 2.5).abs() < 1e-9);
         assert!("1,2,3".parse::<Roi>().is_err() && "1,2,0,4".parse::<Roi>().is_err());
         assert_eq!(
