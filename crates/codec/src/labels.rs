@@ -396,7 +396,7 @@ fn code_pixel<I: BitIo, const STRONG: bool>(
             return checked(wv, n_labels);
         }
     }
-    code_after_w::<I, STRONG>(io, model, n_labels, (own, flat), rf, v)
+    code_after_w::<I, STRONG>(io, model, n_labels, own, rf, v)
 }
 
 /// [`code_pixel`] in the fast mode, whose context for W needs only a few own
@@ -433,8 +433,7 @@ fn code_pixel_fast<I: BitIo>(
             return checked(wv, n_labels);
         }
         let own = own_template(data, w, x, y);
-        let flat = own.iter().all(|&l| l == wv);
-        return code_after_w::<I, false>(io, model, n_labels, (&own, flat), rf, v);
+        return code_after_w::<I, false>(io, model, n_labels, &own, rf, v);
     }
     let own = own_template(data, w, x, y);
     let flat = own[0] != NONE && own.iter().all(|&l| l == own[0]);
@@ -448,7 +447,7 @@ fn code_after_w<I: BitIo, const STRONG: bool>(
     io: &mut I,
     model: &mut Model,
     n_labels: usize,
-    (own, flat): (&[u32; OWN_LEN], bool),
+    own: &[u32; OWN_LEN],
     rf: &[u32; 6],
     v: u32,
 ) -> Result<u16, CodecError> {
@@ -457,50 +456,45 @@ fn code_after_w<I: BitIo, const STRONG: bool>(
         rf[5], own[8], own[9], own[10], own[11],
     ];
     let wv = own[0];
-    // The listed labels below 64, as bits (larger ones are looked up).
-    let mut seen = if wv != NONE { bit64(wv) } else { 0 };
-    if !(flat && rf.iter().all(|&v| v == wv || v == NONE)) {
-        // The other candidates (a flat template has none).
-        let mut list = [NONE; CANDIDATES];
-        list[0] = wv;
-        let mut n = (wv != NONE) as usize;
-        let first = n;
-        for c in order {
-            let listed = if c < 64 {
-                seen & bit64(c) != 0
-            } else {
-                c == NONE || list[..n].contains(&c)
-            };
-            if !listed {
-                list[n] = c;
-                n += 1;
-                seen |= bit64(c);
-            }
-        }
-        for (rank, &c) in list[..n].iter().enumerate().skip(first) {
+    // The candidates listed so far, and those below 64 as bits (larger
+    // ones are looked up). Each is coded as soon as it is found, so a hit
+    // ends the scan of the template early.
+    let mut seen = bit64(wv);
+    let mut list = [NONE; CANDIDATES];
+    list[0] = wv;
+    let mut n = (wv != NONE) as usize;
+    for c in order {
+        let new = if c < 64 {
+            seen & bit64(c) == 0
+        } else {
+            c != NONE && !list[..n].contains(&c)
+        };
+        if new {
             // The fast context reads only the eight nearest own positions.
             let mo = match STRONG {
                 true => mask(own, c),
                 false => mask::<8>(own[..8].try_into().expect("eight positions"), c),
             };
             let masks = (mo, mask(rf, c));
-            if code_candidate::<I, STRONG>(io, model, rank, c, (own, rf), masks, c == v) {
+            if code_candidate::<I, STRONG>(io, model, n, c, (own, rf), masks, c == v) {
                 return checked(c, n_labels);
             }
+            list[n] = c;
+            n += 1;
+            seen |= bit64(c);
         }
     }
     if n_labels <= SEQUENTIAL_MAX {
-        // One decision per label not already refused, the last one implied.
-        let mut remaining = n_labels - (seen & (bit64(n_labels as u32) - 1)).count_ones() as usize;
+        // One decision per label not already refused, in increasing order,
+        // the last one implied.
+        let mut free = !seen & (bit64(n_labels as u32) - 1);
         let row = wv.min(SEQUENTIAL_MAX as u32) as usize * SEQUENTIAL_MAX;
-        for l in 0..n_labels as u32 {
-            if seen & bit64(l) != 0 {
-                continue;
-            }
-            if remaining == 1 || io.bit(&mut model.explicit[row + l as usize], l == v) {
+        while free != 0 {
+            let l = free.trailing_zeros();
+            free &= free - 1;
+            if free == 0 || io.bit(&mut model.explicit[row + l as usize], l == v) {
                 return Ok(l as u16);
             }
-            remaining -= 1;
         }
         Err(CodecError::Invalid("label stream: no label left".into()))
     } else {
