@@ -91,12 +91,6 @@ struct Model {
     mixer: Mixer,
     /// The fast mode's counters.
     fast: Vec<Counter>,
-    /// The own-mask bits of the fast context: W, N, NW, NE when coding
-    /// conditioned (the prediction's mask takes the place), else the eight nearest.
-    fast_own: usize,
-    /// Coding a right view against the left one (else the prediction's
-    /// template is all NONE).
-    conditioned: bool,
     explicit: Vec<Counter>,
     same_shift: Counter,
     shift: Vec<Counter>,
@@ -108,8 +102,6 @@ impl Model {
             flags: Default::default(),
             mixer: Mixer::new(0),
             fast: Vec::new(),
-            fast_own: 0,
-            conditioned: false,
             explicit: Vec::new(),
             same_shift: Counter::default(),
             shift: Vec::new(),
@@ -117,9 +109,7 @@ impl Model {
     }
 
     /// Back to the initial state for `n_labels` labels, reusing the storage.
-    fn reset(&mut self, n_labels: usize, strong: bool, conditioned: bool) {
-        self.fast_own = if conditioned { 15 } else { 255 };
-        self.conditioned = conditioned;
+    fn reset(&mut self, n_labels: usize, strong: bool) {
         let mut sizes = [0; 5];
         if strong {
             sizes = CONTEXT_BITS.map(|b| RANKS << b);
@@ -140,6 +130,17 @@ impl Model {
         self.same_shift = Counter::default();
         self.shift.clear();
         self.shift.resize(256, Counter::default());
+    }
+}
+
+/// The own-mask bits of the fast context: W, N, NW, NE when coding
+/// conditioned (`COND`: the prediction's mask takes the place), else the
+/// eight nearest.
+const fn fast_own<const COND: bool>() -> usize {
+    if COND {
+        15
+    } else {
+        255
     }
 }
 
@@ -303,7 +304,7 @@ fn mask<const N: usize>(t: &[u32; N], c: u32) -> usize {
 /// Codes the decision "label = `c`" for the `rank`-th candidate, given the
 /// templates: which positions hold `c` select the contexts of the mixed models.
 #[inline(always)]
-fn code_candidate<I: BitIo, const STRONG: bool>(
+fn code_candidate<I: BitIo, const STRONG: bool, const COND: bool>(
     io: &mut I,
     model: &mut Model,
     rank: usize,
@@ -315,7 +316,7 @@ fn code_candidate<I: BitIo, const STRONG: bool>(
     let r = rank.min(RANKS - 1);
     if !STRONG {
         return io.bit(
-            &mut model.fast[r << FAST_BITS | (mo & model.fast_own) << 6 | mr],
+            &mut model.fast[r << FAST_BITS | (mo & fast_own::<COND>()) << 6 | mr],
             bit,
         );
     }
@@ -376,7 +377,7 @@ fn bit64(v: u32) -> u64 {
 
 /// Codes the label of one pixel: `v` for the encoder, ignored by the decoder.
 #[inline(always)]
-fn code_pixel<I: BitIo, const STRONG: bool>(
+fn code_pixel<I: BitIo, const STRONG: bool, const COND: bool>(
     io: &mut I,
     model: &mut Model,
     n_labels: usize,
@@ -392,11 +393,11 @@ fn code_pixel<I: BitIo, const STRONG: bool>(
         } else {
             (mask(own, wv), mask(rf, wv))
         };
-        if code_candidate::<I, STRONG>(io, model, 0, wv, (own, rf), masks, wv == v) {
+        if code_candidate::<I, STRONG, COND>(io, model, 0, wv, (own, rf), masks, wv == v) {
             return checked(wv, n_labels);
         }
     }
-    code_after_w::<I, STRONG>(io, model, n_labels, own, rf, v)
+    code_after_w::<I, STRONG, COND>(io, model, n_labels, own, rf, v)
 }
 
 /// [`code_pixel`] in the fast mode, whose context for W needs only a few own
@@ -404,7 +405,7 @@ fn code_pixel<I: BitIo, const STRONG: bool>(
 /// prediction's mask: those are read first, and the whole template only
 /// when the label is not W's (the same stream, at a fraction of the reads).
 #[inline(always)]
-fn code_pixel_fast<I: BitIo>(
+fn code_pixel_fast<I: BitIo, const COND: bool>(
     io: &mut I,
     model: &mut Model,
     n_labels: usize,
@@ -424,26 +425,26 @@ fn code_pixel_fast<I: BitIo>(
         // at least r1 − w (y ≥ 2), as the test above established.
         let eq = |i: usize| (unsafe { *data.get_unchecked(i) } == wv) as usize;
         let mut mo = 1 | eq(r1) << 1 | eq(r1 - 1) << 2 | eq(r1 + 1) << 3;
-        if !model.conditioned {
+        if !COND {
             mo |= eq(r0 - 2) << 4 | eq(r1 - w) << 5 | eq(r1 + 2) << 6 | eq(r1 - 2) << 7;
         }
         let wv = u32::from(wv);
-        let mr = if model.conditioned { mask(rf, wv) } else { 0 };
+        let mr = if COND { mask(rf, wv) } else { 0 };
         if io.bit(&mut model.fast[mo << 6 | mr], wv == v) {
             return checked(wv, n_labels);
         }
         let own = own_template(data, w, x, y);
-        return code_after_w::<I, false>(io, model, n_labels, &own, rf, v);
+        return code_after_w::<I, false, COND>(io, model, n_labels, &own, rf, v);
     }
     let own = own_template(data, w, x, y);
     let flat = own[0] != NONE && own.iter().all(|&l| l == own[0]);
-    code_pixel::<I, false>(io, model, n_labels, (&own, flat), rf, v)
+    code_pixel::<I, false, COND>(io, model, n_labels, (&own, flat), rf, v)
 }
 
 /// The rest of [`code_pixel`] once the label is known not to be W's (or
 /// there is no W): the other candidates, then the label itself.
 #[inline(always)]
-fn code_after_w<I: BitIo, const STRONG: bool>(
+fn code_after_w<I: BitIo, const STRONG: bool, const COND: bool>(
     io: &mut I,
     model: &mut Model,
     n_labels: usize,
@@ -476,7 +477,7 @@ fn code_after_w<I: BitIo, const STRONG: bool>(
                 false => mask::<8>(own[..8].try_into().expect("eight positions"), c),
             };
             let masks = (mo, mask(rf, c));
-            if code_candidate::<I, STRONG>(io, model, n, c, (own, rf), masks, c == v) {
+            if code_candidate::<I, STRONG, COND>(io, model, n, c, (own, rf), masks, c == v) {
                 return checked(c, n_labels);
             }
             list[n] = c;
@@ -514,10 +515,26 @@ type MapArgs<'a> = (&'a mut [u16], usize, usize, Option<&'a LabelMap>, &'a [u8])
 fn code_map<I: BitIo, const STRONG: bool>(
     io: &mut I,
     model: &mut Model,
+    args: MapArgs,
+    shifts: &mut Vec<u8>,
+) -> Result<(), CodecError> {
+    model.reset(args.2, STRONG);
+    match args.3 {
+        Some(_) => code_rows::<I, STRONG, true>(io, model, args, shifts),
+        None => code_rows::<I, STRONG, false>(io, model, args, shifts),
+    }
+}
+
+/// [`code_map`] once the model is reset, compiled apart for a map coded
+/// conditioned (`COND`, with a reference) and alone, where the prediction's
+/// template is all NONE: its reads and masks then vanish.
+#[inline(always)]
+fn code_rows<I: BitIo, const STRONG: bool, const COND: bool>(
+    io: &mut I,
+    model: &mut Model,
     (data, w, n_labels, reference, plan): MapArgs,
     shifts: &mut Vec<u8>,
 ) -> Result<(), CodecError> {
-    model.reset(n_labels, STRONG, reference.is_some());
     let blocks = w.div_ceil(BLOCK);
     shifts.clear();
     shifts.resize(blocks, 0);
@@ -533,8 +550,8 @@ fn code_map<I: BitIo, const STRONG: bool>(
         }
         for x in 0..w {
             let rf = match reference {
-                Some(r) => ref_template(r, x + shifts[x / BLOCK] as usize, y),
-                None => [NONE; 6],
+                Some(r) if COND => ref_template(r, x + shifts[x / BLOCK] as usize, y),
+                _ => [NONE; 6],
             };
             let i = y * w + x;
             let v = data[i] as u32;
@@ -546,9 +563,9 @@ fn code_map<I: BitIo, const STRONG: bool>(
                         (t, t[0] != NONE && t.iter().all(|&v| v == t[0]))
                     }
                 };
-                code_pixel::<I, true>(io, model, n_labels, (&own, flat), &rf, v)?
+                code_pixel::<I, true, COND>(io, model, n_labels, (&own, flat), &rf, v)?
             } else {
-                code_pixel_fast(io, model, n_labels, (data, w, x, y), &rf, v)?
+                code_pixel_fast::<I, COND>(io, model, n_labels, (data, w, x, y), &rf, v)?
             };
         }
         if io.overrun() {
