@@ -248,7 +248,7 @@ pub fn conditioned_payload(
     mode: labels::Mode,
 ) -> Vec<u8> {
     let table = label_table(left, right);
-    let predicted = left.labels().map(|l| table[l as usize]);
+    let predicted = prediction(left, &table);
     let mut payload: Vec<u8> = table.iter().flat_map(|t| t.to_le_bytes()).collect();
     payload.extend(labels::encode(
         right.labels(),
@@ -258,6 +258,17 @@ pub fn conditioned_payload(
         mode,
     ));
     payload
+}
+
+/// The left view's labels in the right view's numbering: what the right
+/// view coded conditioned on the left is predicted from (through the
+/// per-block shifts of [`labels::plan_shifts`] with [`SHIFT_SEARCH`]).
+pub fn right_prediction(left: &IndexedImage, right: &IndexedImage) -> LabelMap {
+    prediction(left, &label_table(left, right))
+}
+
+fn prediction(left: &IndexedImage, table: &[u16]) -> LabelMap {
+    left.labels().map(|l| table[l as usize])
 }
 
 /// The map from the left view's labels to the right view's, sent with the

@@ -628,6 +628,30 @@ fn best_shifts(
     }
 }
 
+/// The stereo shifts [`encode`] sends for `map` predicted from `reference`
+/// (searched up to `max_shift`): one per block of [`BLOCK`] columns per
+/// row, row-major; the prediction of pixel (x, y) is the reference's label
+/// at (x + s, y), s the shift of block x / [`BLOCK`] of row y.
+pub fn plan_shifts(map: &LabelMap, reference: &LabelMap, max_shift: usize) -> Vec<u8> {
+    let (w, h) = map.dims();
+    let mut plan = Vec::with_capacity(h * w.div_ceil(BLOCK));
+    let mut above = vec![0; w.div_ceil(BLOCK)];
+    let mut row = Vec::new();
+    for y in 0..h {
+        best_shifts(
+            map,
+            reference,
+            y,
+            max_shift.min(MAX_SHIFT),
+            &above,
+            &mut row,
+        );
+        plan.extend_from_slice(&row);
+        std::mem::swap(&mut above, &mut row);
+    }
+    plan
+}
+
 /// Codes `map` (labels below `n_labels`); with `reference`, predicts from it
 /// through per-block shifts searched up to `max_shift`.
 pub fn encode(
@@ -637,17 +661,8 @@ pub fn encode(
     max_shift: usize,
     mode: Mode,
 ) -> Vec<u8> {
-    let (w, h) = map.dims();
-    let mut plan = Vec::new();
-    if let Some(r) = reference {
-        let mut above = vec![0; w.div_ceil(BLOCK)];
-        let mut row = Vec::new();
-        for y in 0..h {
-            best_shifts(map, r, y, max_shift.min(MAX_SHIFT), &above, &mut row);
-            plan.extend_from_slice(&row);
-            std::mem::swap(&mut above, &mut row);
-        }
-    }
+    let w = map.width();
+    let plan = reference.map_or_else(Vec::new, |r| plan_shifts(map, r, max_shift));
     let mut enc = Encoder::new();
     let mut data = map.as_slice().to_vec();
     let (model, shifts) = (&mut Model::new(), &mut Vec::new());
