@@ -77,8 +77,8 @@ const CONTEXT_BITS: [u32; 5] = [
 /// Bits of the label hashes.
 const LABEL_HASH_BITS: u32 = 18;
 /// Context bits besides the rank of the fast mode: eight bits of the own
-/// mask and the prediction's mask.
-const FAST_BITS: u32 = 14;
+/// mask alone, four and the prediction's six conditioned.
+const FAST_BITS: u32 = 10;
 /// Mixer weight sets: rank, W, N, NW, NE of the own mask, P of the prediction's.
 const MIX_SETS: usize = RANKS * 32;
 /// Palettes up to this size send a missed label label by label.
@@ -133,14 +133,18 @@ impl Model {
     }
 }
 
-/// The own-mask bits of the fast context: W, N, NW, NE when coding
-/// conditioned (`COND`: the prediction's mask takes the place), else the
-/// eight nearest.
-const fn fast_own<const COND: bool>() -> usize {
+/// The counter of the fast mode's decision for the candidate of rank `r`
+/// with own mask `mo` and prediction mask `mr`: the own-mask bits are W, N,
+/// NW, NE when coding conditioned (`COND`: the prediction's mask takes the
+/// place), else the eight nearest (and `mr` is 0). The contexts are those
+/// of `docs/wire-format.md`, packed densely, so that the few that occur
+/// share cache lines.
+#[inline(always)]
+const fn fast_context<const COND: bool>(r: usize, mo: usize, mr: usize) -> usize {
     if COND {
-        15
+        r << FAST_BITS | (mo & 15) << 6 | mr
     } else {
-        255
+        r << FAST_BITS | (mo & 255)
     }
 }
 
@@ -315,10 +319,7 @@ fn code_candidate<I: BitIo, const STRONG: bool, const COND: bool>(
 ) -> bool {
     let r = rank.min(RANKS - 1);
     if !STRONG {
-        return io.bit(
-            &mut model.fast[r << FAST_BITS | (mo & fast_own::<COND>()) << 6 | mr],
-            bit,
-        );
+        return io.bit(&mut model.fast[fast_context::<COND>(r, mo, mr)], bit);
     }
     let ctx = [
         r << 8 | (mo & 255),
@@ -430,7 +431,7 @@ fn code_pixel_fast<I: BitIo, const COND: bool>(
         }
         let wv = u32::from(wv);
         let mr = if COND { mask(rf, wv) } else { 0 };
-        if io.bit(&mut model.fast[mo << 6 | mr], wv == v) {
+        if io.bit(&mut model.fast[fast_context::<COND>(0, mo, mr)], wv == v) {
             return checked(wv, n_labels);
         }
         let own = own_template(data, w, x, y);
