@@ -211,17 +211,21 @@ pub struct IndexedImage {
 impl IndexedImage {
     /// Pairs `labels` with `palette`; fails if a label has no palette entry.
     pub fn new(labels: LabelMap, palette: Vec<Rgb>) -> Result<Self> {
-        if let Some(&bad) = labels
+        // The largest label first (a loop without an early exit, which
+        // vectorises); the first bad one only to report it.
+        let top = labels.as_slice().iter().fold(0, |m, &l| m.max(l));
+        if labels.is_empty() || (top as usize) < palette.len() {
+            return Ok(IndexedImage { labels, palette });
+        }
+        let bad = labels
             .as_slice()
             .iter()
             .find(|&&l| l as usize >= palette.len())
-        {
-            return Err(Error::InvalidParameter(format!(
-                "label {bad} has no colour in a palette of {}",
-                palette.len()
-            )));
-        }
-        Ok(IndexedImage { labels, palette })
+            .expect("the largest label is out of range");
+        Err(Error::InvalidParameter(format!(
+            "label {bad} has no colour in a palette of {}",
+            palette.len()
+        )))
     }
 
     /// The label map.
