@@ -178,8 +178,14 @@ impl<T: Copy> Plane<T> {
     pub fn reset(&mut self, width: usize, height: usize, value: T) {
         self.width = width;
         self.height = height;
-        self.data.clear();
-        self.data.resize(width * height, value);
+        if self.data.capacity() < width * height {
+            // New storage: `vec!` takes zeroed memory from the allocator
+            // for a zero value instead of filling it.
+            self.data = vec![value; width * height];
+        } else {
+            self.data.clear();
+            self.data.resize(width * height, value);
+        }
     }
 
     /// Fails with [`Error::SizeMismatch`] unless `other` has the same size;
