@@ -432,7 +432,8 @@ fn code_pixel_fast<I: BitIo, const COND: bool>(
         let wv = u32::from(wv);
         let mr = if COND { mask(rf, wv) } else { 0 };
         if io.bit(&mut model.fast[fast_context::<COND>(0, mo, mr)], wv == v) {
-            return checked(wv, n_labels);
+            // W's label is one this map already holds: below `n_labels`.
+            return Ok(wv as u16);
         }
         let own = own_template(data, w, x, y);
         return code_after_w::<I, false, COND>(io, model, n_labels, &own, rf, v);
