@@ -248,7 +248,7 @@ pub fn conditioned_payload(
     mode: labels::Mode,
 ) -> Vec<u8> {
     let table = label_table(left, right);
-    let predicted = left.labels().map(|l| table[l as usize]);
+    let predicted = prediction(left, &table);
     let mut payload: Vec<u8> = table.iter().flat_map(|t| t.to_le_bytes()).collect();
     payload.extend(labels::encode(
         right.labels(),
@@ -258,6 +258,17 @@ pub fn conditioned_payload(
         mode,
     ));
     payload
+}
+
+/// The left view's labels in the right view's numbering: what the right
+/// view coded conditioned on the left is predicted from (through the
+/// per-block shifts of [`labels::plan_shifts`] with [`SHIFT_SEARCH`]).
+pub fn right_prediction(left: &IndexedImage, right: &IndexedImage) -> LabelMap {
+    prediction(left, &label_table(left, right))
+}
+
+fn prediction(left: &IndexedImage, table: &[u16]) -> LabelMap {
+    left.labels().map(|l| table[l as usize])
 }
 
 /// The map from the left view's labels to the right view's, sent with the
@@ -484,6 +495,11 @@ fn parse_frame<'a>(r: &mut Reader<'a>, limits: &Limits) -> Result<FrameRef<'a>, 
             "conditioned view without an indexed left view".into(),
         ));
     }
+    if left.coding == coding::LABELS_CONDITIONED {
+        return Err(CodecError::Invalid(
+            "the left view is coded conditioned (on nothing)".into(),
+        ));
+    }
     Ok(FrameRef {
         width: w,
         height: h,
@@ -554,6 +570,8 @@ pub struct FrameDecoder {
     labels: (LabelMap, LabelMap),
     rgb: (RgbImage, RgbImage),
     predicted: LabelMap,
+    /// The conditioned view's label table.
+    table: Vec<u16>,
     label_decoder: labels::LabelDecoder,
     rgb_decoder: rgb::RgbDecoder,
 }
@@ -607,20 +625,24 @@ impl FrameDecoder {
                         .payload
                         .split_at_checked(2 * frame.left.colours())
                         .ok_or(CodecError::Truncated("label table"))?;
-                    let entry = |l: u16| {
-                        let at = 2 * l as usize;
-                        u16::from_le_bytes([table[at], table[at + 1]])
-                    };
-                    if let Some(bad) = (0..frame.left.colours() as u16)
-                        .map(entry)
-                        .find(|&t| t as usize >= n)
-                    {
+                    self.table.clear();
+                    self.table.extend(
+                        table
+                            .chunks_exact(2)
+                            .map(|t| u16::from_le_bytes([t[0], t[1]])),
+                    );
+                    if let Some(&bad) = self.table.iter().find(|&&t| t as usize >= n) {
                         return Err(CodecError::LabelOutOfRange {
                             label: bad as u32,
                             labels: n,
                         });
                     }
-                    self.labels.0.map_into(&mut self.predicted, entry);
+                    // The left labels index the table: the left view decoded
+                    // below its palette size, the table's length.
+                    let table = &self.table;
+                    self.labels
+                        .0
+                        .map_into(&mut self.predicted, |l| table[l as usize]);
                     let right = &mut self.labels.1;
                     right.reset(w, h, 0);
                     self.label_decoder
@@ -740,6 +762,30 @@ mod tests {
             decode(&bytes[..bytes.len() - 1], &l),
             Err(CodecError::Truncated(_))
         ));
+        // A left view coded conditioned (the left view's coding byte is the
+        // body's tenth without params, thresholds and calibration), even
+        // after a frame that left labels behind in a reused decoder.
+        let plain = StereoFrame {
+            params: String::new(),
+            thresholds: None,
+            calibration: None,
+            ..frame(20, 10)
+        };
+        let good = encode(&Message::StereoFrame(Box::new(plain)), 1, 1);
+        let mut cond = good.clone();
+        assert_eq!(cond[HEADER_LEN + 9], coding::LABELS);
+        cond[HEADER_LEN + 9] = coding::LABELS_CONDITIONED;
+        let crc = crc32fast::hash(&cond[HEADER_LEN..]);
+        cond[24..28].copy_from_slice(&crc.to_le_bytes());
+        assert!(matches!(decode(&cond, &l), Err(CodecError::Invalid(_))));
+        let mut reused = FrameDecoder::default();
+        for (bytes, ok) in [(&good, true), (&cond, false)] {
+            let result = parse(bytes, &l).and_then(|(_, body)| match body {
+                Body::StereoFrame(f) => reused.decode_rgb(&f),
+                _ => unreachable!("a stereo frame"),
+            });
+            assert_eq!(result.is_ok(), ok);
+        }
         let tight = Limits { max_body: 10, ..l };
         assert!(matches!(
             decode(&bytes, &tight),

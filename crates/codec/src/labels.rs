@@ -77,8 +77,8 @@ const CONTEXT_BITS: [u32; 5] = [
 /// Bits of the label hashes.
 const LABEL_HASH_BITS: u32 = 18;
 /// Context bits besides the rank of the fast mode: eight bits of the own
-/// mask and the prediction's mask.
-const FAST_BITS: u32 = 14;
+/// mask alone, four and the prediction's six conditioned.
+const FAST_BITS: u32 = 10;
 /// Mixer weight sets: rank, W, N, NW, NE of the own mask, P of the prediction's.
 const MIX_SETS: usize = RANKS * 32;
 /// Palettes up to this size send a missed label label by label.
@@ -91,12 +91,6 @@ struct Model {
     mixer: Mixer,
     /// The fast mode's counters.
     fast: Vec<Counter>,
-    /// The own-mask bits of the fast context: W, N, NW, NE when coding
-    /// conditioned (the prediction's mask takes the place), else the eight nearest.
-    fast_own: usize,
-    /// Coding a right view against the left one (else the prediction's
-    /// template is all NONE).
-    conditioned: bool,
     explicit: Vec<Counter>,
     same_shift: Counter,
     shift: Vec<Counter>,
@@ -108,8 +102,6 @@ impl Model {
             flags: Default::default(),
             mixer: Mixer::new(0),
             fast: Vec::new(),
-            fast_own: 0,
-            conditioned: false,
             explicit: Vec::new(),
             same_shift: Counter::default(),
             shift: Vec::new(),
@@ -117,9 +109,7 @@ impl Model {
     }
 
     /// Back to the initial state for `n_labels` labels, reusing the storage.
-    fn reset(&mut self, n_labels: usize, strong: bool, conditioned: bool) {
-        self.fast_own = if conditioned { 15 } else { 255 };
-        self.conditioned = conditioned;
+    fn reset(&mut self, n_labels: usize, strong: bool) {
         let mut sizes = [0; 5];
         if strong {
             sizes = CONTEXT_BITS.map(|b| RANKS << b);
@@ -140,6 +130,21 @@ impl Model {
         self.same_shift = Counter::default();
         self.shift.clear();
         self.shift.resize(256, Counter::default());
+    }
+}
+
+/// The counter of the fast mode's decision for the candidate of rank `r`
+/// with own mask `mo` and prediction mask `mr`: the own-mask bits are W, N,
+/// NW, NE when coding conditioned (`COND`: the prediction's mask takes the
+/// place), else the eight nearest (and `mr` is 0). The contexts are those
+/// of `docs/wire-format.md`, packed densely, so that the few that occur
+/// share cache lines.
+#[inline(always)]
+const fn fast_context<const COND: bool>(r: usize, mo: usize, mr: usize) -> usize {
+    if COND {
+        r << FAST_BITS | (mo & 15) << 6 | mr
+    } else {
+        r << FAST_BITS | (mo & 255)
     }
 }
 
@@ -303,7 +308,7 @@ fn mask<const N: usize>(t: &[u32; N], c: u32) -> usize {
 /// Codes the decision "label = `c`" for the `rank`-th candidate, given the
 /// templates: which positions hold `c` select the contexts of the mixed models.
 #[inline(always)]
-fn code_candidate<I: BitIo, const STRONG: bool>(
+fn code_candidate<I: BitIo, const STRONG: bool, const COND: bool>(
     io: &mut I,
     model: &mut Model,
     rank: usize,
@@ -314,10 +319,7 @@ fn code_candidate<I: BitIo, const STRONG: bool>(
 ) -> bool {
     let r = rank.min(RANKS - 1);
     if !STRONG {
-        return io.bit(
-            &mut model.fast[r << FAST_BITS | (mo & model.fast_own) << 6 | mr],
-            bit,
-        );
+        return io.bit(&mut model.fast[fast_context::<COND>(r, mo, mr)], bit);
     }
     let ctx = [
         r << 8 | (mo & 255),
@@ -376,7 +378,7 @@ fn bit64(v: u32) -> u64 {
 
 /// Codes the label of one pixel: `v` for the encoder, ignored by the decoder.
 #[inline(always)]
-fn code_pixel<I: BitIo, const STRONG: bool>(
+fn code_pixel<I: BitIo, const STRONG: bool, const COND: bool>(
     io: &mut I,
     model: &mut Model,
     n_labels: usize,
@@ -392,11 +394,11 @@ fn code_pixel<I: BitIo, const STRONG: bool>(
         } else {
             (mask(own, wv), mask(rf, wv))
         };
-        if code_candidate::<I, STRONG>(io, model, 0, wv, (own, rf), masks, wv == v) {
+        if code_candidate::<I, STRONG, COND>(io, model, 0, wv, (own, rf), masks, wv == v) {
             return checked(wv, n_labels);
         }
     }
-    code_after_w::<I, STRONG>(io, model, n_labels, (own, flat), rf, v)
+    code_after_w::<I, STRONG, COND>(io, model, n_labels, own, rf, v)
 }
 
 /// [`code_pixel`] in the fast mode, whose context for W needs only a few own
@@ -404,7 +406,7 @@ fn code_pixel<I: BitIo, const STRONG: bool>(
 /// prediction's mask: those are read first, and the whole template only
 /// when the label is not W's (the same stream, at a fraction of the reads).
 #[inline(always)]
-fn code_pixel_fast<I: BitIo>(
+fn code_pixel_fast<I: BitIo, const COND: bool>(
     io: &mut I,
     model: &mut Model,
     n_labels: usize,
@@ -424,31 +426,31 @@ fn code_pixel_fast<I: BitIo>(
         // at least r1 − w (y ≥ 2), as the test above established.
         let eq = |i: usize| (unsafe { *data.get_unchecked(i) } == wv) as usize;
         let mut mo = 1 | eq(r1) << 1 | eq(r1 - 1) << 2 | eq(r1 + 1) << 3;
-        if !model.conditioned {
+        if !COND {
             mo |= eq(r0 - 2) << 4 | eq(r1 - w) << 5 | eq(r1 + 2) << 6 | eq(r1 - 2) << 7;
         }
         let wv = u32::from(wv);
-        let mr = if model.conditioned { mask(rf, wv) } else { 0 };
-        if io.bit(&mut model.fast[mo << 6 | mr], wv == v) {
-            return checked(wv, n_labels);
+        let mr = if COND { mask(rf, wv) } else { 0 };
+        if io.bit(&mut model.fast[fast_context::<COND>(0, mo, mr)], wv == v) {
+            // W's label is one this map already holds: below `n_labels`.
+            return Ok(wv as u16);
         }
         let own = own_template(data, w, x, y);
-        let flat = own.iter().all(|&l| l == wv);
-        return code_after_w::<I, false>(io, model, n_labels, (&own, flat), rf, v);
+        return code_after_w::<I, false, COND>(io, model, n_labels, &own, rf, v);
     }
     let own = own_template(data, w, x, y);
     let flat = own[0] != NONE && own.iter().all(|&l| l == own[0]);
-    code_pixel::<I, false>(io, model, n_labels, (&own, flat), rf, v)
+    code_pixel::<I, false, COND>(io, model, n_labels, (&own, flat), rf, v)
 }
 
 /// The rest of [`code_pixel`] once the label is known not to be W's (or
 /// there is no W): the other candidates, then the label itself.
 #[inline(always)]
-fn code_after_w<I: BitIo, const STRONG: bool>(
+fn code_after_w<I: BitIo, const STRONG: bool, const COND: bool>(
     io: &mut I,
     model: &mut Model,
     n_labels: usize,
-    (own, flat): (&[u32; OWN_LEN], bool),
+    own: &[u32; OWN_LEN],
     rf: &[u32; 6],
     v: u32,
 ) -> Result<u16, CodecError> {
@@ -457,50 +459,45 @@ fn code_after_w<I: BitIo, const STRONG: bool>(
         rf[5], own[8], own[9], own[10], own[11],
     ];
     let wv = own[0];
-    // The listed labels below 64, as bits (larger ones are looked up).
-    let mut seen = if wv != NONE { bit64(wv) } else { 0 };
-    if !(flat && rf.iter().all(|&v| v == wv || v == NONE)) {
-        // The other candidates (a flat template has none).
-        let mut list = [NONE; CANDIDATES];
-        list[0] = wv;
-        let mut n = (wv != NONE) as usize;
-        let first = n;
-        for c in order {
-            let listed = if c < 64 {
-                seen & bit64(c) != 0
-            } else {
-                c == NONE || list[..n].contains(&c)
-            };
-            if !listed {
-                list[n] = c;
-                n += 1;
-                seen |= bit64(c);
-            }
-        }
-        for (rank, &c) in list[..n].iter().enumerate().skip(first) {
+    // The candidates listed so far, and those below 64 as bits (larger
+    // ones are looked up). Each is coded as soon as it is found, so a hit
+    // ends the scan of the template early.
+    let mut seen = bit64(wv);
+    let mut list = [NONE; CANDIDATES];
+    list[0] = wv;
+    let mut n = (wv != NONE) as usize;
+    for c in order {
+        let new = if c < 64 {
+            seen & bit64(c) == 0
+        } else {
+            c != NONE && !list[..n].contains(&c)
+        };
+        if new {
             // The fast context reads only the eight nearest own positions.
             let mo = match STRONG {
                 true => mask(own, c),
                 false => mask::<8>(own[..8].try_into().expect("eight positions"), c),
             };
             let masks = (mo, mask(rf, c));
-            if code_candidate::<I, STRONG>(io, model, rank, c, (own, rf), masks, c == v) {
+            if code_candidate::<I, STRONG, COND>(io, model, n, c, (own, rf), masks, c == v) {
                 return checked(c, n_labels);
             }
+            list[n] = c;
+            n += 1;
+            seen |= bit64(c);
         }
     }
     if n_labels <= SEQUENTIAL_MAX {
-        // One decision per label not already refused, the last one implied.
-        let mut remaining = n_labels - (seen & (bit64(n_labels as u32) - 1)).count_ones() as usize;
+        // One decision per label not already refused, in increasing order,
+        // the last one implied.
+        let mut free = !seen & (bit64(n_labels as u32) - 1);
         let row = wv.min(SEQUENTIAL_MAX as u32) as usize * SEQUENTIAL_MAX;
-        for l in 0..n_labels as u32 {
-            if seen & bit64(l) != 0 {
-                continue;
-            }
-            if remaining == 1 || io.bit(&mut model.explicit[row + l as usize], l == v) {
+        while free != 0 {
+            let l = free.trailing_zeros();
+            free &= free - 1;
+            if free == 0 || io.bit(&mut model.explicit[row + l as usize], l == v) {
                 return Ok(l as u16);
             }
-            remaining -= 1;
         }
         Err(CodecError::Invalid("label stream: no label left".into()))
     } else {
@@ -520,10 +517,26 @@ type MapArgs<'a> = (&'a mut [u16], usize, usize, Option<&'a LabelMap>, &'a [u8])
 fn code_map<I: BitIo, const STRONG: bool>(
     io: &mut I,
     model: &mut Model,
+    args: MapArgs,
+    shifts: &mut Vec<u8>,
+) -> Result<(), CodecError> {
+    model.reset(args.2, STRONG);
+    match args.3 {
+        Some(_) => code_rows::<I, STRONG, true>(io, model, args, shifts),
+        None => code_rows::<I, STRONG, false>(io, model, args, shifts),
+    }
+}
+
+/// [`code_map`] once the model is reset, compiled apart for a map coded
+/// conditioned (`COND`, with a reference) and alone, where the prediction's
+/// template is all NONE: its reads and masks then vanish.
+#[inline(always)]
+fn code_rows<I: BitIo, const STRONG: bool, const COND: bool>(
+    io: &mut I,
+    model: &mut Model,
     (data, w, n_labels, reference, plan): MapArgs,
     shifts: &mut Vec<u8>,
 ) -> Result<(), CodecError> {
-    model.reset(n_labels, STRONG, reference.is_some());
     let blocks = w.div_ceil(BLOCK);
     shifts.clear();
     shifts.resize(blocks, 0);
@@ -539,8 +552,8 @@ fn code_map<I: BitIo, const STRONG: bool>(
         }
         for x in 0..w {
             let rf = match reference {
-                Some(r) => ref_template(r, x + shifts[x / BLOCK] as usize, y),
-                None => [NONE; 6],
+                Some(r) if COND => ref_template(r, x + shifts[x / BLOCK] as usize, y),
+                _ => [NONE; 6],
             };
             let i = y * w + x;
             let v = data[i] as u32;
@@ -552,9 +565,9 @@ fn code_map<I: BitIo, const STRONG: bool>(
                         (t, t[0] != NONE && t.iter().all(|&v| v == t[0]))
                     }
                 };
-                code_pixel::<I, true>(io, model, n_labels, (&own, flat), &rf, v)?
+                code_pixel::<I, true, COND>(io, model, n_labels, (&own, flat), &rf, v)?
             } else {
-                code_pixel_fast(io, model, n_labels, (data, w, x, y), &rf, v)?
+                code_pixel_fast::<I, COND>(io, model, n_labels, (data, w, x, y), &rf, v)?
             };
         }
         if io.overrun() {
@@ -617,6 +630,30 @@ fn best_shifts(
     }
 }
 
+/// The stereo shifts [`encode`] sends for `map` predicted from `reference`
+/// (searched up to `max_shift`): one per block of [`BLOCK`] columns per
+/// row, row-major; the prediction of pixel (x, y) is the reference's label
+/// at (x + s, y), s the shift of block x / [`BLOCK`] of row y.
+pub fn plan_shifts(map: &LabelMap, reference: &LabelMap, max_shift: usize) -> Vec<u8> {
+    let (w, h) = map.dims();
+    let mut plan = Vec::with_capacity(h * w.div_ceil(BLOCK));
+    let mut above = vec![0; w.div_ceil(BLOCK)];
+    let mut row = Vec::new();
+    for y in 0..h {
+        best_shifts(
+            map,
+            reference,
+            y,
+            max_shift.min(MAX_SHIFT),
+            &above,
+            &mut row,
+        );
+        plan.extend_from_slice(&row);
+        std::mem::swap(&mut above, &mut row);
+    }
+    plan
+}
+
 /// Codes `map` (labels below `n_labels`); with `reference`, predicts from it
 /// through per-block shifts searched up to `max_shift`.
 pub fn encode(
@@ -626,17 +663,8 @@ pub fn encode(
     max_shift: usize,
     mode: Mode,
 ) -> Vec<u8> {
-    let (w, h) = map.dims();
-    let mut plan = Vec::new();
-    if let Some(r) = reference {
-        let mut above = vec![0; w.div_ceil(BLOCK)];
-        let mut row = Vec::new();
-        for y in 0..h {
-            best_shifts(map, r, y, max_shift.min(MAX_SHIFT), &above, &mut row);
-            plan.extend_from_slice(&row);
-            std::mem::swap(&mut above, &mut row);
-        }
-    }
+    let w = map.width();
+    let plan = reference.map_or_else(Vec::new, |r| plan_shifts(map, r, max_shift));
     let mut enc = Encoder::new();
     let mut data = map.as_slice().to_vec();
     let (model, shifts) = (&mut Model::new(), &mut Vec::new());

@@ -178,8 +178,14 @@ impl<T: Copy> Plane<T> {
     pub fn reset(&mut self, width: usize, height: usize, value: T) {
         self.width = width;
         self.height = height;
-        self.data.clear();
-        self.data.resize(width * height, value);
+        if self.data.capacity() < width * height {
+            // New storage: `vec!` takes zeroed memory from the allocator
+            // for a zero value instead of filling it.
+            self.data = vec![value; width * height];
+        } else {
+            self.data.clear();
+            self.data.resize(width * height, value);
+        }
     }
 
     /// Fails with [`Error::SizeMismatch`] unless `other` has the same size;
@@ -211,17 +217,21 @@ pub struct IndexedImage {
 impl IndexedImage {
     /// Pairs `labels` with `palette`; fails if a label has no palette entry.
     pub fn new(labels: LabelMap, palette: Vec<Rgb>) -> Result<Self> {
-        if let Some(&bad) = labels
+        // The largest label first (a loop without an early exit, which
+        // vectorises); the first bad one only to report it.
+        let top = labels.as_slice().iter().fold(0, |m, &l| m.max(l));
+        if labels.is_empty() || (top as usize) < palette.len() {
+            return Ok(IndexedImage { labels, palette });
+        }
+        let bad = labels
             .as_slice()
             .iter()
             .find(|&&l| l as usize >= palette.len())
-        {
-            return Err(Error::InvalidParameter(format!(
-                "label {bad} has no colour in a palette of {}",
-                palette.len()
-            )));
-        }
-        Ok(IndexedImage { labels, palette })
+            .expect("the largest label is out of range");
+        Err(Error::InvalidParameter(format!(
+            "label {bad} has no colour in a palette of {}",
+            palette.len()
+        )))
     }
 
     /// The label map.

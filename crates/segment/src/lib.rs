@@ -22,6 +22,7 @@
 // Numeric kernels index several parallel arrays by the same bin or channel.
 #![allow(clippy::needless_range_loop)]
 
+pub mod carry;
 pub mod kmeans;
 pub mod meanshift;
 pub mod otsu;

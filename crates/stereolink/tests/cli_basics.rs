@@ -149,3 +149,44 @@ fn depth_reads_an_opencv_calibration() {
     // The wrong unit gives a thousandfold distance, not a silent default.
     assert!((distance(&["--calib-yaml", yaml.to_str().unwrap()]) - 4200.0).abs() < 1e-6);
 }
+
+#[test]
+fn encode_carries_right_labels_over_unless_independent() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("s");
+    let out = stereolink()
+        .args(["synth", scene.to_str().unwrap(), "--seed", "3"])
+        .args(["--width", "96", "--height", "64", "--max-disp", "16"])
+        .output()
+        .unwrap();
+    assert_success(&out);
+    let (l, r) = (scene.join("left.png"), scene.join("right.png"));
+    let encode = |extra: &[&str]| {
+        let frame = dir.path().join("f.slnk");
+        let out = stereolink()
+            .arg("encode")
+            .args([&l, &r])
+            .arg("-o")
+            .arg(&frame)
+            .args(["--method", "kmeans"])
+            .args(extra)
+            .output()
+            .unwrap();
+        (out, frame)
+    };
+    for extra in [&[][..], &["--carry-margin", "40"], &["--independent-right"]] {
+        let (out, frame) = encode(extra);
+        assert_success(&out);
+        let out = stereolink()
+            .arg("decode")
+            .arg(&frame)
+            .arg("--out")
+            .arg(dir.path().join("d"))
+            .output()
+            .unwrap();
+        assert_success(&out);
+    }
+    // A margin for a view segmented independently is a usage error.
+    let (out, _) = encode(&["--carry-margin", "4", "--independent-right"]);
+    assert_eq!(out.status.code(), Some(2));
+}

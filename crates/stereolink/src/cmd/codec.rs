@@ -66,7 +66,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         (f, None)
     } else {
         let method = args.segment.method()?;
-        let (sl, sr) = (args.segment.run(&left)?, args.segment.run(&right)?);
+        let (sl, sr) = args.segment.run_pair(&left, &right)?;
         let psnr = (
             psnr_rgb(&left, &sl.to_rgb())?.overall,
             psnr_rgb(&right, &sr.to_rgb())?.overall,
@@ -224,6 +224,8 @@ struct CodecBench {
     frame_bytes: usize,
     bits_per_pixel: f64,
     conditioned_gain_percent: f64,
+    /// PSNR of the segmented right view against the original (dB).
+    psnr_right_db: f64,
     encode_ms: f64,
     decode_ms: f64,
     decode_mpixel_s: f64,
@@ -237,10 +239,7 @@ fn median(mut v: Vec<f64>) -> f64 {
 /// Sizes and speeds of the label coder on a scene's segmented pair.
 pub fn run_bench(args: BenchArgs, out: &super::Output) -> anyhow::Result<()> {
     let scene = Scene::load(&args.scene)?;
-    let (sl, sr) = (
-        args.segment.run(&scene.left)?,
-        args.segment.run(&scene.right)?,
-    );
+    let (sl, sr) = args.segment.run_pair(&scene.left, &scene.right)?;
     let (l, r) = (&sl.image, &sr.image);
     let nl = l.palette().len();
     let nr = r.palette().len();
@@ -284,6 +283,7 @@ pub fn run_bench(args: BenchArgs, out: &super::Output) -> anyhow::Result<()> {
         frame_bytes: bytes.len(),
         bits_per_pixel: left_bytes.len() as f64 * 8.0 / px as f64,
         conditioned_gain_percent: 100.0 * (1.0 - right_cond as f64 / right_alone.len() as f64),
+        psnr_right_db: psnr_rgb(&scene.right, &sr.to_rgb())?.overall,
         encode_ms,
         decode_ms,
         decode_mpixel_s: 2.0 * px as f64 / decode_ms / 1e3,

@@ -68,6 +68,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
             method: args.segment.method()?,
             levels: args.segment.levels,
             seed: args.segment.seed,
+            carry_margin: args.segment.carry_margin()?,
             matcher: args.matcher.depth_spec(0, max_disp)?,
             roi: None,
             levels_spec: LevelSpec::default(),

@@ -6,8 +6,11 @@ use std::time::Instant;
 use anyhow::Context;
 use serde::Serialize;
 use stereolink_image::{io, metrics::psnr_rgb, RgbImage, Scene};
+use stereolink_segment::carry::default_margin;
 use stereolink_segment::meanshift::{ColourSpace, Kernel, MeanShiftSpec};
 use stereolink_segment::{segment, Method, Segmentation};
+
+use crate::pipeline::sender::segment_pair;
 
 /// Segmentation options shared by the commands that segment.
 #[derive(Debug, Clone, clap::Args)]
@@ -54,6 +57,19 @@ pub struct SegmentArgs {
     /// Mean shift with the paper's preset (h_s 40, h_r 3, threshold 3).
     #[arg(long)]
     pub paper_preset: bool,
+    /// Pairs: the right view is made stereo-consistent, its labels carried
+    /// over from the left view's (along the label coder's stereo shifts)
+    /// wherever the right pixel's colour is consistent with the carried
+    /// class within this margin: levels per channel for the thresholding
+    /// methods (the class's interval widened), RGB distance beyond the
+    /// distance to its own class's colour for the others. Default 6 levels
+    /// for the thresholding methods, 20 for the others.
+    #[arg(long)]
+    pub carry_margin: Option<f32>,
+    /// Pairs: segment the right view independently of the left (no labels
+    /// carried over).
+    #[arg(long, conflicts_with = "carry_margin")]
+    pub independent_right: bool,
 }
 
 impl SegmentArgs {
@@ -97,6 +113,30 @@ impl SegmentArgs {
     pub fn run(&self, image: &RgbImage) -> anyhow::Result<Segmentation> {
         Ok(segment(image, &self.method()?, self.levels, self.seed)?)
     }
+
+    /// The carry margin of a pair's right view (`None`: independent).
+    pub fn carry_margin(&self) -> anyhow::Result<Option<f32>> {
+        if self.independent_right {
+            return Ok(None);
+        }
+        Ok(Some(
+            self.carry_margin.unwrap_or(default_margin(&self.method()?)),
+        ))
+    }
+
+    /// Segments a pair, the right view stereo-consistent unless `--independent-right`.
+    pub fn run_pair(
+        &self,
+        left: &RgbImage,
+        right: &RgbImage,
+    ) -> anyhow::Result<(Segmentation, Segmentation)> {
+        segment_pair(
+            (left, right),
+            &self.method()?,
+            (self.levels, self.seed),
+            self.carry_margin()?,
+        )
+    }
 }
 
 /// Arguments of `stereolink segment`.
@@ -125,6 +165,7 @@ pub struct Report {
     method: String,
     classes: usize,
     psnr_db: f64,
+    /// Segmentation time; of both views when a pair is segmented.
     time_ms: f64,
     iterations: usize,
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -135,13 +176,14 @@ pub struct Report {
     optimum: Option<[f64; 3]>,
 }
 
-fn one(input: &PathBuf, output: &PathBuf, args: &SegmentArgs) -> anyhow::Result<Report> {
-    let img = io::read_rgb(input)?;
-    let t = Instant::now();
-    let seg = args
-        .run(&img)
-        .with_context(|| format!("cannot segment {}", input.display()))?;
-    let time_ms = t.elapsed().as_secs_f64() * 1e3;
+/// The report of `seg`, a segmentation of `img` (read from `input`) that
+/// took `time_ms`, after writing it to `output`.
+fn report(
+    (input, output): (&PathBuf, &PathBuf),
+    args: &SegmentArgs,
+    (img, seg): (&RgbImage, &Segmentation),
+    time_ms: f64,
+) -> anyhow::Result<Report> {
     let rgb = seg.to_rgb();
     io::write_rgb(output, &rgb)?;
     let ch = seg.channels.as_ref();
@@ -150,7 +192,7 @@ fn one(input: &PathBuf, output: &PathBuf, args: &SegmentArgs) -> anyhow::Result<
         output: output.clone(),
         method: args.method()?.name().into(),
         classes: seg.image.palette().len(),
-        psnr_db: psnr_rgb(&img, &rgb)?.overall,
+        psnr_db: psnr_rgb(img, &rgb)?.overall,
         time_ms,
         iterations: seg.iterations,
         thresholds: ch.map(|c| c.thresholds.clone()),
@@ -161,10 +203,32 @@ fn one(input: &PathBuf, output: &PathBuf, args: &SegmentArgs) -> anyhow::Result<
 
 /// Segments one image or both views of a pair.
 pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
-    let mut reports = vec![one(&args.input, &args.output, &args.segment)?];
-    if let (Some(r), Some(ro)) = (&args.right, &args.right_output) {
-        reports.push(one(r, ro, &args.segment)?);
-    }
+    let left = io::read_rgb(&args.input)?;
+    let cannot = || format!("cannot segment {}", args.input.display());
+    let t = Instant::now();
+    let reports = match (&args.right, &args.right_output) {
+        (Some(r), Some(ro)) => {
+            // A pair is segmented as one (the right view may depend on the
+            // left): each view reports the pair's time.
+            let right = io::read_rgb(r)?;
+            let (sl, sr) = args.segment.run_pair(&left, &right).with_context(cannot)?;
+            let ms = t.elapsed().as_secs_f64() * 1e3;
+            vec![
+                report((&args.input, &args.output), &args.segment, (&left, &sl), ms)?,
+                report((r, ro), &args.segment, (&right, &sr), ms)?,
+            ]
+        }
+        _ => {
+            let seg = args.segment.run(&left).with_context(cannot)?;
+            let ms = t.elapsed().as_secs_f64() * 1e3;
+            vec![report(
+                (&args.input, &args.output),
+                &args.segment,
+                (&left, &seg),
+                ms,
+            )?]
+        }
+    };
     let human = || {
         reports
             .iter()

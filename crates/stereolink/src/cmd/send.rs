@@ -80,6 +80,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         method: args.segment.method()?,
         levels: args.segment.levels,
         seed: args.segment.seed,
+        carry_margin: args.segment.carry_margin()?,
         matcher: args.matcher.depth_spec(0, args.max_disp)?,
         roi: args.roi,
         levels_spec: LevelSpec::default(),

@@ -3,6 +3,11 @@
 //! should be as good as possible), and builds the `DepthReport`: depth
 //! levels, the target region's distance, the disparity histogram.
 //!
+//! With a carry margin the right view is made stereo-consistent
+//! ([`segment_pair`]): its labels are carried over from the left view's
+//! along the codec's stereo shifts where its colours allow, so that it codes
+//! far smaller conditioned on the left; the receiver decodes it as any view.
+//!
 //! The target region defaults to the central ninth of the image (the middle
 //! third in each direction), where a robot camera points at what it
 //! approaches; `--roi x,y,w,h` chooses another.
@@ -11,10 +16,11 @@ use std::time::Instant;
 
 use anyhow::Context;
 use stereolink_codec::{
-    container, DepthReport, Message, ReportLevel, SegmentationKind, StereoFrame, View,
+    container, labels, DepthReport, Message, ReportLevel, SegmentationKind, StereoFrame, View,
 };
-use stereolink_image::{metrics::psnr_rgb, Calibration, DisparityMap, RgbImage};
-use stereolink_segment::{segment, Method};
+use stereolink_image::{metrics::psnr_rgb, Calibration, DisparityMap, LabelMap, RgbImage};
+use stereolink_segment::carry::{carry_over, NOTHING};
+use stereolink_segment::{segment, Method, Segmentation};
 use stereolink_stereo::depth::{depth_levels, depth_of, metric, region_distance, LevelSpec, Roi};
 use stereolink_stereo::{compute_disparity, MatchSpec};
 
@@ -27,6 +33,8 @@ pub struct SenderConfig {
     pub levels: usize,
     /// Seed of the segmentation.
     pub seed: u64,
+    /// Stereo-consistent right view with this margin ([`segment_pair`]).
+    pub carry_margin: Option<f32>,
     /// Matcher for the depth report.
     pub matcher: MatchSpec,
     /// Target region (default: the central ninth).
@@ -63,6 +71,50 @@ pub fn default_roi(w: usize, h: usize) -> Roi {
     }
 }
 
+/// Segments both views of a pair (in parallel) with `method`, `levels` and
+/// `seed`. With `carry_margin`, the right view is then made stereo-consistent
+/// ([`carry_over`]): each right pixel is offered the left view's label at
+/// x + s in the right view's numbering, s the stereo shift of its block and
+/// row that the label coder would choose for the independent segmentation
+/// ([`labels::plan_shifts`] against [`container::right_prediction`]), and
+/// takes it where its colour is consistent with that class within the
+/// margin (levels per channel for the thresholding methods, RGB distance
+/// for the others); pixels shifted past the right edge keep their label.
+/// Carrying along the coder's own shifts makes the carried labels exactly
+/// what it predicts.
+pub fn segment_pair(
+    (left, right): (&RgbImage, &RgbImage),
+    method: &Method,
+    (levels, seed): (usize, u64),
+    carry_margin: Option<f32>,
+) -> anyhow::Result<(Segmentation, Segmentation)> {
+    let (sl, sr) = rayon::join(
+        || segment(left, method, levels, seed),
+        || segment(right, method, levels, seed),
+    );
+    let (sl, sr) = (
+        sl.context("segmenting the left view")?,
+        sr.context("segmenting the right view")?,
+    );
+    let Some(margin) = carry_margin else {
+        return Ok((sl, sr));
+    };
+    let predicted = container::right_prediction(&sl.image, &sr.image);
+    let shifts = labels::plan_shifts(sr.image.labels(), &predicted, container::SHIFT_SEARCH);
+    let (w, h) = predicted.dims();
+    let blocks = w.div_ceil(labels::BLOCK);
+    let carried = LabelMap::from_fn(w, h, |x, y| {
+        let xs = x + shifts[y * blocks + x / labels::BLOCK] as usize;
+        if xs < w {
+            predicted.get(xs, y)
+        } else {
+            NOTHING
+        }
+    });
+    let sr = carry_over(right, &sr, &carried, margin);
+    Ok((sl, sr))
+}
+
 /// Segments, encodes, matches and reports.
 pub fn prepare(
     left: &RgbImage,
@@ -78,14 +130,12 @@ pub fn prepare(
         right.dims()
     );
     let t = Instant::now();
-    let (sl, sr) = rayon::join(
-        || segment(left, &cfg.method, cfg.levels, cfg.seed),
-        || segment(right, &cfg.method, cfg.levels, cfg.seed),
-    );
-    let (sl, sr) = (
-        sl.context("segmenting the left view")?,
-        sr.context("segmenting the right view")?,
-    );
+    let (sl, sr) = segment_pair(
+        (left, right),
+        &cfg.method,
+        (cfg.levels, cfg.seed),
+        cfg.carry_margin,
+    )?;
     let seg_ms = t.elapsed().as_secs_f64() * 1e3;
     let sent = (sl.to_rgb(), sr.to_rgb());
     let psnr_db = (
