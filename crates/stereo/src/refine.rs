@@ -10,7 +10,7 @@ use rayon::prelude::*;
 use stereolink_image::{DisparityMap, Plane, RgbImage};
 
 pub use crate::median::median;
-pub use crate::weighted_median::{weighted_median, WeightedMedian};
+pub use crate::weighted_median::{weighted_median, WeightedMedian, WeightedMedianGuide};
 use crate::{Algorithm, MatchSpec};
 
 /// Which refinement steps run, in this order: LR check, median, weighted
@@ -139,16 +139,20 @@ pub fn postprocess(raw: Raw, spec: &MatchSpec, guide: &RgbImage) -> DisparityMap
     if r.median > 1 {
         d = median(&d, r.median);
     }
-    if let Some(wm) = &r.weighted_median {
-        d = weighted_median(&d, guide, wm);
+    // One guide serves both weighted-median passes.
+    let wm = r
+        .weighted_median
+        .map(|p| WeightedMedianGuide::new(guide, &p));
+    if let Some(wm) = &wm {
+        d = wm.filter(&d);
     }
     match r.fill {
         Some(HoleFill::Row) => fill_holes(&mut d),
         Some(HoleFill::Directions) => fill_from_directions(&mut d),
         None => {}
     }
-    if let (Some(wm), Some(_)) = (&r.weighted_median, r.fill) {
-        d = weighted_median(&d, guide, wm);
+    if let (Some(wm), Some(_)) = (&wm, r.fill) {
+        d = wm.filter(&d);
     }
     d
 }

@@ -72,189 +72,420 @@ impl WeightedMedian {
 /// Largest summed RGB difference.
 const MAX_DIFF: usize = 3 * 255;
 
+/// The weight `exp(−diff / σ)` of every summed colour difference, indexed
+/// by `diff & WEIGHT_INDEX` (a power of two: the index needs no bounds
+/// check; the entries past [`MAX_DIFF`] are never read).
+type WeightTable = [f32; WEIGHT_INDEX + 1];
+
+/// The index mask of a [`WeightTable`].
+const WEIGHT_INDEX: usize = 1023;
+const _: () = assert!(MAX_DIFF <= WEIGHT_INDEX);
+
 /// The weighted median of `map` guided by `guide` (same size; checked by
 /// the caller). Invalid pixels take a value when some valid neighbour has
 /// weight; pixels without any stay invalid. A map whose values span 65535
-/// px or more is returned unchanged. Windows whose samples all lie in one
-/// bin (most of a smooth map) are settled from per-pixel bin ranges
-/// without a histogram. Rows run in parallel.
+/// px or more is returned unchanged. Rows run in parallel; see
+/// [`WeightedMedianGuide::filter`] for how the work is kept small.
 ///
 /// # Panics
 /// If the sizes differ.
 pub fn weighted_median(map: &DisparityMap, guide: &RgbImage, p: &WeightedMedian) -> DisparityMap {
-    assert_eq!(map.dims(), guide.dims());
-    let (w, h) = map.dims();
-    let finite = || map.as_slice().iter().copied().filter(|d| d.is_finite());
-    let (Some(lo), Some(hi)) = (
-        finite().map(f32::round).reduce(f32::min),
-        finite().map(f32::round).reduce(f32::max),
-    ) else {
-        return map.clone();
-    };
-    let bins = (hi - lo) as usize + 1;
-    if bins >= u16::MAX as usize {
-        // Not a disparity map of any image this crate matches: left as is.
-        return map.clone();
+    WeightedMedianGuide::new(guide, p).filter(map)
+}
+
+/// What [`weighted_median`] takes from the guide and the parameters alone,
+/// built once for any number of maps of the guide's size (the refinement
+/// filters twice with one guide).
+pub struct WeightedMedianGuide {
+    p: WeightedMedian,
+    dims: (usize, usize),
+    /// The colour planes apart and border-replicated by `radius` on every
+    /// side, so that the samples at one offset from a row's pixels are one
+    /// slice and the colour differences of a whole row vectorise.
+    planes: [Vec<u8>; 3],
+    weight: Box<WeightTable>,
+    /// Whether the per-row sums run with AVX2 (same results either way).
+    avx2: bool,
+}
+
+impl WeightedMedianGuide {
+    /// The padded colour planes and the weight table for `p`.
+    pub fn new(guide: &RgbImage, p: &WeightedMedian) -> Self {
+        Self::with_avx2(guide, p, crate::wta::avx2_available())
     }
-    let (r, step) = (p.radius, p.step);
-    // Border-replicated copies, so that the samples at one offset from a
-    // row's pixels are one slice; colour planes apart, so that the colour
-    // differences of a whole row vectorise. Invalid pixels go to the extra
-    // bin `bins`, which never counts.
-    let (wp, hp) = (w + 2 * r, h + 2 * r);
-    let src = |i: usize| {
-        let (x, y) = (i % wp, i / wp);
-        (y.clamp(r, r + h - 1) - r) * w + x.clamp(r, r + w - 1) - r
-    };
-    let plane =
-        |k: usize| -> Vec<u8> { (0..wp * hp).map(|i| guide.as_slice()[src(i)][k]).collect() };
-    let planes = [plane(0), plane(1), plane(2)];
-    let bin_pad: Vec<u16> = (0..wp * hp)
-        .map(|i| {
-            let d = map.as_slice()[src(i)];
+
+    /// [`Self::new`] with the AVX2 kernel (`avx2`, only if the CPU has it)
+    /// or the portable one.
+    fn with_avx2(guide: &RgbImage, p: &WeightedMedian, avx2: bool) -> Self {
+        let dims = guide.dims();
+        let plane = |k: usize| pad(guide.as_slice(), dims, p.radius, |c| c[k]);
+        WeightedMedianGuide {
+            p: *p,
+            dims,
+            planes: [plane(0), plane(1), plane(2)],
+            weight: Box::new(std::array::from_fn(|i| (-(i as f32) / p.sigma_color).exp())),
+            avx2,
+        }
+    }
+
+    /// The weighted median of `map` (see [`weighted_median`]).
+    ///
+    /// Disparities are binned to whole pixels. Most pixels need no
+    /// histogram:
+    /// - windows whose valid samples all lie in one bin (or none valid;
+    ///   most of a smooth map) are settled from per-pixel bin ranges;
+    /// - for the others, one vectorised pass over the row sums, per pixel,
+    ///   the weights of the samples below, in and above the pixel's own
+    ///   bin. The own bin is the median when the weight below it is less
+    ///   than half the total and the weight up to it at least half; where
+    ///   that holds by a margin of `total / 1024`, far beyond the rounding
+    ///   of either way of summing (each within `(n − 1)·2⁻²⁴·total` for `n`
+    ///   ≤ 961 terms, Higham, "Accuracy and Stability of Numerical
+    ///   Algorithms", §4.2), the pixel keeps its value, exactly as the
+    ///   histogram would decide;
+    /// - only the rest (invalid pixels, and pixels near a disparity or
+    ///   colour edge) build a histogram of their window.
+    ///
+    /// # Panics
+    /// If `map` is not the guide's size.
+    pub fn filter(&self, map: &DisparityMap) -> DisparityMap {
+        assert_eq!(map.dims(), self.dims);
+        let (w, h) = self.dims;
+        let range =
+            map.as_slice()
+                .iter()
+                .filter(|d| d.is_finite())
+                .fold(None, |span, &d| match span {
+                    None => Some((d, d)),
+                    Some((a, b)) => Some((d.min(a), d.max(b))),
+                });
+        // Rounding is monotonic: the extremes' bins are the extreme bins.
+        let Some((lo, hi)) = range.map(|(a, b)| (a.round(), b.round())) else {
+            return map.clone();
+        };
+        let bins = (hi - lo) as usize + 1;
+        if bins >= u16::MAX as usize {
+            // Not a disparity map of any image this crate matches: left as is.
+            return map.clone();
+        }
+        let (r, step) = (self.p.radius, self.p.step);
+        // Invalid pixels go to the extra bin `bins`, which never counts.
+        let invalid = bins as u16;
+        let bin_pad = pad(map.as_slice(), self.dims, r, |d| {
             if d.is_finite() {
                 (d.round() - lo) as u16
             } else {
-                bins as u16
-            }
-        })
-        .collect();
-    let weight: Vec<f32> = (0..=MAX_DIFF)
-        .map(|i| (-(i as f32) / p.sigma_color).exp())
-        .collect();
-    let n = 2 * r + 1;
-    let spans = sample_spans(&bin_pad, (w, h), r, step, bins as u16);
-    // The window's samples, as offsets from its top-left corner in the padded images.
-    let samples: Vec<usize> = (0..n)
-        .step_by(step)
-        .flat_map(|dy| (0..n).step_by(step).map(move |dx| dy * wp + dx))
-        .collect();
-    let stride = bins + 1;
-    let mut out = map.clone();
-    out.as_mut_slice()
-        .par_chunks_mut(w)
-        .enumerate()
-        .for_each_init(RowScratch::default, |scratch, (y, row)| {
-            let RowScratch {
-                todo,
-                hist,
-                diffs,
-                weights,
-            } = scratch;
-            // Windows of one bin (or none valid) are settled at once.
-            todo.clear();
-            for (x, d) in row.iter_mut().enumerate() {
-                let (a, b) = spans[y * w + x];
-                let own = bin_pad[(y + r) * wp + x + r];
-                if a < b {
-                    todo.push(x);
-                } else if a == b && own != a {
-                    *d = lo + a as f32;
-                }
-            }
-            if todo.is_empty() {
-                return;
-            }
-            // One histogram of `stride` bins per pixel to do, filled one
-            // sample offset at a time for the whole row.
-            hist.clear();
-            hist.resize(todo.len() * stride, 0.0);
-            // Only the columns from the first to the last pixel to do.
-            let (x0, x1) = (todo[0], todo[todo.len() - 1] + 1);
-            diffs.resize(x1 - x0, 0);
-            weights.resize(x1 - x0, 0.0);
-            let centre = (y + r) * wp + r;
-            let centres = planes.each_ref().map(|p| &p[centre + x0..centre + x1]);
-            for &o in &samples {
-                let at = y * wp + o + x0;
-                let w = x1 - x0;
-                let [r0, g0, b0] = centres;
-                let (rq, gq, bq) = (
-                    &planes[0][at..at + w],
-                    &planes[1][at..at + w],
-                    &planes[2][at..at + w],
-                );
-                // Colour differences (vectorised), then their weights.
-                for (x, dv) in diffs.iter_mut().enumerate() {
-                    *dv = r0[x].abs_diff(rq[x]) as u16
-                        + g0[x].abs_diff(gq[x]) as u16
-                        + b0[x].abs_diff(bq[x]) as u16;
-                }
-                for (wt, &dv) in weights.iter_mut().zip(diffs.iter()) {
-                    *wt = weight[(dv as usize).min(MAX_DIFF)];
-                }
-                let bin_q = &bin_pad[at..at + w];
-                for (h, &x) in hist.chunks_exact_mut(stride).zip(todo.iter()) {
-                    h[bin_q[x - x0] as usize] += weights[x - x0];
-                }
-            }
-            for (h, &x) in hist.chunks_exact(stride).zip(todo.iter()) {
-                // The valid samples' bins are a..=b; invalid ones went to `bins`.
-                let (a, b) = spans[y * w + x];
-                let h = &h[a as usize..=b as usize];
-                let total: f32 = h.iter().sum();
-                // The first bin where the cumulative weight reaches half.
-                let (mut acc, mut median) = (0f32, b as usize);
-                for (k, v) in h.iter().enumerate() {
-                    acc += v;
-                    if acc >= total / 2.0 {
-                        median = a as usize + k;
-                        break;
-                    }
-                }
-                if bin_pad[(y + r) * wp + x + r] as usize != median {
-                    row[x] = lo + median as f32;
-                }
+                invalid
             }
         });
-    out
+        let wp = w + 2 * r;
+        let (span_lo, span_hi) = sample_spans(&bin_pad, (w, h), r, step, invalid);
+        // The window's samples, as offsets from its top-left corner in the padded images.
+        let n = 2 * r + 1;
+        let samples: Vec<usize> = (0..n)
+            .step_by(step)
+            .flat_map(|dy| (0..n).step_by(step).map(move |dx| dy * wp + dx))
+            .collect();
+        let mut out = map.clone();
+        out.as_mut_slice()
+            .par_chunks_mut(w)
+            .enumerate()
+            .for_each_init(RowScratch::default, |scratch, (y, row)| {
+                let centre = (y + r) * wp + r;
+                let own = &bin_pad[centre..centre + w];
+                let spans = (&span_lo[y * w..(y + 1) * w], &span_hi[y * w..(y + 1) * w]);
+                // Windows of one bin (or none valid) are settled at once.
+                let todo = &mut scratch.todo;
+                todo.clear();
+                for (x, d) in row.iter_mut().enumerate() {
+                    let (a, b) = (spans.0[x], spans.1[x]);
+                    if a < b {
+                        todo.push(x);
+                    } else if a == b && own[x] != a {
+                        *d = lo + a as f32;
+                    }
+                }
+                let (Some(&x0), Some(&last)) = (todo.first(), todo.last()) else {
+                    return;
+                };
+                let sums = &mut scratch.sums;
+                let buffers = (&mut scratch.diffs, &mut scratch.weights);
+                let job = SumJob {
+                    planes: &self.planes,
+                    weight: &self.weight,
+                    bin_pad: &bin_pad,
+                    samples: &samples,
+                    at: y * wp + x0,
+                    centre: centre + x0,
+                    invalid,
+                };
+                sums.iter_mut().for_each(|s| {
+                    s.clear();
+                    s.resize(last + 1 - x0, 0.0);
+                });
+                #[cfg(target_arch = "x86_64")]
+                if self.avx2 {
+                    // SAFETY: `with_avx2` was told that the CPU has AVX2.
+                    unsafe { own_bin_sums_avx2(&job, sums, buffers) }
+                } else {
+                    own_bin_sums(&job, sums, buffers);
+                }
+                #[cfg(not(target_arch = "x86_64"))]
+                own_bin_sums(&job, sums, buffers);
+                let hard = &mut scratch.hard;
+                hard.clear();
+                hard.extend(todo.iter().copied().filter(|&x| {
+                    let k = x - x0;
+                    own[x] == invalid || !keeps_own_bin(sums[0][k], sums[1][k], sums[2][k])
+                }));
+                for group in hard.chunks(GROUP) {
+                    let job = HistogramJob {
+                        bin_pad: &bin_pad,
+                        samples: &samples,
+                        y,
+                        spans,
+                        stride: bins + 1,
+                    };
+                    let medians = self.histogram_medians(&job, group, &mut scratch.hist);
+                    for (&x, median) in group.iter().zip(medians) {
+                        if own[x] as usize != median {
+                            row[x] = lo + median as f32;
+                        }
+                    }
+                }
+            });
+        out
+    }
+
+    /// The weighted median bins of the pixels `xs` (at most [`GROUP`]) of
+    /// row `job.y`: for each, the first bin where the cumulative weight
+    /// reaches half the total, its histogram summed bin by bin in sample
+    /// order. The pixels' histograms are filled side by side, so that the
+    /// additions to one bin (often sample after sample) are not one chain
+    /// of dependent stores and loads.
+    fn histogram_medians(
+        &self,
+        job: &HistogramJob,
+        xs: &[usize],
+        hist: &mut Vec<f32>,
+    ) -> [usize; GROUP] {
+        let wp = self.dims.0 + 2 * self.p.radius;
+        let centre = (job.y + self.p.radius) * wp + self.p.radius;
+        let colours: [[u8; 3]; GROUP] = std::array::from_fn(|g| {
+            let c = centre + xs.get(g).copied().unwrap_or(0);
+            self.planes.each_ref().map(|p| p[c])
+        });
+        let stride = job.stride;
+        hist.clear();
+        hist.resize(xs.len() * stride, 0.0);
+        for &o in job.samples {
+            let at = job.y * wp + o;
+            for ((g, &x), h) in xs.iter().enumerate().zip(hist.chunks_exact_mut(stride)) {
+                let q = at + x;
+                let c = colours[g];
+                let diff = c[0].abs_diff(self.planes[0][q]) as usize
+                    + c[1].abs_diff(self.planes[1][q]) as usize
+                    + c[2].abs_diff(self.planes[2][q]) as usize;
+                h[job.bin_pad[q] as usize] += self.weight[diff & WEIGHT_INDEX];
+            }
+        }
+        let mut medians = [0; GROUP];
+        for ((m, &x), h) in medians.iter_mut().zip(xs).zip(hist.chunks_exact(stride)) {
+            // The valid samples' bins are a..=b; invalid ones went to the last bin.
+            let (a, b) = (job.spans.0[x] as usize, job.spans.1[x] as usize);
+            let h = &h[a..=b];
+            let total: f32 = h.iter().sum();
+            let mut acc = 0f32;
+            *m = b;
+            for (k, v) in h.iter().enumerate() {
+                acc += v;
+                if acc >= total / 2.0 {
+                    *m = a + k;
+                    break;
+                }
+            }
+        }
+        medians
+    }
 }
 
-/// Per-row buffers of [`weighted_median`].
+/// Pixels whose histograms [`WeightedMedianGuide::histogram_medians`] fills together.
+const GROUP: usize = 4;
+
+/// What [`WeightedMedianGuide::histogram_medians`] reads for a row.
+struct HistogramJob<'a> {
+    bin_pad: &'a [u16],
+    samples: &'a [usize],
+    y: usize,
+    /// The row's valid sample bins, smallest and largest.
+    spans: (&'a [u16], &'a [u16]),
+    /// Bins per histogram, the invalid one included.
+    stride: usize,
+}
+
+/// Whether a pixel's own bin is its window's weighted median for certain,
+/// given the summed weights of the valid samples below, in and above it:
+/// the weight below is less than half the total and the weight up to the
+/// bin more than half, both by `total / 1024` (see
+/// [`WeightedMedianGuide::filter`]). Totals too small for that relative
+/// bound (below 2⁻⁶⁰, near the subnormals) never qualify.
+#[inline]
+fn keeps_own_bin(below: f32, at: f32, above: f32) -> bool {
+    let total = below + at + above;
+    let (half, margin) = (total / 2.0, total / 1024.0);
+    total >= f32::powi(2.0, -60) && below < half - margin && below + at > half + margin
+}
+
+/// The colour differences and the weights of a run's samples at one offset.
+type Buffers<'a> = (&'a mut Vec<u16>, &'a mut Vec<f32>);
+
+/// What [`own_bin_sums`] reads for a run of a row's pixels.
+struct SumJob<'a> {
+    planes: &'a [Vec<u8>; 3],
+    weight: &'a WeightTable,
+    bin_pad: &'a [u16],
+    samples: &'a [usize],
+    /// The first pixel's window corner in the padded images.
+    at: usize,
+    /// The first pixel itself there.
+    centre: usize,
+    /// The bin of invalid pixels.
+    invalid: u16,
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn own_bin_sums_avx2(job: &SumJob, sums: &mut [Vec<f32>; 3], buffers: Buffers) {
+    own_bin_sums(job, sums, buffers)
+}
+
+/// For a run of `sums[0].len()` pixels, the summed weights of each one's
+/// valid samples below, in and above its own bin (`sums[0..3]`), added in
+/// sample order, one sample offset at a time for the whole run (each pixel
+/// is a lane: the same arithmetic with or without AVX2). The loops are
+/// split so that all but the table look-up vectorise; a sample outside a
+/// sum adds `+0.0` (a bit-mask select, which LLVM keeps branch-free).
+#[inline(always)]
+fn own_bin_sums(job: &SumJob, sums: &mut [Vec<f32>; 3], (diffs, weights): Buffers) {
+    let [below, at, above] = sums;
+    let n = below.len();
+    let (at, above) = (&mut at[..n], &mut above[..n]);
+    diffs.resize(n, 0);
+    weights.resize(n, 0.0);
+    let centres = job
+        .planes
+        .each_ref()
+        .map(|p| &p[job.centre..job.centre + n]);
+    let own = &job.bin_pad[job.centre..job.centre + n];
+    let masked =
+        |wt: f32, keep: bool| f32::from_bits(wt.to_bits() & u32::from(keep).wrapping_neg());
+    for &o in job.samples {
+        let q = job.at + o;
+        let qs = job.planes.each_ref().map(|p| &p[q..q + n]);
+        for (x, dv) in diffs.iter_mut().enumerate() {
+            *dv = centres[0][x].abs_diff(qs[0][x]) as u16
+                + centres[1][x].abs_diff(qs[1][x]) as u16
+                + centres[2][x].abs_diff(qs[2][x]) as u16;
+        }
+        for (wt, &dv) in weights.iter_mut().zip(diffs.iter()) {
+            *wt = job.weight[dv as usize & WEIGHT_INDEX];
+        }
+        let bin_q = &job.bin_pad[q..q + n];
+        for x in 0..n {
+            let (b, c, wt) = (bin_q[x], own[x], weights[x]);
+            below[x] += masked(wt, b < c);
+            at[x] += masked(wt, b == c);
+            above[x] += masked(wt, b > c && b != job.invalid);
+        }
+    }
+}
+
+/// Per-row buffers of [`WeightedMedianGuide::filter`].
 #[derive(Default)]
 struct RowScratch {
     /// The row's pixels whose samples span several bins.
     todo: Vec<usize>,
-    /// Their histograms, `bins + 1` each.
-    hist: Vec<f32>,
-    /// The colour differences of the row's samples at one offset.
+    /// Their [`own_bin_sums`], from the first to the last.
+    sums: [Vec<f32>; 3],
+    /// The run's colour differences at one sample offset.
     diffs: Vec<u16>,
     /// Their weights.
     weights: Vec<f32>,
+    /// Those of them whose own bin may not be the median.
+    hard: Vec<usize>,
+    /// The histograms of a [`GROUP`] of them.
+    hist: Vec<f32>,
+}
+
+/// `src` (`w`×`h`, row-major) mapped by `f` and border-replicated by `r`
+/// on every side; rows in parallel.
+fn pad<S: Copy + Sync, T: Copy + Default + Send>(
+    src: &[S],
+    (w, h): (usize, usize),
+    r: usize,
+    f: impl Fn(S) -> T + Sync,
+) -> Vec<T> {
+    if w == 0 || h == 0 {
+        return Vec::new();
+    }
+    let wp = w + 2 * r;
+    let mut out = vec![T::default(); wp * (h + 2 * r)];
+    out.par_chunks_mut(wp).enumerate().for_each(|(yp, row)| {
+        let y = yp.clamp(r, r + h - 1) - r;
+        let s = &src[y * w..(y + 1) * w];
+        let (left, rest) = row.split_at_mut(r);
+        let (middle, right) = rest.split_at_mut(w);
+        left.fill(f(s[0]));
+        right.fill(f(s[w - 1]));
+        middle.iter_mut().zip(s).for_each(|(o, &v)| *o = f(v));
+    });
+    out
 }
 
 /// For every pixel, the smallest and the largest valid bin among its
-/// window's samples (`bins`, above every valid bin, and 0 when there is
-/// none), from separable passes over the border-padded bins.
+/// window's samples (`invalid`, above every valid bin, and 0 when there is
+/// none), from separable passes over the border-padded bins, whole rows at
+/// a time.
 fn sample_spans(
     bin_pad: &[u16],
     (w, h): (usize, usize),
     r: usize,
     step: usize,
-    bins: u16,
-) -> Vec<(u16, u16)> {
+    invalid: u16,
+) -> (Vec<u16>, Vec<u16>) {
     let wp = w + 2 * r;
     let offsets = || (0..=2 * r).step_by(step);
+    let valid_or_0 = |q: u16| if q < invalid { q } else { 0 };
     // Down the window's sampled rows, for every padded column.
-    let mut columns = vec![(0u16, 0u16); wp * h];
-    columns.par_chunks_mut(wp).enumerate().for_each(|(y, row)| {
-        for (xp, span) in row.iter_mut().enumerate() {
-            let bins_down = offsets().map(|dy| bin_pad[(y + dy) * wp + xp]);
-            *span = bins_down.fold((bins, 0), |(a, b), q| {
-                (a.min(q), if q < bins { b.max(q) } else { b })
-            });
-        }
-    });
-    let mut spans = vec![(0u16, 0u16); w * h];
-    spans.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-        let down = &columns[y * wp..(y + 1) * wp];
-        for (x, span) in row.iter_mut().enumerate() {
-            *span = offsets()
-                .map(|dx| down[x + dx])
-                .fold((bins, 0), |(a, b), (qa, qb)| (a.min(qa), b.max(qb)));
-        }
-    });
-    spans
+    let (mut down_lo, mut down_hi) = (vec![invalid; wp * h], vec![0u16; wp * h]);
+    down_lo
+        .par_chunks_mut(wp)
+        .zip(down_hi.par_chunks_mut(wp))
+        .enumerate()
+        .for_each(|(y, (lo, hi))| {
+            for dy in offsets() {
+                let q = &bin_pad[(y + dy) * wp..(y + dy + 1) * wp];
+                for ((a, b), &q) in lo.iter_mut().zip(hi.iter_mut()).zip(q) {
+                    *a = (*a).min(q);
+                    *b = (*b).max(valid_or_0(q));
+                }
+            }
+        });
+    let (mut span_lo, mut span_hi) = (vec![invalid; w * h], vec![0u16; w * h]);
+    span_lo
+        .par_chunks_mut(w)
+        .zip(span_hi.par_chunks_mut(w))
+        .enumerate()
+        .for_each(|(y, (lo, hi))| {
+            for dx in offsets() {
+                let (qa, qb) = (&down_lo[y * wp + dx..], &down_hi[y * wp + dx..]);
+                for (((a, b), &qa), &qb) in lo.iter_mut().zip(hi.iter_mut()).zip(qa).zip(qb) {
+                    *a = (*a).min(qa);
+                    *b = (*b).max(qb);
+                }
+            }
+        });
+    (span_lo, span_hi)
 }
 
 #[cfg(test)]
@@ -363,6 +594,7 @@ mod tests {
 
     proptest::proptest! {
         #[test]
+        /// Both kernels, as the definition computes it.
         fn equals_the_definition(
             w in 1usize..30, h in 1usize..30, seed in proptest::prelude::any::<u64>(),
             radius in 1usize..6, step in 1usize..4, sigma in 5f32..60.0,
@@ -379,7 +611,10 @@ mod tests {
             });
             let p = WeightedMedian { radius, sigma_color: sigma, step: step.min(radius) };
             let bits = |m: &DisparityMap| m.as_slice().iter().map(|v| v.to_bits()).collect::<Vec<_>>();
-            proptest::prop_assert_eq!(bits(&weighted_median(&map, &guide, &p)), bits(&naive(&map, &guide, &p)));
+            let want = bits(&naive(&map, &guide, &p));
+            proptest::prop_assert_eq!(bits(&weighted_median(&map, &guide, &p)), want.clone());
+            let portable = WeightedMedianGuide::with_avx2(&guide, &p, false);
+            proptest::prop_assert_eq!(bits(&portable.filter(&map)), want);
         }
     }
 
