@@ -255,12 +255,15 @@ pub fn compute_disparity(
     Matcher::new().compute(left, right, spec)
 }
 
-/// A matcher that keeps its buffers (WTA bands, SGM cost and sum volumes)
+/// A matcher that keeps its buffers (WTA gray views and bands, SGM cost and sum volumes)
 /// from one call to the next: matching frames of an unchanged size neither
 /// allocates nor clears the volumes again.
 #[derive(Default)]
 pub struct Matcher {
     wta: wta::WtaMatcher,
+    /// The views' gray samples for WTA (large enough to be allocated, and
+    /// page-faulted in, anew on every call otherwise).
+    luma: [wta::Samples; 2],
     sgm: sgm::SgmBuffers,
 }
 
@@ -281,11 +284,12 @@ impl Matcher {
         spec.validate(left.width(), left.height())?;
         let raw = match spec.algorithm {
             Algorithm::Wta => {
-                let (l, r) = rayon::join(
-                    || wta::luma_samples(left, spec.gray_bits),
-                    || wta::luma_samples(right, spec.gray_bits),
+                let [l, r] = &mut self.luma;
+                rayon::join(
+                    || wta::luma_samples_into(left, spec.gray_bits, l),
+                    || wta::luma_samples_into(right, spec.gray_bits, r),
                 );
-                wta_with_check(&mut self.wta, &l, &r, spec)
+                wta_with_check(&mut self.wta, l, r, spec)
             }
             Algorithm::LineGrowing => line_growing::line_growing(left, right, spec),
             Algorithm::Sgm => {

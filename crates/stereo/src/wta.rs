@@ -321,13 +321,18 @@ fn reversed_rows(right: &Samples, p: &WtaParams, buf: &mut Vec<u16>) {
     let pad = lanes(p.ndisp) + p.min_disp;
     let stride = w + pad;
     buf.resize(stride * h, 0);
-    for (y, dst) in buf.chunks_exact_mut(stride).enumerate() {
-        let row = right.row(y);
-        for (u, v) in dst.iter_mut().enumerate() {
-            let t = stride - 1 - u; // index into the padded row
-            *v = row[t.saturating_sub(pad).min(w - 1)];
-        }
-    }
+    // Rows in parallel, each a reversed copy and a fill (both vectorise).
+    buf.par_chunks_exact_mut(stride)
+        .enumerate()
+        .for_each(|(y, dst)| {
+            let row = right.row(y);
+            let (reversed, padding) = dst.split_at_mut(w);
+            reversed
+                .iter_mut()
+                .zip(row.iter().rev())
+                .for_each(|(v, &s)| *v = s);
+            padding.fill(row[0]);
+        });
 }
 
 struct Job<'a> {
