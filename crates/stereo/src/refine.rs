@@ -182,14 +182,12 @@ pub fn lr_check(left: &mut DisparityMap, right: &DisparityMap, tol: f32) {
         .for_each(|(row, rrow)| {
             for (x, d) in row.iter_mut().enumerate() {
                 // Non-finite `d` gives a non-finite or negative `xr`: dropped.
+                // Branch-free (`&`, selects): the outcome is data-dependent.
                 let xr = x as f32 - *d + 0.5;
-                let ok = xr >= 0.0 && xr < w as f32 && {
-                    let dr = rrow[xr as usize];
-                    (dr - *d).abs() <= tol
-                };
-                if !ok {
-                    *d = f32::INFINITY;
-                }
+                let inside = (xr >= 0.0) & (xr < w as f32);
+                let dr = rrow[if inside { xr as usize } else { 0 }];
+                let ok = inside & ((dr - *d).abs() <= tol);
+                *d = if ok { *d } else { f32::INFINITY };
             }
         });
 }

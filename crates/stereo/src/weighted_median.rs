@@ -151,18 +151,28 @@ impl WeightedMedianGuide {
     pub fn filter(&self, map: &DisparityMap) -> DisparityMap {
         assert_eq!(map.dims(), self.dims);
         let (w, h) = self.dims;
-        let range =
-            map.as_slice()
-                .iter()
-                .filter(|d| d.is_finite())
-                .fold(None, |span, &d| match span {
-                    None => Some((d, d)),
-                    Some((a, b)) => Some((d.min(a), d.max(b))),
-                });
-        // Rounding is monotonic: the extremes' bins are the extreme bins.
-        let Some((lo, hi)) = range.map(|(a, b)| (a.round(), b.round())) else {
+        // The smallest and largest valid values, by rows in parallel
+        // (branch-free selects, so that the loop vectorises).
+        let extremes = |(a, b): (f32, f32), (c, d): (f32, f32)| (a.min(c), b.max(d));
+        let (lo, hi) = map
+            .as_slice()
+            .par_chunks(w.max(1))
+            .map(|row| {
+                row.iter()
+                    .fold((f32::INFINITY, f32::NEG_INFINITY), |span, &d| {
+                        let f = d.is_finite();
+                        let lo = if f { d } else { f32::INFINITY };
+                        let hi = if f { d } else { f32::NEG_INFINITY };
+                        extremes(span, (lo, hi))
+                    })
+            })
+            .reduce(|| (f32::INFINITY, f32::NEG_INFINITY), extremes);
+        if lo > hi {
+            // No valid pixel.
             return map.clone();
-        };
+        }
+        // Rounding is monotonic: the extremes' bins are the extreme bins.
+        let (lo, hi) = (lo.round(), hi.round());
         let bins = (hi - lo) as usize + 1;
         if bins >= u16::MAX as usize {
             // Not a disparity map of any image this crate matches: left as is.
@@ -232,21 +242,33 @@ impl WeightedMedianGuide {
                 }
                 #[cfg(not(target_arch = "x86_64"))]
                 own_bin_sums(&job, sums, buffers);
+                // The test for the whole run at once (it vectorises), then
+                // the pixels to do that fail it.
+                let keeps = &mut scratch.keeps;
+                keeps.clear();
+                let [below, at, above] = sums.each_ref();
+                keeps.extend(
+                    below
+                        .iter()
+                        .zip(at)
+                        .zip(above)
+                        .zip(&own[x0..])
+                        .map(|(((&b, &e), &a), &o)| o != invalid && keeps_own_bin(b, e, a)),
+                );
                 let hard = &mut scratch.hard;
                 hard.clear();
-                hard.extend(todo.iter().copied().filter(|&x| {
-                    let k = x - x0;
-                    own[x] == invalid || !keeps_own_bin(sums[0][k], sums[1][k], sums[2][k])
-                }));
+                hard.extend(todo.iter().copied().filter(|&x| !keeps[x - x0]));
                 for group in hard.chunks(GROUP) {
                     let job = HistogramJob {
                         bin_pad: &bin_pad,
                         samples: &samples,
-                        y,
+                        weights: &scratch.weights,
+                        corner: y * wp,
+                        x0,
                         spans,
                         stride: bins + 1,
                     };
-                    let medians = self.histogram_medians(&job, group, &mut scratch.hist);
+                    let medians = histogram_medians(&job, group, &mut scratch.hist);
                     for (&x, median) in group.iter().zip(medians) {
                         if own[x] as usize != median {
                             row[x] = lo + median as f32;
@@ -256,67 +278,56 @@ impl WeightedMedianGuide {
             });
         out
     }
-
-    /// The weighted median bins of the pixels `xs` (at most [`GROUP`]) of
-    /// row `job.y`: for each, the first bin where the cumulative weight
-    /// reaches half the total, its histogram summed bin by bin in sample
-    /// order. The pixels' histograms are filled side by side, so that the
-    /// additions to one bin (often sample after sample) are not one chain
-    /// of dependent stores and loads.
-    fn histogram_medians(
-        &self,
-        job: &HistogramJob,
-        xs: &[usize],
-        hist: &mut Vec<f32>,
-    ) -> [usize; GROUP] {
-        let wp = self.dims.0 + 2 * self.p.radius;
-        let centre = (job.y + self.p.radius) * wp + self.p.radius;
-        let colours: [[u8; 3]; GROUP] = std::array::from_fn(|g| {
-            let c = centre + xs.get(g).copied().unwrap_or(0);
-            self.planes.each_ref().map(|p| p[c])
-        });
-        let stride = job.stride;
-        hist.clear();
-        hist.resize(xs.len() * stride, 0.0);
-        for &o in job.samples {
-            let at = job.y * wp + o;
-            for ((g, &x), h) in xs.iter().enumerate().zip(hist.chunks_exact_mut(stride)) {
-                let q = at + x;
-                let c = colours[g];
-                let diff = c[0].abs_diff(self.planes[0][q]) as usize
-                    + c[1].abs_diff(self.planes[1][q]) as usize
-                    + c[2].abs_diff(self.planes[2][q]) as usize;
-                h[job.bin_pad[q] as usize] += self.weight[diff & WEIGHT_INDEX];
-            }
-        }
-        let mut medians = [0; GROUP];
-        for ((m, &x), h) in medians.iter_mut().zip(xs).zip(hist.chunks_exact(stride)) {
-            // The valid samples' bins are a..=b; invalid ones went to the last bin.
-            let (a, b) = (job.spans.0[x] as usize, job.spans.1[x] as usize);
-            let h = &h[a..=b];
-            let total: f32 = h.iter().sum();
-            let mut acc = 0f32;
-            *m = b;
-            for (k, v) in h.iter().enumerate() {
-                acc += v;
-                if acc >= total / 2.0 {
-                    *m = a + k;
-                    break;
-                }
-            }
-        }
-        medians
-    }
 }
 
-/// Pixels whose histograms [`WeightedMedianGuide::histogram_medians`] fills together.
+/// The weighted median bins of the pixels `xs` (at most [`GROUP`]) of a
+/// row: for each, the first bin where the cumulative weight reaches half
+/// the total, its histogram summed bin by bin in sample order, from the
+/// weights [`own_bin_sums`] left. The pixels' histograms are filled side by
+/// side, so that the additions to one bin (often sample after sample) are
+/// not one chain of dependent stores and loads.
+fn histogram_medians(job: &HistogramJob, xs: &[usize], hist: &mut Vec<f32>) -> [usize; GROUP] {
+    let stride = job.stride;
+    let run = job.weights.len() / job.samples.len();
+    hist.clear();
+    hist.resize(xs.len() * stride, 0.0);
+    for (&o, weights) in job.samples.iter().zip(job.weights.chunks_exact(run)) {
+        let at = job.corner + o;
+        for (&x, h) in xs.iter().zip(hist.chunks_exact_mut(stride)) {
+            h[job.bin_pad[at + x] as usize] += weights[x - job.x0];
+        }
+    }
+    let mut medians = [0; GROUP];
+    for ((m, &x), h) in medians.iter_mut().zip(xs).zip(hist.chunks_exact(stride)) {
+        // The valid samples' bins are a..=b; invalid ones went to the last bin.
+        let (a, b) = (job.spans.0[x] as usize, job.spans.1[x] as usize);
+        let h = &h[a..=b];
+        let total: f32 = h.iter().sum();
+        let mut acc = 0f32;
+        *m = b;
+        for (k, v) in h.iter().enumerate() {
+            acc += v;
+            if acc >= total / 2.0 {
+                *m = a + k;
+                break;
+            }
+        }
+    }
+    medians
+}
+
+/// Pixels whose histograms [`histogram_medians`] fills together.
 const GROUP: usize = 4;
 
-/// What [`WeightedMedianGuide::histogram_medians`] reads for a row.
+/// What [`histogram_medians`] reads for a row.
 struct HistogramJob<'a> {
     bin_pad: &'a [u16],
     samples: &'a [usize],
-    y: usize,
+    /// The weights of the run from `x0` at each sample offset, one after the other.
+    weights: &'a [f32],
+    /// The row's window corner in the padded images.
+    corner: usize,
+    x0: usize,
     /// The row's valid sample bins, smallest and largest.
     spans: (&'a [u16], &'a [u16]),
     /// Bins per histogram, the invalid one included.
@@ -333,10 +344,11 @@ struct HistogramJob<'a> {
 fn keeps_own_bin(below: f32, at: f32, above: f32) -> bool {
     let total = below + at + above;
     let (half, margin) = (total / 2.0, total / 1024.0);
-    total >= f32::powi(2.0, -60) && below < half - margin && below + at > half + margin
+    (total >= f32::powi(2.0, -60)) & (below < half - margin) & (below + at > half + margin)
 }
 
-/// The colour differences and the weights of a run's samples at one offset.
+/// The colour differences of a run's samples at one offset, and their
+/// weights at every offset.
 type Buffers<'a> = (&'a mut Vec<u16>, &'a mut Vec<f32>);
 
 /// What [`own_bin_sums`] reads for a run of a row's pixels.
@@ -371,7 +383,7 @@ fn own_bin_sums(job: &SumJob, sums: &mut [Vec<f32>; 3], (diffs, weights): Buffer
     let n = below.len();
     let (at, above) = (&mut at[..n], &mut above[..n]);
     diffs.resize(n, 0);
-    weights.resize(n, 0.0);
+    weights.resize(n * job.samples.len(), 0.0);
     let centres = job
         .planes
         .each_ref()
@@ -379,7 +391,7 @@ fn own_bin_sums(job: &SumJob, sums: &mut [Vec<f32>; 3], (diffs, weights): Buffer
     let own = &job.bin_pad[job.centre..job.centre + n];
     let masked =
         |wt: f32, keep: bool| f32::from_bits(wt.to_bits() & u32::from(keep).wrapping_neg());
-    for &o in job.samples {
+    for (&o, weights) in job.samples.iter().zip(weights.chunks_exact_mut(n)) {
         let q = job.at + o;
         let qs = job.planes.each_ref().map(|p| &p[q..q + n]);
         for (x, dv) in diffs.iter_mut().enumerate() {
@@ -409,9 +421,11 @@ struct RowScratch {
     sums: [Vec<f32>; 3],
     /// The run's colour differences at one sample offset.
     diffs: Vec<u16>,
-    /// Their weights.
+    /// Their weights, at every sample offset.
     weights: Vec<f32>,
-    /// Those of them whose own bin may not be the median.
+    /// Whether each pixel of the run keeps its own bin for certain.
+    keeps: Vec<bool>,
+    /// The pixels to do that may not.
     hard: Vec<usize>,
     /// The histograms of a [`GROUP`] of them.
     hist: Vec<f32>,
