@@ -129,14 +129,14 @@ impl FromStr for Algorithm {
 }
 
 /// Default WTA gray precision: measured on the Middlebury scenes with the
-/// default refinement, 9 bits lower bad > 1 px on Tsukuba from 3.92 to
-/// 3.54 % against 8 (the rounding to whole luma levels) and the 20-scene
-/// average from 27.10 to 27.02 %.
+/// default refinement, 9 bits lower bad > 1 px on Tsukuba from 3.95 to
+/// 3.60 % against 8 (the rounding to whole luma levels) and the 20-scene
+/// average from 27.31 to 27.25 %.
 pub const WTA_GRAY_BITS: u32 = 9;
 
-/// Default WTA min filter side: off. With the weighted median, a 3×3 min
-/// filter improves Tsukuba and Venus (3.54 → 3.29, 1.13 → 0.79 %) but
-/// raises the 20-scene average (27.02 → 28.29 %); with the plain 5×5
+/// Default WTA min filter side: off. With the default refinement, a 3×3
+/// min filter improves Tsukuba and Venus (3.60 → 3.27, 1.03 → 0.66 %) but
+/// raises the 20-scene average (27.25 → 28.35 %); with the plain 5×5
 /// median it lowers Tsukuba, Venus and Teddy and raises Cones.
 pub const WTA_MIN_FILTER: usize = 0;
 

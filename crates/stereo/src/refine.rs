@@ -82,21 +82,20 @@ impl Refinement {
     pub fn default_for(algorithm: Algorithm) -> Refinement {
         match algorithm {
             // WTA: the LR check asks for equal disparities (tolerance 0.5
-            // on whole pixels), then a 5×5 median: bad > 1 px 5.89 / 3.73 /
-            // 18.44 / 10.09 % on Tsukuba / Venus / Teddy / Cones (6.45 /
-            // 4.23 / 18.71 / 10.57 with tolerance 1 on 8-bit gray). The
-            // colour-weighted median in its place (`WeightedMedian::DEFAULT`,
-            // before and after the fill) gives 3.54 / 1.13 / 15.92 / 7.10 %
-            // and 27.02 % over the 20 scenes (29.14 %), but takes about 7x
-            // the time of WTA and this refinement together (Cones: 55 against
-            // 7.8 ms, where SGM takes 14 ms at 3.6 %), so WTA keeps the fast
-            // default that is its reason to exist; `--weighted-median 8`.
+            // on whole pixels), then the colour-weighted median
+            // (`WeightedMedian::DEFAULT`) before and after the fill: bad > 1
+            // px 3.60 / 1.03 / 15.71 / 7.25 % on Tsukuba / Venus / Teddy /
+            // Cones, below the SSD+MF baseline of 5.23 / 3.74 / 16.5 /
+            // 10.6 %, and 27.25 % over the 20 scenes. A 5×5 median in its
+            // place takes about half the time (Cones, in alternating
+            // rounds: 3.97 against 7.75 ms) but gives 5.89 / 3.73 / 18.44 /
+            // 10.09 % and 29.14 % (`--weighted-median 0 --median 5`).
             Algorithm::Wta => Refinement {
                 lr_check: Some(0.5),
                 subpixel: false,
                 uniqueness: 0,
-                median: 5,
-                weighted_median: None,
+                median: 0,
+                weighted_median: Some(WeightedMedian::DEFAULT),
                 fill: Some(HoleFill::Directions),
             },
             Algorithm::Sgm => Refinement {
