@@ -124,7 +124,11 @@ impl WeightedMedianGuide {
     /// or the portable one.
     fn with_avx2(guide: &RgbImage, p: &WeightedMedian, avx2: bool) -> Self {
         let dims = guide.dims();
-        let plane = |k: usize| pad(guide.as_slice(), dims, p.radius, |c| c[k]);
+        let plane = |k: usize| {
+            pad(guide.as_slice(), dims, p.radius, |row, src| {
+                row.iter_mut().zip(src).for_each(|(o, c)| *o = c[k]);
+            })
+        };
         WeightedMedianGuide {
             p: *p,
             dims,
@@ -187,15 +191,11 @@ impl WeightedMedianGuide {
         let (r, step) = (self.p.radius, self.p.step);
         // Invalid pixels go to the extra bin `bins`, which never counts.
         let invalid = bins as u16;
-        let bin_pad = pad(map.as_slice(), self.dims, r, |d| {
-            if d.is_finite() {
-                (d.round() - lo) as u16
-            } else {
-                invalid
-            }
+        let bin_pad = pad(map.as_slice(), self.dims, r, |row, src| {
+            with_avx2(self.avx2, || bin_row(row, src, lo, invalid))
         });
         let wp = w + 2 * r;
-        let (span_lo, span_hi) = sample_spans(&bin_pad, (w, h), r, step, invalid);
+        let (span_lo, span_hi) = sample_spans(&bin_pad, (w, h), (r, step), invalid, self.avx2);
         // The window's samples, as offsets from its top-left corner in the padded images.
         let n = 2 * r + 1;
         let samples: Vec<usize> = (0..n)
@@ -437,13 +437,31 @@ struct RowScratch {
     hist: Vec<f32>,
 }
 
-/// `src` (`w`×`h`, row-major) mapped by `f` and border-replicated by `r`
-/// on every side; rows in parallel.
-fn pad<S: Copy + Sync, T: Copy + Default + Send>(
+/// Runs `f` compiled for AVX2 if `avx2` (only when the CPU has it), as is
+/// otherwise: the same loops, in wider vectors (the kernels here inline
+/// into `f`, and `f` into the AVX2 function).
+#[inline(always)]
+fn with_avx2<R>(avx2: bool, f: impl FnOnce() -> R) -> R {
+    #[cfg(target_arch = "x86_64")]
+    if avx2 {
+        #[target_feature(enable = "avx2")]
+        unsafe fn run<R>(f: impl FnOnce() -> R) -> R {
+            f()
+        }
+        // SAFETY: the caller saw AVX2 at run time.
+        return unsafe { run(f) };
+    }
+    let _ = avx2;
+    f()
+}
+
+/// `src` (`w`×`h`, row-major) border-replicated by `r` on every side, each
+/// row mapped by `f(out, src)` (`out` as long as `src`); rows in parallel.
+fn pad<S: Sync, T: Copy + Default + Send>(
     src: &[S],
     (w, h): (usize, usize),
     r: usize,
-    f: impl Fn(S) -> T + Sync,
+    f: impl Fn(&mut [T], &[S]) + Sync,
 ) -> Vec<T> {
     if w == 0 || h == 0 {
         return Vec::new();
@@ -452,30 +470,74 @@ fn pad<S: Copy + Sync, T: Copy + Default + Send>(
     let mut out = vec![T::default(); wp * (h + 2 * r)];
     out.par_chunks_mut(wp).enumerate().for_each(|(yp, row)| {
         let y = yp.clamp(r, r + h - 1) - r;
-        let s = &src[y * w..(y + 1) * w];
         let (left, rest) = row.split_at_mut(r);
         let (middle, right) = rest.split_at_mut(w);
-        left.fill(f(s[0]));
-        right.fill(f(s[w - 1]));
-        middle.iter_mut().zip(s).for_each(|(o, &v)| *o = f(v));
+        f(middle, &src[y * w..(y + 1) * w]);
+        left.fill(middle[0]);
+        right.fill(middle[w - 1]);
     });
     out
+}
+
+/// The bins of a row of disparities (`invalid` for an invalid one);
+/// branch-free, so that it vectorises.
+#[inline(always)]
+fn bin_row(out: &mut [u16], src: &[f32], lo: f32, invalid: u16) {
+    for (o, &d) in out.iter_mut().zip(src) {
+        // A non-finite `d` saturates the cast and is replaced.
+        let bin = (d.round() - lo) as u16;
+        *o = if d.is_finite() { bin } else { invalid };
+    }
+}
+
+/// `lo` and `hi` become the smallest bin and the largest valid bin (0 for
+/// none) of each column of `rows`.
+#[inline(always)]
+fn min_max_down<'a>(
+    lo: &mut [u16],
+    hi: &mut [u16],
+    rows: impl Iterator<Item = &'a [u16]>,
+    invalid: u16,
+) {
+    for q in rows {
+        for ((a, b), &q) in lo.iter_mut().zip(hi.iter_mut()).zip(q) {
+            *a = (*a).min(q);
+            *b = (*b).max(if q < invalid { q } else { 0 });
+        }
+    }
+}
+
+/// `lo` and `hi` become the smallest and largest of `down` at the columns
+/// `x + dx` for each `dx` of `offsets`.
+#[inline(always)]
+fn min_max_across(
+    lo: &mut [u16],
+    hi: &mut [u16],
+    (down_lo, down_hi): (&[u16], &[u16]),
+    offsets: impl Iterator<Item = usize>,
+) {
+    for dx in offsets {
+        let (qa, qb) = (&down_lo[dx..], &down_hi[dx..]);
+        for (((a, b), &qa), &qb) in lo.iter_mut().zip(hi.iter_mut()).zip(qa).zip(qb) {
+            *a = (*a).min(qa);
+            *b = (*b).max(qb);
+        }
+    }
 }
 
 /// For every pixel, the smallest and the largest valid bin among its
 /// window's samples (`invalid`, above every valid bin, and 0 when there is
 /// none), from separable passes over the border-padded bins, whole rows at
-/// a time.
+/// a time (`u16` min and max are SSE4.1 instructions: with AVX2 if `avx2`).
 fn sample_spans(
     bin_pad: &[u16],
     (w, h): (usize, usize),
-    r: usize,
-    step: usize,
+    (r, step): (usize, usize),
     invalid: u16,
+    avx2: bool,
 ) -> (Vec<u16>, Vec<u16>) {
     let wp = w + 2 * r;
     let offsets = || (0..=2 * r).step_by(step);
-    let valid_or_0 = |q: u16| if q < invalid { q } else { 0 };
     // Down the window's sampled rows, for every padded column.
     let (mut down_lo, mut down_hi) = (vec![invalid; wp * h], vec![0u16; wp * h]);
     down_lo
@@ -483,13 +545,8 @@ fn sample_spans(
         .zip(down_hi.par_chunks_mut(wp))
         .enumerate()
         .for_each(|(y, (lo, hi))| {
-            for dy in offsets() {
-                let q = &bin_pad[(y + dy) * wp..(y + dy + 1) * wp];
-                for ((a, b), &q) in lo.iter_mut().zip(hi.iter_mut()).zip(q) {
-                    *a = (*a).min(q);
-                    *b = (*b).max(valid_or_0(q));
-                }
-            }
+            let rows = offsets().map(|dy| &bin_pad[(y + dy) * wp..(y + dy + 1) * wp]);
+            with_avx2(avx2, || min_max_down(lo, hi, rows, invalid))
         });
     let (mut span_lo, mut span_hi) = (vec![invalid; w * h], vec![0u16; w * h]);
     span_lo
@@ -497,13 +554,10 @@ fn sample_spans(
         .zip(span_hi.par_chunks_mut(w))
         .enumerate()
         .for_each(|(y, (lo, hi))| {
-            for dx in offsets() {
-                let (qa, qb) = (&down_lo[y * wp + dx..], &down_hi[y * wp + dx..]);
-                for (((a, b), &qa), &qb) in lo.iter_mut().zip(hi.iter_mut()).zip(qa).zip(qb) {
-                    *a = (*a).min(qa);
-                    *b = (*b).max(qb);
-                }
-            }
+            let (down_lo, down_hi) = (&down_lo[y * wp..], &down_hi[y * wp..]);
+            with_avx2(avx2, || {
+                min_max_across(lo, hi, (down_lo, down_hi), offsets())
+            })
         });
     (span_lo, span_hi)
 }
