@@ -110,7 +110,7 @@ pub struct WeightedMedianGuide {
     /// slice and the colour differences of a whole row vectorise.
     planes: [Vec<u8>; 3],
     weight: Box<WeightTable>,
-    /// Whether the per-row sums run with AVX2 (same results either way).
+    /// Whether the kernels run with AVX2 (same results either way).
     avx2: bool,
 }
 
@@ -202,87 +202,112 @@ impl WeightedMedianGuide {
             .step_by(step)
             .flat_map(|dy| (0..n).step_by(step).map(move |dx| dy * wp + dx))
             .collect();
+        let job = MapJob {
+            guide: self,
+            bin_pad: &bin_pad,
+            spans: (&span_lo, &span_hi),
+            samples: &samples,
+            lo,
+            invalid,
+        };
         let mut out = map.clone();
         out.as_mut_slice()
             .par_chunks_mut(w)
             .enumerate()
             .for_each_init(RowScratch::default, |scratch, (y, row)| {
-                let centre = (y + r) * wp + r;
-                let own = &bin_pad[centre..centre + w];
-                let spans = (&span_lo[y * w..(y + 1) * w], &span_hi[y * w..(y + 1) * w]);
-                // Windows of one bin (or none valid) are settled at once.
-                let todo = &mut scratch.todo;
-                todo.clear();
-                for (x, d) in row.iter_mut().enumerate() {
-                    let (a, b) = (spans.0[x], spans.1[x]);
-                    if a < b {
-                        todo.push(x);
-                    } else if a == b && own[x] != a {
-                        *d = lo + a as f32;
-                    }
-                }
-                let (Some(&x0), Some(&last)) = (todo.first(), todo.last()) else {
-                    return;
-                };
-                let sums = &mut scratch.sums;
-                let buffers = (&mut scratch.diffs, &mut scratch.weights);
-                let job = SumJob {
-                    planes: &self.planes,
-                    weight: &self.weight,
-                    bin_pad: &bin_pad,
-                    samples: &samples,
-                    at: y * wp + x0,
-                    centre: centre + x0,
-                    invalid,
-                };
-                sums.iter_mut().for_each(|s| {
-                    s.clear();
-                    s.resize(last + 1 - x0, 0.0);
-                });
-                #[cfg(target_arch = "x86_64")]
-                if self.avx2 {
-                    // SAFETY: `with_avx2` was told that the CPU has AVX2.
-                    unsafe { own_bin_sums_avx2(&job, sums, buffers) }
-                } else {
-                    own_bin_sums(&job, sums, buffers);
-                }
-                #[cfg(not(target_arch = "x86_64"))]
-                own_bin_sums(&job, sums, buffers);
-                // The test for the whole run at once (it vectorises), then
-                // the pixels to do that fail it.
-                let keeps = &mut scratch.keeps;
-                keeps.clear();
-                let [below, at, above] = sums.each_ref();
-                keeps.extend(
-                    below
-                        .iter()
-                        .zip(at)
-                        .zip(above)
-                        .zip(&own[x0..])
-                        .map(|(((&b, &e), &a), &o)| o != invalid && keeps_own_bin(b, e, a)),
-                );
-                let hard = &mut scratch.hard;
-                hard.clear();
-                hard.extend(todo.iter().copied().filter(|&x| !keeps[x - x0]));
-                for group in hard.chunks(GROUP) {
-                    let job = HistogramJob {
-                        bin_pad: &bin_pad,
-                        samples: &samples,
-                        weights: &scratch.weights,
-                        corner: y * wp,
-                        x0,
-                        spans,
-                        stride: bins + 1,
-                    };
-                    let medians = histogram_medians(&job, group, &mut scratch.hist);
-                    for (&x, median) in group.iter().zip(medians) {
-                        if own[x] as usize != median {
-                            row[x] = lo + median as f32;
-                        }
-                    }
-                }
+                with_avx2(self.avx2, || filter_row(&job, y, row, scratch))
             });
         out
+    }
+}
+
+/// What [`filter_row`] reads for the whole map.
+struct MapJob<'a> {
+    guide: &'a WeightedMedianGuide,
+    bin_pad: &'a [u16],
+    /// [`sample_spans`].
+    spans: (&'a [u16], &'a [u16]),
+    samples: &'a [usize],
+    /// The disparity of bin 0.
+    lo: f32,
+    /// The bin of invalid pixels, one past the last valid one.
+    invalid: u16,
+}
+
+/// [`WeightedMedianGuide::filter`] for row `y` of the output, `row` (a
+/// copy of the map's).
+#[inline(always)]
+fn filter_row(job: &MapJob, y: usize, row: &mut [f32], scratch: &mut RowScratch) {
+    let (w, r) = (row.len(), job.guide.p.radius);
+    let wp = w + 2 * r;
+    let (lo, invalid) = (job.lo, job.invalid);
+    let centre = (y + r) * wp + r;
+    let own = &job.bin_pad[centre..centre + w];
+    let spans = (
+        &job.spans.0[y * w..(y + 1) * w],
+        &job.spans.1[y * w..(y + 1) * w],
+    );
+    // Windows of one bin (or none valid) are settled at once.
+    let todo = &mut scratch.todo;
+    todo.clear();
+    for (x, d) in row.iter_mut().enumerate() {
+        let (a, b) = (spans.0[x], spans.1[x]);
+        if a < b {
+            todo.push(x);
+        } else if a == b && own[x] != a {
+            *d = lo + a as f32;
+        }
+    }
+    let (Some(&x0), Some(&last)) = (todo.first(), todo.last()) else {
+        return;
+    };
+    let sums = &mut scratch.sums;
+    sums.iter_mut().for_each(|s| {
+        s.clear();
+        s.resize(last + 1 - x0, 0.0);
+    });
+    let sum_job = SumJob {
+        planes: &job.guide.planes,
+        weight: &job.guide.weight,
+        bin_pad: job.bin_pad,
+        samples: job.samples,
+        at: y * wp + x0,
+        centre: centre + x0,
+        invalid,
+    };
+    own_bin_sums(&sum_job, sums, (&mut scratch.diffs, &mut scratch.weights));
+    // The test for the whole run at once (it vectorises), then the pixels
+    // to do that fail it.
+    let keeps = &mut scratch.keeps;
+    keeps.clear();
+    let [below, at, above] = sums.each_ref();
+    keeps.extend(
+        below
+            .iter()
+            .zip(at)
+            .zip(above)
+            .zip(&own[x0..])
+            .map(|(((&b, &e), &a), &o)| o != invalid && keeps_own_bin(b, e, a)),
+    );
+    let hard = &mut scratch.hard;
+    hard.clear();
+    hard.extend(todo.iter().copied().filter(|&x| !keeps[x - x0]));
+    let histogram_job = HistogramJob {
+        bin_pad: job.bin_pad,
+        samples: job.samples,
+        weights: &scratch.weights,
+        corner: y * wp,
+        x0,
+        spans,
+        stride: invalid as usize + 1,
+    };
+    for group in hard.chunks(GROUP) {
+        let medians = histogram_medians(&histogram_job, group, &mut scratch.hist);
+        for (&x, median) in group.iter().zip(medians) {
+            if own[x] as usize != median {
+                row[x] = lo + median as f32;
+            }
+        }
     }
 }
 
@@ -292,6 +317,7 @@ impl WeightedMedianGuide {
 /// weights [`own_bin_sums`] left. The pixels' histograms are filled side by
 /// side, so that the additions to one bin (often sample after sample) are
 /// not one chain of dependent stores and loads.
+#[inline(always)]
 fn histogram_medians(job: &HistogramJob, xs: &[usize], hist: &mut Vec<f32>) -> [usize; GROUP] {
     let stride = job.stride;
     let run = job.weights.len() / job.samples.len();
@@ -369,12 +395,6 @@ struct SumJob<'a> {
     centre: usize,
     /// The bin of invalid pixels.
     invalid: u16,
-}
-
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2")]
-unsafe fn own_bin_sums_avx2(job: &SumJob, sums: &mut [Vec<f32>; 3], buffers: Buffers) {
-    own_bin_sums(job, sums, buffers)
 }
 
 /// For a run of `sums[0].len()` pixels, the summed weights of each one's
