@@ -266,7 +266,19 @@ fn filter_row(job: &MapJob, y: usize, row: &mut [f32], scratch: &mut RowScratch)
         s.clear();
         s.resize(last + 1 - x0, 0.0);
     });
+    // The bin tested: a valid pixel's own; for an invalid one, that of the
+    // nearest valid pixel to its left (else the row's first valid one),
+    // the likeliest value of a hole amid one surface.
+    let candidates = &mut scratch.candidates;
+    candidates.clear();
+    let first_valid = own.iter().copied().find(|&b| b != invalid);
+    let mut left = first_valid.unwrap_or(invalid);
+    candidates.extend(own[..=last].iter().map(|&b| {
+        left = if b != invalid { b } else { left };
+        left
+    }));
     let sum_job = SumJob {
+        candidates: &candidates[x0..],
         planes: &job.guide.planes,
         weight: &job.guide.weight,
         bin_pad: job.bin_pad,
@@ -286,12 +298,19 @@ fn filter_row(job: &MapJob, y: usize, row: &mut [f32], scratch: &mut RowScratch)
             .iter()
             .zip(at)
             .zip(above)
-            .zip(&own[x0..])
-            .map(|(((&b, &e), &a), &o)| o != invalid && keeps_own_bin(b, e, a)),
+            .zip(&candidates[x0..])
+            .map(|(((&b, &e), &a), &c)| c != invalid && keeps_own_bin(b, e, a)),
     );
     let hard = &mut scratch.hard;
     hard.clear();
-    hard.extend(todo.iter().copied().filter(|&x| !keeps[x - x0]));
+    for &x in todo.iter() {
+        if !keeps[x - x0] {
+            hard.push(x);
+        } else if own[x] == invalid {
+            // A hole whose window's median is the candidate bin.
+            row[x] = lo + candidates[x] as f32;
+        }
+    }
     let histogram_job = HistogramJob {
         bin_pad: job.bin_pad,
         samples: job.samples,
@@ -393,6 +412,8 @@ struct SumJob<'a> {
     at: usize,
     /// The first pixel itself there.
     centre: usize,
+    /// The bin tested for each pixel of the run.
+    candidates: &'a [u16],
     /// The bin of invalid pixels.
     invalid: u16,
 }
@@ -414,7 +435,7 @@ fn own_bin_sums(job: &SumJob, sums: &mut [Vec<f32>; 3], (diffs, weights): Buffer
         .planes
         .each_ref()
         .map(|p| &p[job.centre..job.centre + n]);
-    let own = &job.bin_pad[job.centre..job.centre + n];
+    let own = &job.candidates[..n];
     let masked =
         |wt: f32, keep: bool| f32::from_bits(wt.to_bits() & u32::from(keep).wrapping_neg());
     for (&o, weights) in job.samples.iter().zip(weights.chunks_exact_mut(n)) {
@@ -449,7 +470,9 @@ struct RowScratch {
     diffs: Vec<u16>,
     /// Their weights, at every sample offset.
     weights: Vec<f32>,
-    /// Whether each pixel of the run keeps its own bin for certain.
+    /// The bins tested for the row's pixels up to the run's end.
+    candidates: Vec<u16>,
+    /// Whether each pixel of the run takes its candidate bin for certain.
     keeps: Vec<bool>,
     /// The pixels to do that may not.
     hard: Vec<usize>,
