@@ -145,16 +145,17 @@ impl WeightedMedianGuide {
     /// - windows whose valid samples all lie in one bin (or none valid;
     ///   most of a smooth map) are settled from per-pixel bin ranges;
     /// - for the others, one vectorised pass over the row sums, per pixel,
-    ///   the weights of the samples below, in and above the pixel's own
-    ///   bin. The own bin is the median when the weight below it is less
-    ///   than half the total and the weight up to it at least half; where
-    ///   that holds by a margin of `total / 1024`, far beyond the rounding
-    ///   of either way of summing (each within `(n − 1)·2⁻²⁴·total` for `n`
-    ///   ≤ 961 terms, Higham, "Accuracy and Stability of Numerical
-    ///   Algorithms", §4.2), the pixel keeps its value, exactly as the
-    ///   histogram would decide;
-    /// - only the rest (invalid pixels, and pixels near a disparity or
-    ///   colour edge) build a histogram of their window.
+    ///   the weights of the samples below, in and above a candidate bin:
+    ///   the pixel's own, or for an invalid pixel its left neighbour's. The
+    ///   candidate is the median when the weight below it is less than
+    ///   half the total and the weight up to it at least half; where that
+    ///   holds by a margin of `total / 1024`, far beyond the rounding of
+    ///   either way of summing (each within `(n − 1)·2⁻²⁴·total` for `n` ≤
+    ///   961 terms, Higham, "Accuracy and Stability of Numerical
+    ///   Algorithms", §4.2), the pixel keeps its value (or a hole takes the
+    ///   candidate's), exactly as the histogram would decide;
+    /// - only the rest (pixels near a disparity or colour edge, and holes
+    ///   unlike their left neighbour) build a histogram of their window.
     ///
     /// # Panics
     /// If `map` is not the guide's size.
