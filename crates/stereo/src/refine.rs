@@ -87,9 +87,10 @@ impl Refinement {
             // px 3.60 / 1.03 / 15.71 / 7.25 % on Tsukuba / Venus / Teddy /
             // Cones, below the SSD+MF baseline of 5.23 / 3.74 / 16.5 /
             // 10.6 %, and 27.25 % over the 20 scenes. A 5×5 median in its
-            // place takes about half the time (Cones, in alternating
-            // rounds: 3.97 against 7.75 ms) but gives 5.89 / 3.73 / 18.44 /
-            // 10.09 % and 29.14 % (`--weighted-median 0 --median 5`).
+            // place takes 0.54–0.64x the time on the four (Cones, in
+            // alternating rounds: 3.97 against 6.72 ms) but gives 5.89 /
+            // 3.73 / 18.44 / 10.09 % and 29.14 % (`--weighted-median 0
+            // --median 5`).
             Algorithm::Wta => Refinement {
                 lr_check: Some(0.5),
                 subpixel: false,

@@ -40,8 +40,8 @@ pub struct MatcherArgs {
     /// runs before and after the fill and replaces the plain median unless
     /// --median is given too. Default 8 for wta (bad > 1 px 3.60 / 1.03 /
     /// 15.71 / 7.25 % on Tsukuba / Venus / Teddy / Cones; `0 --median 5`
-    /// is about half the time at 5.89 / 3.73 / 18.44 / 10.09 %), off (0)
-    /// for lg and sgm.
+    /// takes about 0.6x the time at 5.89 / 3.73 / 18.44 / 10.09 %), off
+    /// (0) for lg and sgm.
     #[arg(long, value_name = "RADIUS")]
     pub weighted_median: Option<usize>,
     /// Colour scale σ of the weighted median (summed RGB levels; default 50).
