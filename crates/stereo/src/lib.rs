@@ -129,14 +129,14 @@ impl FromStr for Algorithm {
 }
 
 /// Default WTA gray precision: measured on the Middlebury scenes with the
-/// default refinement, 9 bits lower bad > 1 px on Tsukuba from 3.92 to
-/// 3.54 % against 8 (the rounding to whole luma levels) and the 20-scene
-/// average from 27.10 to 27.02 %.
+/// default refinement, 9 bits lower bad > 1 px on Tsukuba from 3.95 to
+/// 3.60 % against 8 (the rounding to whole luma levels) and the 20-scene
+/// average from 27.31 to 27.25 %.
 pub const WTA_GRAY_BITS: u32 = 9;
 
-/// Default WTA min filter side: off. With the weighted median, a 3×3 min
-/// filter improves Tsukuba and Venus (3.54 → 3.29, 1.13 → 0.79 %) but
-/// raises the 20-scene average (27.02 → 28.29 %); with the plain 5×5
+/// Default WTA min filter side: off. With the default refinement, a 3×3
+/// min filter improves Tsukuba and Venus (3.60 → 3.27, 1.03 → 0.66 %) but
+/// raises the 20-scene average (27.25 → 28.35 %); with the plain 5×5
 /// median it lowers Tsukuba, Venus and Teddy and raises Cones.
 pub const WTA_MIN_FILTER: usize = 0;
 
@@ -255,12 +255,15 @@ pub fn compute_disparity(
     Matcher::new().compute(left, right, spec)
 }
 
-/// A matcher that keeps its buffers (WTA bands, SGM cost and sum volumes)
+/// A matcher that keeps its buffers (WTA gray views and bands, SGM cost and sum volumes)
 /// from one call to the next: matching frames of an unchanged size neither
 /// allocates nor clears the volumes again.
 #[derive(Default)]
 pub struct Matcher {
     wta: wta::WtaMatcher,
+    /// The views' gray samples for WTA (large enough to be allocated, and
+    /// page-faulted in, anew on every call otherwise).
+    luma: [wta::Samples; 2],
     sgm: sgm::SgmBuffers,
 }
 
@@ -281,11 +284,12 @@ impl Matcher {
         spec.validate(left.width(), left.height())?;
         let raw = match spec.algorithm {
             Algorithm::Wta => {
-                let (l, r) = rayon::join(
-                    || wta::luma_samples(left, spec.gray_bits),
-                    || wta::luma_samples(right, spec.gray_bits),
+                let [l, r] = &mut self.luma;
+                rayon::join(
+                    || wta::luma_samples_into(left, spec.gray_bits, l),
+                    || wta::luma_samples_into(right, spec.gray_bits, r),
                 );
-                wta_with_check(&mut self.wta, &l, &r, spec)
+                wta_with_check(&mut self.wta, l, r, spec)
             }
             Algorithm::LineGrowing => line_growing::line_growing(left, right, spec),
             Algorithm::Sgm => {

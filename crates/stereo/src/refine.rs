@@ -10,7 +10,7 @@ use rayon::prelude::*;
 use stereolink_image::{DisparityMap, Plane, RgbImage};
 
 pub use crate::median::median;
-pub use crate::weighted_median::{weighted_median, WeightedMedian};
+pub use crate::weighted_median::{weighted_median, WeightedMedian, WeightedMedianGuide};
 use crate::{Algorithm, MatchSpec};
 
 /// Which refinement steps run, in this order: LR check, median, weighted
@@ -82,21 +82,21 @@ impl Refinement {
     pub fn default_for(algorithm: Algorithm) -> Refinement {
         match algorithm {
             // WTA: the LR check asks for equal disparities (tolerance 0.5
-            // on whole pixels), then a 5×5 median: bad > 1 px 5.89 / 3.73 /
-            // 18.44 / 10.09 % on Tsukuba / Venus / Teddy / Cones (6.45 /
-            // 4.23 / 18.71 / 10.57 with tolerance 1 on 8-bit gray). The
-            // colour-weighted median in its place (`WeightedMedian::DEFAULT`,
-            // before and after the fill) gives 3.54 / 1.13 / 15.92 / 7.10 %
-            // and 27.02 % over the 20 scenes (29.14 %), but takes about 7x
-            // the time of WTA and this refinement together (Cones: 55 against
-            // 7.8 ms, where SGM takes 14 ms at 3.6 %), so WTA keeps the fast
-            // default that is its reason to exist; `--weighted-median 8`.
+            // on whole pixels), then the colour-weighted median
+            // (`WeightedMedian::DEFAULT`) before and after the fill: bad > 1
+            // px 3.60 / 1.03 / 15.71 / 7.25 % on Tsukuba / Venus / Teddy /
+            // Cones, below the SSD+MF baseline of 5.23 / 3.74 / 16.5 /
+            // 10.6 %, and 27.25 % over the 20 scenes. A 5×5 median in its
+            // place takes 0.54–0.64x the time on the four (Cones, in
+            // alternating rounds: 3.97 against 6.72 ms) but gives 5.89 /
+            // 3.73 / 18.44 / 10.09 % and 29.14 % (`--weighted-median 0
+            // --median 5`).
             Algorithm::Wta => Refinement {
                 lr_check: Some(0.5),
                 subpixel: false,
                 uniqueness: 0,
-                median: 5,
-                weighted_median: None,
+                median: 0,
+                weighted_median: Some(WeightedMedian::DEFAULT),
                 fill: Some(HoleFill::Directions),
             },
             Algorithm::Sgm => Refinement {
@@ -139,16 +139,20 @@ pub fn postprocess(raw: Raw, spec: &MatchSpec, guide: &RgbImage) -> DisparityMap
     if r.median > 1 {
         d = median(&d, r.median);
     }
-    if let Some(wm) = &r.weighted_median {
-        d = weighted_median(&d, guide, wm);
+    // One guide serves both weighted-median passes.
+    let wm = r
+        .weighted_median
+        .map(|p| WeightedMedianGuide::new(guide, &p));
+    if let Some(wm) = &wm {
+        d = wm.filter(&d);
     }
     match r.fill {
         Some(HoleFill::Row) => fill_holes(&mut d),
         Some(HoleFill::Directions) => fill_from_directions(&mut d),
         None => {}
     }
-    if let (Some(wm), Some(_)) = (&r.weighted_median, r.fill) {
-        d = weighted_median(&d, guide, wm);
+    if let (Some(wm), Some(_)) = (&wm, r.fill) {
+        d = wm.filter(&d);
     }
     d
 }
@@ -178,14 +182,12 @@ pub fn lr_check(left: &mut DisparityMap, right: &DisparityMap, tol: f32) {
         .for_each(|(row, rrow)| {
             for (x, d) in row.iter_mut().enumerate() {
                 // Non-finite `d` gives a non-finite or negative `xr`: dropped.
+                // Branch-free (`&`, selects): the outcome is data-dependent.
                 let xr = x as f32 - *d + 0.5;
-                let ok = xr >= 0.0 && xr < w as f32 && {
-                    let dr = rrow[xr as usize];
-                    (dr - *d).abs() <= tol
-                };
-                if !ok {
-                    *d = f32::INFINITY;
-                }
+                let inside = (xr >= 0.0) & (xr < w as f32);
+                let dr = rrow[if inside { xr as usize } else { 0 }];
+                let ok = inside & ((dr - *d).abs() <= tol);
+                *d = if ok { *d } else { f32::INFINITY };
             }
         });
 }

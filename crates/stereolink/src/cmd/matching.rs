@@ -32,20 +32,22 @@ pub struct MatcherArgs {
     /// LR-check tolerance in px (0 disables; default 0.5 for wta, 1 for sgm).
     #[arg(long)]
     pub lr_check: Option<f32>,
-    /// Median filter size (0 disables).
+    /// Median filter size (0 disables; default 5 for sgm, 3 for lg, 0 for
+    /// wta, which has the weighted median).
     #[arg(long)]
     pub median: Option<usize>,
-    /// Colour-weighted median guided by the left view, radius in pixels (8
-    /// is the measured best for wta: bad > 1 px 3.54 / 1.13 / 15.92 / 7.10 %
-    /// on Tsukuba / Venus / Teddy / Cones, at about 7x the time); it runs
-    /// before and after the fill and replaces the plain median unless
-    /// --median is given too. Default off (0).
+    /// Colour-weighted median guided by the left view, radius in pixels; it
+    /// runs before and after the fill and replaces the plain median unless
+    /// --median is given too. Default 8 for wta (bad > 1 px 3.60 / 1.03 /
+    /// 15.71 / 7.25 % on Tsukuba / Venus / Teddy / Cones; `0 --median 5`
+    /// takes about 0.6x the time at 5.89 / 3.73 / 18.44 / 10.09 %), off
+    /// (0) for lg and sgm.
     #[arg(long, value_name = "RADIUS")]
     pub weighted_median: Option<usize>,
-    /// Colour scale σ of the weighted median (summed RGB levels; default 30).
+    /// Colour scale σ of the weighted median (summed RGB levels; default 50).
     #[arg(long)]
     pub wm_sigma: Option<f32>,
-    /// Sampling step inside the weighted median's window (default 2).
+    /// Sampling step inside the weighted median's window (default 4).
     #[arg(long)]
     pub wm_step: Option<usize>,
     /// Subpixel parabola fit through the winner's neighbouring costs
