@@ -189,4 +189,10 @@ fn encode_carries_right_labels_over_unless_independent() {
     // A margin for a view segmented independently is a usage error.
     let (out, _) = encode(&["--carry-margin", "4", "--independent-right"]);
     assert_eq!(out.status.code(), Some(2));
+    // A margin that is not a finite number ≥ 0 is refused, naming the flag.
+    for bad in ["--carry-margin=-5", "--carry-margin=NaN"] {
+        let (out, _) = encode(&[bad]);
+        assert!(!out.status.success());
+        assert!(String::from_utf8_lossy(&out.stderr).contains("--carry-margin"));
+    }
 }

@@ -16,7 +16,7 @@ use crate::pipeline::sender::segment_pair;
 #[derive(Debug, Clone, clap::Args)]
 pub struct SegmentArgs {
     /// Method: kmeans, meanshift, pso, dpso, fodpso or otsu (exact multilevel Otsu).
-    #[arg(long, default_value = "fodpso")]
+    #[arg(long, visible_alias = "segment", default_value = "fodpso")]
     pub method: String,
     /// Classes: k for k-means, levels per channel for the thresholding methods.
     #[arg(long, default_value_t = 3)]
@@ -119,9 +119,11 @@ impl SegmentArgs {
         if self.independent_right {
             return Ok(None);
         }
-        Ok(Some(
-            self.carry_margin.unwrap_or(default_margin(&self.method()?)),
-        ))
+        let margin = self.carry_margin.unwrap_or(default_margin(&self.method()?));
+        if !(margin >= 0.0 && margin.is_finite()) {
+            anyhow::bail!("--carry-margin {margin} must be a finite number ≥ 0");
+        }
+        Ok(Some(margin))
     }
 
     /// Segments a pair, the right view stereo-consistent unless `--independent-right`.
