@@ -25,9 +25,10 @@ pub(crate) trait LaneOps {
     unsafe fn min_assign(acc: &mut [u16], a: &[u16]);
     /// `acc[k] += a[k]`, and `−= s[k]` when given.
     unsafe fn add_sub(acc: &mut [u16], a: &[u16], s: Option<&[u16]>);
-    /// Index of the smallest of `costs[..valid]` (`valid ≥ 1`); the lowest
-    /// index wins ties.
-    unsafe fn argmin(costs: &[u16], valid: usize) -> usize;
+    /// Index and value of the smallest of `costs[..valid]` (`valid ≥ 1`);
+    /// the lowest index wins ties. The value comes from the reduction, so
+    /// a caller need not load it back from a just-written cost vector.
+    unsafe fn argmin(costs: &[u16], valid: usize) -> (usize, u16);
     /// For every lane `i` with `i < valid`: if `costs[i] < best[i]`, then
     /// `best[i] = costs[i]` and `which[i] = i` (an earlier smaller or equal
     /// cost stays).
@@ -82,7 +83,7 @@ impl LaneOps for Portable {
     }
 
     #[inline(always)]
-    unsafe fn argmin(costs: &[u16], valid: usize) -> usize {
+    unsafe fn argmin(costs: &[u16], valid: usize) -> (usize, u16) {
         // Cost in the high half, index in the low half: the smallest packed
         // value is the smallest cost at the smallest index.
         let packed = costs[..valid]
@@ -91,7 +92,7 @@ impl LaneOps for Portable {
             .map(|(&c, k)| (c as u32) << 16 | k)
             .min()
             .expect("at least one valid lane");
-        (packed & 0xFFFF) as usize
+        ((packed & 0xFFFF) as usize, (packed >> 16) as u16)
     }
 
     #[inline(always)]
@@ -196,7 +197,7 @@ impl LaneOps for Avx2 {
 
     #[inline]
     #[target_feature(enable = "avx2")]
-    unsafe fn argmin(costs: &[u16], valid: usize) -> usize {
+    unsafe fn argmin(costs: &[u16], valid: usize) -> (usize, u16) {
         use std::arch::x86_64::*;
         let load = |b: usize| _mm256_loadu_si256(costs[b * LANES..(b + 1) * LANES].as_ptr().cast());
         let (full, rest) = (valid / LANES, valid % LANES);
@@ -222,7 +223,7 @@ impl LaneOps for Avx2 {
         for b in 0..valid.div_ceil(LANES) {
             let hit = _mm256_movemask_epi8(_mm256_cmpeq_epi16(load(b), target)) as u32;
             if hit != 0 {
-                return b * LANES + hit.trailing_zeros() as usize / 2;
+                return (b * LANES + hit.trailing_zeros() as usize / 2, best as u16);
             }
         }
         unreachable!("the minimum is one of the lanes")

@@ -793,7 +793,7 @@ fn select_row(vol: &Volume, s_row: &[u16], lrow: &mut [f32], rrow: &mut [f32], a
                 // SAFETY: the portable lane operations need nothing.
                 unsafe { Portable::min_update(best, lane, costs, valid) };
                 // SAFETY: as above.
-                unsafe { Portable::argmin(costs, valid) }
+                unsafe { Portable::argmin(costs, valid).0 }
             }
         };
         let mut d = (vol.min_disp + k) as f32;

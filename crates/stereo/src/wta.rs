@@ -549,12 +549,11 @@ unsafe fn accumulate_row<K: LaneOps>(
 }
 
 /// The winning disparity among the first `valid` of `costs`, given the
-/// index `k` of their smallest cost (index `k` is disparity `d_min + k`):
-/// applies the uniqueness test and the subpixel fit.
+/// index `k` of their smallest cost and that cost (index `k` is disparity
+/// `d_min + k`): applies the uniqueness test and the subpixel fit.
 #[inline(always)]
-fn winner(costs: &[u16], valid: usize, k: usize, p: &WtaParams) -> f32 {
+fn winner(costs: &[u16], valid: usize, (k, best): (usize, u16), p: &WtaParams) -> f32 {
     let costs = &costs[..valid];
-    let best = costs[k];
     if p.uniqueness > 0 {
         let limit = best as u32 * (100 + p.uniqueness);
         let ambiguous = costs
@@ -610,7 +609,7 @@ pub(crate) fn reference(left: &Samples, right: &Samples, p: &WtaParams) -> Dispa
             })
             .collect();
         let k = (0..costs.len()).min_by_key(|&k| (costs[k], k)).unwrap();
-        winner(&costs, costs.len(), k, p)
+        winner(&costs, costs.len(), (k, costs[k]), p)
     })
 }
 
