@@ -195,4 +195,15 @@ fn encode_carries_right_labels_over_unless_independent() {
         assert!(!out.status.success());
         assert!(String::from_utf8_lossy(&out.stderr).contains("--carry-margin"));
     }
+    // A margin for a single image has no right view to act on.
+    let out = stereolink()
+        .arg("segment")
+        .arg(&l)
+        .arg("-o")
+        .arg(dir.path().join("s.png"))
+        .args(["--carry-margin", "5"])
+        .output()
+        .unwrap();
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--right"));
 }

@@ -221,6 +221,12 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
             ]
         }
         _ => {
+            if args.segment.carry_margin.is_some() || args.segment.independent_right {
+                anyhow::bail!(
+                    "--carry-margin and --independent-right apply to a pair: \
+                     give --right and --right-output too"
+                );
+            }
             let seg = args.segment.run(&left).with_context(cannot)?;
             let ms = t.elapsed().as_secs_f64() * 1e3;
             vec![report(
