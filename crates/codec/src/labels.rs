@@ -37,6 +37,28 @@ pub enum Mode {
     Strong = 1,
 }
 
+impl Mode {
+    /// The mode's name (`fast` or `strong`), as [`str::parse`] reads it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Mode::Fast => "fast",
+            Mode::Strong => "strong",
+        }
+    }
+}
+
+impl std::str::FromStr for Mode {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        match s {
+            "fast" => Ok(Mode::Fast),
+            "strong" => Ok(Mode::Strong),
+            _ => Err(format!("unknown label coding mode {s:?} (fast or strong)")),
+        }
+    }
+}
+
 /// Columns per stereo-shift block.
 pub const BLOCK: usize = 32;
 /// Largest stereo shift searched and coded (8 bits).

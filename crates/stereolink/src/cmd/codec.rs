@@ -25,8 +25,8 @@ pub struct Args {
     #[arg(long)]
     pub original: bool,
     /// Label-map coding: `fast` (the receiver decodes fastest) or `strong` (smallest).
-    #[arg(long, default_value = "fast", value_parser = ["fast", "strong"])]
-    pub mode: String,
+    #[arg(long, default_value = "fast")]
+    pub mode: labels::Mode,
     #[command(flatten)]
     pub segment: SegmentArgs,
 }
@@ -82,12 +82,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         };
         (f, Some(psnr))
     };
-    let bytes = container::encode_with(
-        &Message::StereoFrame(Box::new(frame)),
-        1,
-        0,
-        label_mode(&args.mode),
-    );
+    let bytes = container::encode_with(&Message::StereoFrame(Box::new(frame)), 1, 0, args.mode);
     std::fs::write(&args.output, &bytes)
         .with_context(|| format!("cannot write {}", args.output.display()))?;
     let original = std::fs::metadata(&args.left)?.len() + std::fs::metadata(&args.right)?.len();
@@ -110,14 +105,6 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
             e.psnr_db.map_or(String::new(), |(l, r)| format!("; PSNR {l:.2} / {r:.2} dB"))
         )
     })
-}
-
-/// The label coding mode named `name` (`strong`, else fast).
-fn label_mode(name: &str) -> labels::Mode {
-    match name {
-        "strong" => labels::Mode::Strong,
-        _ => labels::Mode::Fast,
-    }
 }
 
 /// Arguments of `stereolink decode`.
@@ -203,8 +190,8 @@ pub struct BenchArgs {
     #[arg(long, default_value_t = 10)]
     pub iters: usize,
     /// Label-map coding: `fast` (the receiver decodes fastest) or `strong` (smallest).
-    #[arg(long, default_value = "fast", value_parser = ["fast", "strong"])]
-    pub mode: String,
+    #[arg(long, default_value = "fast")]
+    pub mode: labels::Mode,
     #[command(flatten)]
     pub segment: SegmentArgs,
 }
@@ -213,7 +200,7 @@ pub struct BenchArgs {
 struct CodecBench {
     scene: String,
     method: String,
-    mode: String,
+    mode: &'static str,
     width: usize,
     height: usize,
     palette_left: usize,
@@ -243,7 +230,7 @@ pub fn run_bench(args: BenchArgs, out: &super::Output) -> anyhow::Result<()> {
     let (l, r) = (&sl.image, &sr.image);
     let nl = l.palette().len();
     let nr = r.palette().len();
-    let mode = label_mode(&args.mode);
+    let mode = args.mode;
     let left_bytes = labels::encode(l.labels(), nl, None, 0, mode);
     let right_alone = labels::encode(r.labels(), nr, None, 0, mode);
     let frame = StereoFrame {
@@ -272,7 +259,7 @@ pub fn run_bench(args: BenchArgs, out: &super::Output) -> anyhow::Result<()> {
     let b = CodecBench {
         scene: scene.name.clone(),
         method: args.segment.method()?.name().into(),
-        mode: args.mode.clone(),
+        mode: mode.name(),
         width: scene.left.width(),
         height: scene.left.height(),
         palette_left: nl,
