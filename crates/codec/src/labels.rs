@@ -283,6 +283,12 @@ fn flat_inside(data: &[u16], w: usize, x: usize, y: usize) -> Option<u32> {
         .then_some(wv as u32)
 }
 
+/// Whether the whole template holds one label (W's, which exists).
+#[inline(always)]
+fn is_flat(t: &[u32; OWN_LEN]) -> bool {
+    t[0] != NONE && t.iter().all(|&l| l == t[0])
+}
+
 /// The labels of the prediction's template around (`xs`, y).
 #[inline(always)]
 fn ref_template(reference: &LabelMap, xs: usize, y: usize) -> [u32; 6] {
@@ -461,8 +467,7 @@ fn code_pixel_fast<I: BitIo, const COND: bool>(
         return code_after_w::<I, false, COND>(io, model, n_labels, &own, rf, v);
     }
     let own = own_template(data, w, x, y);
-    let flat = own[0] != NONE && own.iter().all(|&l| l == own[0]);
-    code_pixel::<I, false, COND>(io, model, n_labels, (&own, flat), rf, v)
+    code_pixel::<I, false, COND>(io, model, n_labels, (&own, is_flat(&own)), rf, v)
 }
 
 /// The rest of [`code_pixel`] once the label is known not to be W's (or
@@ -584,7 +589,7 @@ fn code_rows<I: BitIo, const STRONG: bool, const COND: bool>(
                     Some(wv) => ([wv; OWN_LEN], true),
                     None => {
                         let t = own_template(data, w, x, y);
-                        (t, t[0] != NONE && t.iter().all(|&v| v == t[0]))
+                        (t, is_flat(&t))
                     }
                 };
                 code_pixel::<I, true, COND>(io, model, n_labels, (&own, flat), &rf, v)?
