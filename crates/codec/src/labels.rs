@@ -15,14 +15,17 @@
 //! the W label) for palettes up to 32 colours, as a binary tree above.
 //!
 //! Two [`Mode`]s: *fast* gives each decision one context; *strong* mixes
-//! five ([`crate::mixer`]: the two masks at three sizes and two hashes of
-//! the neighbours' labels), about 7 % smaller and about 3x slower to decode.
+//! nine ([`crate::mixer`]: the two masks at three sizes, an outer ring of
+//! the template, runs, the equalities among the neighbours and three hashes
+//! of labels) with two weight sets averaged, refines the result with an
+//! [`Apm`], and mixes the missed-label decisions too: about 11 % smaller
+//! (FO-DPSO) and about ten times slower to decode.
 //! Probabilities are [`Counter`]s, which learn fast in rare contexts.
 //! `docs/wire-format.md` specifies the stream bit for bit.
 
 use stereolink_image::LabelMap;
 
-use crate::mixer::Mixer;
+use crate::mixer::{squash, Apm, Mixer};
 use crate::rangecoder::{Counter, Decoder, Encoder};
 use crate::CodecError;
 
@@ -33,7 +36,7 @@ pub enum Mode {
     /// One context per decision: the fast decoder (what a receiver wants).
     #[default]
     Fast = 0,
-    /// Five contexts per decision, logistically mixed: smaller, slower.
+    /// Nine contexts per decision, logistically mixed: smaller, slower.
     Strong = 1,
 }
 
@@ -86,16 +89,49 @@ const REF: [(isize, isize); 6] = [(0, 0), (1, 0), (-1, 0), (0, 1), (0, -1), (2, 
 const CANDIDATES: usize = OWN.len() + REF.len();
 /// Ranks told apart by the contexts (later ones share the last).
 const RANKS: usize = 4;
+/// Mixed inputs of the strong mode's candidate decisions.
+const STRONG_INPUTS: usize = 9;
 /// Context bits besides the rank of the strong mode's mixed models: W … NWW
 /// of the own mask; W, N, NW, NE of it and the prediction's mask; both
-/// masks; the two label hashes (which include the rank).
-const CONTEXT_BITS: [u32; 5] = [
+/// masks; the two label hashes (which include the rank); the outer mask
+/// and W … NWW; the label hash of the candidate and its masks; the runs and
+/// W … NWW; the neighbours' equalities and W, N, NW, NE.
+const CONTEXT_BITS: [u32; STRONG_INPUTS] = [
     8,
     10,
     OWN_LEN as u32 + 6,
     LABEL_HASH_BITS - 2,
     LABEL_HASH_BITS - 2,
+    OUTER_LEN as u32 + 8,
+    LABEL_HASH_BITS - 2,
+    14,
+    12,
 ];
+/// The outer ring of the strong mode's template, beyond [`OWN`]: WWWW,
+/// NNWW, NNEE, NNN, NWWW, NEEEE, NNWWW, NNEEE. Which of these hold a
+/// candidate tells a noisy area from a clean edge.
+const OUTER: [(isize, isize); OUTER_LEN] = [
+    (-4, 0),
+    (-2, -2),
+    (2, -2),
+    (0, -3),
+    (-3, -1),
+    (4, -1),
+    (-3, -2),
+    (3, -2),
+];
+const OUTER_LEN: usize = 8;
+/// The strong mode's counters stop slowing down here: the statistics of a
+/// segmented view drift across it (about 0.5 % smaller than the fast
+/// mode's limit).
+const STRONG_COUNT_LIMIT: u8 = 30;
+/// Contexts of the strong mode's [`Apm`]: rank and own mask.
+const APM_CONTEXTS: usize = RANKS << OWN_LEN;
+/// Weight sets of the strong mode's second mixer: candidate label (up to
+/// 63) and rank.
+const LABEL_MIX_SETS: usize = 64 * RANKS;
+/// Mixed inputs of the strong mode's missed-label decisions.
+const MISSED_INPUTS: usize = 5;
 /// Bits of the label hashes.
 const LABEL_HASH_BITS: u32 = 18;
 /// Context bits besides the rank of the fast mode: eight bits of the own
@@ -109,8 +145,20 @@ const SEQUENTIAL_MAX: usize = 32;
 struct Model {
     /// The strong mode's counters of the candidate decisions, one table per
     /// mixed context.
-    flags: [Vec<Counter>; 5],
-    mixer: Mixer,
+    flags: [Vec<Counter>; STRONG_INPUTS],
+    /// Their mixers: weight sets by masks, and by candidate label.
+    mixer: Mixer<STRONG_INPUTS>,
+    label_mixer: Mixer<STRONG_INPUTS>,
+    apm: Apm,
+    /// The strong mode's counters of the missed-label decisions, and their mixer.
+    missed: [Vec<Counter>; MISSED_INPUTS],
+    missed_mixer: Mixer<MISSED_INPUTS>,
+    /// The strong mode's per-pixel contexts beyond the template: the labels
+    /// of [`OUTER`], and the quantised run lengths of W's label leftwards
+    /// and N's upwards (`runs`, from `row_run` and `column_runs`).
+    outer: [u32; OUTER_LEN],
+    runs: usize,
+    column_runs: Vec<u32>,
     /// The fast mode's counters.
     fast: Vec<Counter>,
     explicit: Vec<Counter>,
@@ -123,6 +171,13 @@ impl Model {
         Model {
             flags: Default::default(),
             mixer: Mixer::new(0),
+            label_mixer: Mixer::new(0),
+            apm: Apm::new(0),
+            missed: Default::default(),
+            missed_mixer: Mixer::new(0),
+            outer: [NONE; OUTER_LEN],
+            runs: 0,
+            column_runs: Vec::new(),
             fast: Vec::new(),
             explicit: Vec::new(),
             same_shift: Counter::default(),
@@ -132,12 +187,21 @@ impl Model {
 
     /// Back to the initial state for `n_labels` labels, reusing the storage.
     fn reset(&mut self, n_labels: usize, strong: bool) {
-        let mut sizes = [0; 5];
+        let mut sizes = [0; STRONG_INPUTS];
+        let mut missed_sizes = [0; MISSED_INPUTS];
         if strong {
             sizes = CONTEXT_BITS.map(|b| RANKS << b);
+            missed_sizes = MISSED_SIZES;
             self.mixer.reset(MIX_SETS);
+            self.label_mixer.reset(LABEL_MIX_SETS);
+            self.apm.reset(APM_CONTEXTS);
+            self.missed_mixer.reset(1);
         }
         for (f, size) in self.flags.iter_mut().zip(sizes) {
+            f.clear();
+            f.resize(size, Counter::default());
+        }
+        for (f, size) in self.missed.iter_mut().zip(missed_sizes) {
             f.clear();
             f.resize(size, Counter::default());
         }
@@ -269,6 +333,34 @@ fn own_template(data: &[u16], w: usize, x: usize, y: usize) -> [u32; OWN_LEN] {
     }
 }
 
+/// The labels of [`OUTER`] around (x, y).
+#[inline(always)]
+fn outer_template(data: &[u16], w: usize, x: usize, y: usize) -> [u32; OUTER_LEN] {
+    if x >= 4 && x + 4 < w && y >= 3 {
+        // Inside: direct reads, in the order of OUTER.
+        let (r0, r1, r2, r3) = (y * w + x, (y - 1) * w + x, (y - 2) * w + x, (y - 3) * w + x);
+        let g = |i: usize| u32::from(data[i]);
+        return [
+            g(r0 - 4),
+            g(r2 - 2),
+            g(r2 + 2),
+            g(r3),
+            g(r1 - 3),
+            g(r1 + 4),
+            g(r2 - 3),
+            g(r2 + 3),
+        ];
+    }
+    OUTER.map(|(dx, dy)| {
+        let (xx, yy) = (x as isize + dx, y as isize + dy);
+        if xx >= 0 && yy >= 0 && (xx as usize) < w {
+            u32::from(data[yy as usize * w + xx as usize])
+        } else {
+            NONE
+        }
+    })
+}
+
 /// The label of W if (x, y) is inside and its whole template holds it (most
 /// pixels: a quick test without gathering the template).
 #[inline(always)]
@@ -364,23 +456,107 @@ fn code_candidate<I: BitIo, const STRONG: bool, const COND: bool>(
             rf[1],
             rf[3],
         ]),
+        r << (OUTER_LEN + 8) | mask(&model.outer, c) << 8 | (mo & 255),
+        label_hash(&[(2 * RANKS + r) as u32, c, (mo & 255 | mr << 8) as u32]),
+        r << 14 | model.runs << 8 | (mo & 255),
+        r << 12 | equalities(own) << 4 | (mo & 15),
     ];
-    let [a, b, d, e, f] = &mut model.flags;
+    let [t0, t1, t2, t3, t4, t5, t6, t7, t8] = &mut model.flags;
     let counters = [
-        &mut a[ctx[0]],
-        &mut b[ctx[1]],
-        &mut d[ctx[2]],
-        &mut e[ctx[3]],
-        &mut f[ctx[4]],
+        &mut t0[ctx[0]],
+        &mut t1[ctx[1]],
+        &mut t2[ctx[2]],
+        &mut t3[ctx[3]],
+        &mut t4[ctx[4]],
+        &mut t5[ctx[5]],
+        &mut t6[ctx[6]],
+        &mut t7[ctx[7]],
+        &mut t8[ctx[8]],
     ];
-    let mix = model.mixer.mix(
-        r << 5 | (mo & 15) << 1 | (mr & 1),
-        counters.each_ref().map(|c| c.p0()),
-    );
-    let bit = io.code(mix.p0(), bit);
+    let p0 = counters.each_ref().map(|c| c.p0());
+    let mix = model.mixer.mix(r << 5 | (mo & 15) << 1 | (mr & 1), p0);
+    let by_label = model.label_mixer.mix((c as usize).min(63) << 2 | r, p0);
+    let d = (mix.stretch() + by_label.stretch()) >> 1;
+    let refined = model.apm.refine(d, r << OWN_LEN | mo);
+    // The mixed and the refined probability of a 1, averaged, in 1/2^16.
+    let p1 = ((squash(d) << 4) + refined.p1()) >> 1;
+    let bit = io.code((65536 - p1 as u32).clamp(32, 65504), bit);
     model.mixer.update(&mix, bit);
+    model.label_mixer.update(&by_label, bit);
+    model.apm.update(&refined, bit);
     for c in counters {
-        c.update(bit);
+        c.update_to(bit, STRONG_COUNT_LIMIT);
+    }
+    bit
+}
+
+/// Which pairs of the own template hold the same label (NONE equals NONE),
+/// as bits 0..7: N NE, NE NEE, NEE NEEE, NW NWW, N NN, NE NNE, NW NNW,
+/// NN NNE: the edges the row above shows, whatever the candidate.
+#[inline(always)]
+fn equalities(own: &[u32; OWN_LEN]) -> usize {
+    const PAIRS: [(usize, usize); 8] = [
+        (1, 3),
+        (3, 6),
+        (6, 11),
+        (2, 7),
+        (1, 5),
+        (3, 9),
+        (2, 8),
+        (5, 9),
+    ];
+    let mut e = 0;
+    for (k, &(a, b)) in PAIRS.iter().enumerate() {
+        e |= ((own[a] == own[b]) as usize) << k;
+    }
+    e
+}
+
+/// Table sizes of the strong mode's missed-label contexts: W's and N's
+/// label (32 when NONE or larger) with the label; three label hashes.
+const MISSED_SIZES: [usize; MISSED_INPUTS] = [
+    (SEQUENTIAL_MAX + 1) * SEQUENTIAL_MAX,
+    (SEQUENTIAL_MAX + 1) * SEQUENTIAL_MAX,
+    1 << (LABEL_HASH_BITS - 2),
+    1 << (LABEL_HASH_BITS - 2),
+    1 << (LABEL_HASH_BITS - 2),
+];
+
+/// Codes the strong mode's decision "the missed label is `l`" (palettes up
+/// to [`SEQUENTIAL_MAX`]): five contexts of `l` and the neighbours' labels,
+/// mixed with one weight set. A missed label is mostly one channel class
+/// away from a neighbour's, which one depends on more than W.
+#[inline(always)]
+fn code_missed<I: BitIo>(
+    io: &mut I,
+    model: &mut Model,
+    own: &[u32; OWN_LEN],
+    l: u32,
+    bit: bool,
+) -> bool {
+    let row = |v: u32| v.min(SEQUENTIAL_MAX as u32) as usize * SEQUENTIAL_MAX;
+    let ctx = [
+        row(own[0]) + l as usize,
+        row(own[1]) + l as usize,
+        label_hash(&[l, own[0], own[1]]) >> 2,
+        label_hash(&[l + 64, own[0], own[2], own[3]]) >> 2,
+        label_hash(&[l + 128, own[0], own[1], own[4], own[5]]) >> 2,
+    ];
+    let [t0, t1, t2, t3, t4] = &mut model.missed;
+    let counters = [
+        &mut t0[ctx[0]],
+        &mut t1[ctx[1]],
+        &mut t2[ctx[2]],
+        &mut t3[ctx[3]],
+        &mut t4[ctx[4]],
+    ];
+    let mix = model
+        .missed_mixer
+        .mix(0, counters.each_ref().map(|c| c.p0()));
+    let bit = io.code(mix.p0(), bit);
+    model.missed_mixer.update(&mix, bit);
+    for c in counters {
+        c.update_to(bit, STRONG_COUNT_LIMIT);
     }
     bit
 }
@@ -522,7 +698,11 @@ fn code_after_w<I: BitIo, const STRONG: bool, const COND: bool>(
         while free != 0 {
             let l = free.trailing_zeros();
             free &= free - 1;
-            if free == 0 || io.bit(&mut model.explicit[row + l as usize], l == v) {
+            let hit = |io: &mut I, model: &mut Model| match STRONG {
+                true => code_missed(io, model, own, l, l == v),
+                false => io.bit(&mut model.explicit[row + l as usize], l == v),
+            };
+            if free == 0 || hit(io, model) {
                 return Ok(l as u16);
             }
         }
@@ -568,7 +748,13 @@ fn code_rows<I: BitIo, const STRONG: bool, const COND: bool>(
     shifts.clear();
     shifts.resize(blocks, 0);
     let h = data.len().checked_div(w).unwrap_or(0);
+    if STRONG {
+        model.column_runs.clear();
+        model.column_runs.resize(w, 0);
+    }
     for y in 0..h {
+        // How many pixels left of W hold W's label.
+        let mut row_run = 0u32;
         if reference.is_some() {
             for (b, s) in shifts.iter_mut().enumerate() {
                 let want = plan.get(y * blocks + b).copied().unwrap_or(0);
@@ -584,6 +770,12 @@ fn code_rows<I: BitIo, const STRONG: bool, const COND: bool>(
             };
             let i = y * w + x;
             let v = data[i] as u32;
+            if STRONG {
+                // Bit length of a run, up to 7.
+                let q = |n: u32| (u32::BITS - n.leading_zeros()).min(7) as usize;
+                model.runs = q(row_run) << 3 | q(model.column_runs[x]);
+                model.outer = outer_template(data, w, x, y);
+            }
             data[i] = if STRONG {
                 let (own, flat) = match flat_inside(data, w, x, y) {
                     Some(wv) => ([wv; OWN_LEN], true),
@@ -596,6 +788,19 @@ fn code_rows<I: BitIo, const STRONG: bool, const COND: bool>(
             } else {
                 code_pixel_fast::<I, COND>(io, model, n_labels, (data, w, x, y), &rf, v)?
             };
+            if STRONG {
+                let (l, runs) = (data[i], &mut model.column_runs[x]);
+                row_run = if x > 0 && l == data[i - 1] {
+                    row_run + 1
+                } else {
+                    0
+                };
+                *runs = if y > 0 && l == data[i - w] {
+                    *runs + 1
+                } else {
+                    0
+                };
+            }
         }
         if io.overrun() {
             return Err(CodecError::Truncated("label stream"));
@@ -836,7 +1041,7 @@ mod tests {
         assert_eq!(decode(&streams[2], 6, 3, 3, Some(&left)).unwrap(), right);
         assert_eq!(
             streams.map(hex),
-            ["00d79196c5c800", "01d0b702d1158000", "0000db8ed295bd5d50"]
+            ["00d79196c5c800", "01d1e1e5fedb17", "0000db8ed295bd5d50"]
         );
     }
 

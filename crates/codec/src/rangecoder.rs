@@ -65,6 +65,14 @@ impl Counter {
     /// Learns `bit`.
     #[inline(always)]
     pub fn update(&mut self, bit: bool) {
+        self.update_to(bit, COUNT_LIMIT);
+    }
+
+    /// Learns `bit`, the state count stopping at `limit` (at most
+    /// `COUNT_LIMIT`): the slowest rate is then 1/(`limit` + 1.5), for
+    /// statistics that drift.
+    #[inline(always)]
+    pub fn update_to(&mut self, bit: bool, limit: u8) {
         let rate = RATES[self.n as usize];
         let p = self.p as u32;
         self.p = if bit {
@@ -72,7 +80,7 @@ impl Counter {
         } else {
             p + ((((1 << 16) - 1 - p) * rate) >> 16)
         } as u16;
-        self.n += (self.n < COUNT_LIMIT) as u8;
+        self.n += (self.n < limit) as u8;
     }
 }
 
