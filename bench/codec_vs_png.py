@@ -93,7 +93,7 @@ def main():
                   f"{zstd / ours:9.2f} {r['conditioned_gain_percent']:8.1f}% {r['psnr_right_db']:7.3f} dB {reduction:13.2f}%")
     for method, rows in totals.items():
         a = np.array(rows)
-        print(f"mean {method:<7}: PNG/ours {a[:, 0].mean():.2f}, zstd/ours {a[:, 1].mean():.2f}, "
+        print(f"mean {method:<7}: PNG/ours {a[:, 0].mean():.3f}, zstd/ours {a[:, 1].mean():.3f}, "
               f"conditioned gain {a[:, 2].mean():.1f} % (right PSNR {a[:, 4].mean():.3f} dB), pair reduction {a[:, 3].mean():.2f} % "
               f"(paper: {'51.48-61.54' if method == 'kmeans' else '79.49-86.00'} %)")
 

@@ -9,23 +9,24 @@ use stereolink_image::LabelMap;
 fn coding(c: &mut Criterion) {
     let left = LabelMap::from_fn(480, 272, |x, y| (((x / 23) ^ (y / 17)) % 5) as u16);
     let right = LabelMap::from_fn(480, 272, |x, y| left.get((x + 7).min(479), y));
+    let palette = [[0, 0, 0], [255, 0, 0], [0, 255, 0], [0, 0, 255], [255, 255, 255]];
     let (a, b) = (
-        labels::encode(&left, 5, None, 0, Mode::Fast),
-        labels::encode(&right, 5, Some(&left), 32, Mode::Fast),
+        labels::encode(&left, &palette, None, 0, Mode::Fast),
+        labels::encode(&right, &palette, Some(&left), 32, Mode::Fast),
     );
     let mut g = c.benchmark_group("labels_480x272");
     g.throughput(Throughput::Elements(480 * 272));
     g.bench_function("encode_left", |bn| {
-        bn.iter(|| labels::encode(black_box(&left), 5, None, 0, Mode::Fast))
+        bn.iter(|| labels::encode(black_box(&left), &palette, None, 0, Mode::Fast))
     });
     g.bench_function("decode_left", |bn| {
-        bn.iter(|| labels::decode(black_box(&a), 480, 272, 5, None).unwrap())
+        bn.iter(|| labels::decode(black_box(&a), 480, 272, &palette, None).unwrap())
     });
     g.bench_function("encode_right_conditioned", |bn| {
-        bn.iter(|| labels::encode(black_box(&right), 5, Some(&left), 32, Mode::Fast))
+        bn.iter(|| labels::encode(black_box(&right), &palette, Some(&left), 32, Mode::Fast))
     });
     g.bench_function("decode_right_conditioned", |bn| {
-        bn.iter(|| labels::decode(black_box(&b), 480, 272, 5, Some(&left)).unwrap())
+        bn.iter(|| labels::decode(black_box(&b), 480, 272, &palette, Some(&left)).unwrap())
     });
     g.finish();
 }

@@ -215,7 +215,6 @@ fn encode_frame(w: &mut Writer, f: &StereoFrame, mode: labels::Mode) {
 fn encode_view(w: &mut Writer, view: &View, reference: Option<&IndexedImage>, mode: labels::Mode) {
     let (code, palette, payload): (u8, &[Rgb], Vec<u8>) = match view {
         View::Indexed(img) => {
-            let n = img.palette().len();
             match reference {
                 Some(r) => (
                     coding::LABELS_CONDITIONED,
@@ -225,7 +224,7 @@ fn encode_view(w: &mut Writer, view: &View, reference: Option<&IndexedImage>, mo
                 None => (
                     coding::LABELS,
                     img.palette(),
-                    labels::encode(img.labels(), n, None, 0, mode),
+                    labels::encode(img.labels(), img.palette(), None, 0, mode),
                 ),
             }
         }
@@ -252,7 +251,7 @@ pub fn conditioned_payload(
     let mut payload: Vec<u8> = table.iter().flat_map(|t| t.to_le_bytes()).collect();
     payload.extend(labels::encode(
         right.labels(),
-        right.palette().len(),
+        right.palette(),
         Some(&predicted),
         SHIFT_SEARCH,
         mode,
@@ -442,14 +441,14 @@ impl ViewRef<'_> {
         self.palette.len() / 3
     }
 
-    /// Colour `i` of the palette.
-    fn colour(&self, i: u16) -> Rgb {
-        let c = &self.palette[3 * i as usize..3 * i as usize + 3];
-        [c[0], c[1], c[2]]
+    /// The palette's colours.
+    pub fn palette(&self) -> &[Rgb] {
+        self.palette.as_chunks().0
     }
 
-    fn palette(&self) -> Vec<Rgb> {
-        (0..self.colours() as u16).map(|i| self.colour(i)).collect()
+    /// Colour `i` of the palette.
+    fn colour(&self, i: u16) -> Rgb {
+        self.palette()[i as usize]
     }
 }
 
@@ -545,7 +544,7 @@ impl FrameRef<'_> {
             Ok(match v.coding {
                 coding::RGB => View::Rgb(rgb),
                 _ => View::Indexed(
-                    IndexedImage::new(labels, v.palette())
+                    IndexedImage::new(labels, v.palette().to_vec())
                         .map_err(|e| CodecError::Invalid(e.to_string()))?,
                 ),
             })
@@ -615,7 +614,7 @@ impl FrameDecoder {
                 coding::LABELS => {
                     labels.reset(w, h, 0);
                     self.label_decoder
-                        .decode_into(view.payload, n, None, labels)?;
+                        .decode_into(view.payload, view.palette(), None, labels)?;
                 }
                 _ => {
                     // Conditioned: the label table (one u16 per left label,
@@ -646,7 +645,7 @@ impl FrameDecoder {
                     let right = &mut self.labels.1;
                     right.reset(w, h, 0);
                     self.label_decoder
-                        .decode_into(coded, n, Some(&self.predicted), right)?;
+                        .decode_into(coded, view.palette(), Some(&self.predicted), right)?;
                 }
             }
         }

@@ -23,8 +23,9 @@
 //! Probabilities are [`Counter`]s, which learn fast in rare contexts.
 //! `docs/wire-format.md` specifies the stream bit for bit.
 
-use stereolink_image::LabelMap;
+use stereolink_image::{LabelMap, Rgb};
 
+use crate::channels::{self, ChannelModel};
 use crate::mixer::{squash, Apm, Mixer};
 use crate::rangecoder::{Counter, Decoder, Encoder};
 use crate::CodecError;
@@ -89,14 +90,18 @@ const REF: [(isize, isize); 6] = [(0, 0), (1, 0), (-1, 0), (0, 1), (0, -1), (2, 
 const CANDIDATES: usize = OWN.len() + REF.len();
 /// Ranks told apart by the contexts (later ones share the last).
 const RANKS: usize = 4;
+/// Counters of the strong mode's candidate decisions (one per context).
+const COUNTER_INPUTS: usize = 9;
+/// Chain-rule channel models ([`crate::channels`]) mixed with the counters.
+const CHANNEL_MODELS: usize = 3;
 /// Mixed inputs of the strong mode's candidate decisions.
-const STRONG_INPUTS: usize = 9;
+const STRONG_INPUTS: usize = COUNTER_INPUTS + CHANNEL_MODELS;
 /// Context bits besides the rank of the strong mode's mixed models: W … NWW
 /// of the own mask; W, N, NW, NE of it and the prediction's mask; both
 /// masks; the two label hashes (which include the rank); the outer mask
 /// and W … NWW; the label hash of the candidate and its masks; the runs and
 /// W … NWW; the neighbours' equalities and W, N, NW, NE.
-const CONTEXT_BITS: [u32; STRONG_INPUTS] = [
+const CONTEXT_BITS: [u32; COUNTER_INPUTS] = [
     8,
     10,
     OWN_LEN as u32 + 6,
@@ -130,8 +135,18 @@ const APM_CONTEXTS: usize = RANKS << OWN_LEN;
 /// Weight sets of the strong mode's second mixer: candidate label (up to
 /// 63) and rank.
 const LABEL_MIX_SETS: usize = 64 * RANKS;
+/// Counters of the strong mode's missed-label decisions.
+const MISSED_COUNTERS: usize = 5;
 /// Mixed inputs of the strong mode's missed-label decisions.
-const MISSED_INPUTS: usize = 5;
+const MISSED_INPUTS: usize = MISSED_COUNTERS + CHANNEL_MODELS;
+/// The strong mode's channel models: channels R, G, B with the classes of
+/// W, N, NW, NE, WW, NN; B, G, R with W, N, NW, NE; G, B, R with W, N, NE,
+/// WW, NN, NEE.
+const CHANNEL_ORDERS: [ChannelModel; CHANNEL_MODELS] = [
+    ChannelModel::new([0, 1, 2], &[0, 1, 2, 3, 4, 5]),
+    ChannelModel::new([2, 1, 0], &[0, 1, 2, 3]),
+    ChannelModel::new([1, 2, 0], &[0, 1, 3, 4, 5, 6]),
+];
 /// Bits of the label hashes.
 const LABEL_HASH_BITS: u32 = 18;
 /// Context bits besides the rank of the fast mode: eight bits of the own
@@ -145,19 +160,23 @@ const SEQUENTIAL_MAX: usize = 32;
 struct Model {
     /// The strong mode's counters of the candidate decisions, one table per
     /// mixed context.
-    flags: [Vec<Counter>; STRONG_INPUTS],
+    flags: [Vec<Counter>; COUNTER_INPUTS],
     /// Their mixers: weight sets by masks, and by candidate label.
     mixer: Mixer<STRONG_INPUTS>,
     label_mixer: Mixer<STRONG_INPUTS>,
     apm: Apm,
     /// The strong mode's counters of the missed-label decisions, and their mixer.
-    missed: [Vec<Counter>; MISSED_INPUTS],
+    missed: [Vec<Counter>; MISSED_COUNTERS],
     missed_mixer: Mixer<MISSED_INPUTS>,
     /// The strong mode's per-pixel contexts beyond the template: the labels
     /// of [`OUTER`], and the quantised run lengths of W's label leftwards
     /// and N's upwards (`runs`, from `row_run` and `column_runs`).
     outer: [u32; OUTER_LEN],
     runs: usize,
+    /// The strong mode's channel models, and each label's channel classes
+    /// (empty: no channel model, their inputs are ½).
+    channels: [ChannelModel; CHANNEL_MODELS],
+    classes: Vec<[u8; 3]>,
     column_runs: Vec<u32>,
     /// The fast mode's counters.
     fast: Vec<Counter>,
@@ -177,6 +196,8 @@ impl Model {
             missed_mixer: Mixer::new(0),
             outer: [NONE; OUTER_LEN],
             runs: 0,
+            channels: CHANNEL_ORDERS,
+            classes: Vec::new(),
             column_runs: Vec::new(),
             fast: Vec::new(),
             explicit: Vec::new(),
@@ -185,11 +206,17 @@ impl Model {
         }
     }
 
-    /// Back to the initial state for `n_labels` labels, reusing the storage.
-    fn reset(&mut self, n_labels: usize, strong: bool) {
-        let mut sizes = [0; STRONG_INPUTS];
-        let mut missed_sizes = [0; MISSED_INPUTS];
+    /// Back to the initial state for a map indexing `palette`, reusing the storage.
+    fn reset(&mut self, palette: &[Rgb], strong: bool) {
+        let n_labels = palette.len();
+        let mut sizes = [0; COUNTER_INPUTS];
+        let mut missed_sizes = [0; MISSED_COUNTERS];
+        self.classes.clear();
         if strong {
+            channels::classes(palette, &mut self.classes);
+            if !self.classes.is_empty() {
+                self.channels.iter_mut().for_each(ChannelModel::reset);
+            }
             sizes = CONTEXT_BITS.map(|b| RANKS << b);
             missed_sizes = MISSED_SIZES;
             self.mixer.reset(MIX_SETS);
@@ -473,7 +500,8 @@ fn code_candidate<I: BitIo, const STRONG: bool, const COND: bool>(
         &mut t7[ctx[7]],
         &mut t8[ctx[8]],
     ];
-    let p0 = counters.each_ref().map(|c| c.p0());
+    let channels = (&model.channels[..], &model.classes[..]);
+    let p0 = with_channels(channels, counters.each_ref().map(|c| c.p0()), c);
     let mix = model.mixer.mix(r << 5 | (mo & 15) << 1 | (mr & 1), p0);
     let by_label = model.label_mixer.mix((c as usize).min(63) << 2 | r, p0);
     let d = (mix.stretch() + by_label.stretch()) >> 1;
@@ -487,7 +515,38 @@ fn code_candidate<I: BitIo, const STRONG: bool, const COND: bool>(
     for c in counters {
         c.update_to(bit, STRONG_COUNT_LIMIT);
     }
+    if !bit {
+        refuse(model, c);
+    }
     bit
+}
+
+/// The mixed inputs of a decision "the label is `l`": the counters' `p0`,
+/// then the channel models' (½ without classes).
+#[inline(always)]
+fn with_channels<const N: usize, const M: usize>(
+    (channels, classes): (&[ChannelModel], &[[u8; 3]]),
+    p0: [u32; N],
+    l: u32,
+) -> [u32; M] {
+    let mut all = [1 << 15; M];
+    all[..N].copy_from_slice(&p0);
+    if !classes.is_empty() {
+        for (a, m) in all[N..].iter_mut().zip(channels) {
+            *a = m.p0(classes, l);
+        }
+    }
+    all
+}
+
+/// Tells the channel models that the label is not `l`.
+#[inline(always)]
+fn refuse(model: &mut Model, l: u32) {
+    if !model.classes.is_empty() {
+        for m in &mut model.channels {
+            m.refuse(&model.classes, l);
+        }
+    }
 }
 
 /// Which pairs of the own template hold the same label (NONE equals NONE),
@@ -514,7 +573,7 @@ fn equalities(own: &[u32; OWN_LEN]) -> usize {
 
 /// Table sizes of the strong mode's missed-label contexts: W's and N's
 /// label (32 when NONE or larger) with the label; three label hashes.
-const MISSED_SIZES: [usize; MISSED_INPUTS] = [
+const MISSED_SIZES: [usize; MISSED_COUNTERS] = [
     (SEQUENTIAL_MAX + 1) * SEQUENTIAL_MAX,
     (SEQUENTIAL_MAX + 1) * SEQUENTIAL_MAX,
     1 << (LABEL_HASH_BITS - 2),
@@ -550,13 +609,16 @@ fn code_missed<I: BitIo>(
         &mut t3[ctx[3]],
         &mut t4[ctx[4]],
     ];
-    let mix = model
-        .missed_mixer
-        .mix(0, counters.each_ref().map(|c| c.p0()));
+    let channels = (&model.channels[..], &model.classes[..]);
+    let p0 = with_channels(channels, counters.each_ref().map(|c| c.p0()), l);
+    let mix = model.missed_mixer.mix(0, p0);
     let bit = io.code(mix.p0(), bit);
     model.missed_mixer.update(&mix, bit);
     for c in counters {
         c.update_to(bit, STRONG_COUNT_LIMIT);
+    }
+    if !bit {
+        refuse(model, l);
     }
     bit
 }
@@ -715,9 +777,9 @@ fn code_after_w<I: BitIo, const STRONG: bool, const COND: bool>(
     }
 }
 
-/// What [`code_map`] codes: the map, its width, the palette size, the
-/// reference and the encoder's shifts.
-type MapArgs<'a> = (&'a mut [u16], usize, usize, Option<&'a LabelMap>, &'a [u8]);
+/// What [`code_map`] codes: the map, its width, the palette, the reference
+/// and the encoder's shifts.
+type MapArgs<'a> = (&'a mut [u16], usize, &'a [Rgb], Option<&'a LabelMap>, &'a [u8]);
 
 /// Codes a whole map: `data` holds it for the encoder and receives it in
 /// the decoder; `plan` holds the encoder's shifts (row-major, one per block).
@@ -741,9 +803,10 @@ fn code_map<I: BitIo, const STRONG: bool>(
 fn code_rows<I: BitIo, const STRONG: bool, const COND: bool>(
     io: &mut I,
     model: &mut Model,
-    (data, w, n_labels, reference, plan): MapArgs,
+    (data, w, palette, reference, plan): MapArgs,
     shifts: &mut Vec<u8>,
 ) -> Result<(), CodecError> {
+    let n_labels = palette.len();
     let blocks = w.div_ceil(BLOCK);
     shifts.clear();
     shifts.resize(blocks, 0);
@@ -784,7 +847,16 @@ fn code_rows<I: BitIo, const STRONG: bool, const COND: bool>(
                         (t, is_flat(&t))
                     }
                 };
-                code_pixel::<I, true, COND>(io, model, n_labels, (&own, flat), &rf, v)?
+                let classes = &model.classes;
+                if !classes.is_empty() {
+                    model.channels.iter_mut().for_each(|m| m.prepare(classes, &own));
+                }
+                let l = code_pixel::<I, true, COND>(io, model, n_labels, (&own, flat), &rf, v)?;
+                let classes = &model.classes;
+                if !classes.is_empty() {
+                    model.channels.iter_mut().for_each(|m| m.learn(classes, l as u32));
+                }
+                l
             } else {
                 code_pixel_fast::<I, COND>(io, model, n_labels, (data, w, x, y), &rf, v)?
             };
@@ -886,11 +958,12 @@ pub fn plan_shifts(map: &LabelMap, reference: &LabelMap, max_shift: usize) -> Ve
     plan
 }
 
-/// Codes `map` (labels below `n_labels`); with `reference`, predicts from it
-/// through per-block shifts searched up to `max_shift`.
+/// Codes `map` (labels index `palette`, whose colours inform the strong
+/// mode's [channel models](crate::channels)); with `reference`, predicts
+/// from it through per-block shifts searched up to `max_shift`.
 pub fn encode(
     map: &LabelMap,
-    n_labels: usize,
+    palette: &[Rgb],
     reference: Option<&LabelMap>,
     max_shift: usize,
     mode: Mode,
@@ -900,7 +973,7 @@ pub fn encode(
     let mut enc = Encoder::new();
     let mut data = map.as_slice().to_vec();
     let (model, shifts) = (&mut Model::new(), &mut Vec::new());
-    let args = (&mut data[..], w, n_labels, reference, &plan[..]);
+    let args = (&mut data[..], w, palette, reference, &plan[..]);
     match mode {
         Mode::Fast => code_map::<_, false>(&mut enc, model, args, shifts),
         Mode::Strong => code_map::<_, true>(&mut enc, model, args, shifts),
@@ -911,29 +984,30 @@ pub fn encode(
     out
 }
 
-/// Decodes a `w`×`h` map written by [`encode`] (with the same reference).
+/// Decodes a `w`×`h` map written by [`encode`] (with the same palette and
+/// reference).
 ///
-/// Fails if a decoded label is not below `n_labels` or the stream ends too early.
+/// Fails if a decoded label does not index `palette` or the stream ends too early.
 pub fn decode(
     bytes: &[u8],
     w: usize,
     h: usize,
-    n_labels: usize,
+    palette: &[Rgb],
     reference: Option<&LabelMap>,
 ) -> Result<LabelMap, CodecError> {
     let mut out = LabelMap::new(w, h, 0);
-    decode_into(bytes, n_labels, reference, &mut out)?;
+    decode_into(bytes, palette, reference, &mut out)?;
     Ok(out)
 }
 
 /// [`decode`] into a caller-provided map (its size gives `w`×`h`).
 pub fn decode_into(
     bytes: &[u8],
-    n_labels: usize,
+    palette: &[Rgb],
     reference: Option<&LabelMap>,
     out: &mut LabelMap,
 ) -> Result<(), CodecError> {
-    LabelDecoder::default().decode_into(bytes, n_labels, reference, out)
+    LabelDecoder::default().decode_into(bytes, palette, reference, out)
 }
 
 /// Decodes map after map with one model and buffers, so that a receiver
@@ -957,7 +1031,7 @@ impl LabelDecoder {
     pub fn decode_into(
         &mut self,
         bytes: &[u8],
-        n_labels: usize,
+        palette: &[Rgb],
         reference: Option<&LabelMap>,
         out: &mut LabelMap,
     ) -> Result<(), CodecError> {
@@ -972,7 +1046,7 @@ impl LabelDecoder {
             .ok_or(CodecError::Truncated("label stream"))?;
         let mut dec = Decoder::new(coded);
         let (model, shifts) = (&mut self.model, &mut self.shifts);
-        let args = (out.as_mut_slice(), w, n_labels, reference, &[][..]);
+        let args = (out.as_mut_slice(), w, palette, reference, &[][..]);
         match mode {
             0 => code_map::<_, false>(&mut dec, model, args, shifts),
             1 => code_map::<_, true>(&mut dec, model, args, shifts),
@@ -985,6 +1059,14 @@ impl LabelDecoder {
 mod tests {
     use super::*;
     use proptest::prelude::*;
+
+    /// `n` colours, each channel at one of three values while `n` ≤ 27, so
+    /// that the strong mode's channel models take part (repeating beyond).
+    fn palette(n: usize) -> Vec<Rgb> {
+        (0..n)
+            .map(|i| [i % 3, i / 3 % 3, i / 9 % 3].map(|c| c as u8 * 100))
+            .collect()
+    }
 
     fn blobs(w: usize, h: usize, n: u16, seed: u64) -> LabelMap {
         LabelMap::from_fn(w, h, |x, y| {
@@ -1004,21 +1086,21 @@ mod tests {
                 s ^= s << 13; s ^= s >> 7; s ^= s << 17;
                 if s % 17 == 0 { (s >> 20) as u16 % n } else { left.get((x + 3).min(w - 1), y) }
             });
-            let a = encode(&left, n as usize, None, 0, mode);
+            let a = encode(&left, &palette(n as usize), None, 0, mode);
             prop_assert_eq!(a[0], mode as u8);
-            prop_assert_eq!(decode(&a, w, h, n as usize, None).unwrap(), left.clone());
-            let b = encode(&right, n as usize, Some(&left), 16, mode);
-            prop_assert_eq!(decode(&b, w, h, n as usize, Some(&left)).unwrap(), right);
+            prop_assert_eq!(decode(&a, w, h, &palette(n as usize), None).unwrap(), left.clone());
+            let b = encode(&right, &palette(n as usize), Some(&left), 16, mode);
+            prop_assert_eq!(decode(&b, w, h, &palette(n as usize), Some(&left)).unwrap(), right);
         }
 
         #[test]
         fn garbage_never_panics(bytes in proptest::collection::vec(any::<u8>(), 0..64), mode in 0u8..3, w in 1usize..30, h in 1usize..30, n in 1usize..80) {
             let mut stream = vec![mode];
             stream.extend(&bytes);
-            let _ = decode(&stream, w, h, n, None);
+            let _ = decode(&stream, w, h, &palette(n), None);
             // A reference whose labels exceed the palette must not panic either.
             let reference = LabelMap::from_fn(w, h, |x, y| ((x * 7 + y) % (n + 3)) as u16);
-            let _ = decode(&stream, w, h, n, Some(&reference));
+            let _ = decode(&stream, w, h, &palette(n), Some(&reference));
         }
     }
 
@@ -1030,18 +1112,19 @@ mod tests {
         let left = LabelMap::from_fn(6, 3, |x, y| rows[y][x]);
         let right = LabelMap::from_fn(6, 3, |x, y| rows[y][(x + 1).min(5)]);
         let hex = |b: Vec<u8>| b.iter().map(|b| format!("{b:02x}")).collect::<String>();
+        let palette = palette(3);
         let streams = [
-            encode(&left, 3, None, 0, Mode::Fast),
-            encode(&left, 3, None, 0, Mode::Strong),
-            encode(&right, 3, Some(&left), 4, Mode::Fast),
+            encode(&left, &palette, None, 0, Mode::Fast),
+            encode(&left, &palette, None, 0, Mode::Strong),
+            encode(&right, &palette, Some(&left), 4, Mode::Fast),
         ];
         for s in &streams[..2] {
-            assert_eq!(decode(s, 6, 3, 3, None).unwrap(), left);
+            assert_eq!(decode(s, 6, 3, &palette, None).unwrap(), left);
         }
-        assert_eq!(decode(&streams[2], 6, 3, 3, Some(&left)).unwrap(), right);
+        assert_eq!(decode(&streams[2], 6, 3, &palette, Some(&left)).unwrap(), right);
         assert_eq!(
             streams.map(hex),
-            ["00d79196c5c800", "01d1e1e5fedb17", "0000db8ed295bd5d50"]
+            ["00d79196c5c800", "01db7d4977d39600", "0000db8ed295bd5d50"]
         );
     }
 
@@ -1050,8 +1133,8 @@ mod tests {
         let left = blobs(200, 100, 6, 1);
         let right = LabelMap::from_fn(200, 100, |x, y| left.get((x + 9).min(199), y));
         for mode in [Mode::Fast, Mode::Strong] {
-            let alone = encode(&right, 6, None, 0, mode).len();
-            let cond = encode(&right, 6, Some(&left), 32, mode).len();
+            let alone = encode(&right, &palette(6), None, 0, mode).len();
+            let cond = encode(&right, &palette(6), Some(&left), 32, mode).len();
             assert!(
                 cond * 2 < alone,
                 "{mode:?}: alone {alone} conditioned {cond}"

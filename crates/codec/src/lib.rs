@@ -32,6 +32,7 @@
 
 #![deny(missing_docs)]
 
+pub mod channels;
 pub mod container;
 pub mod labels;
 pub mod mixer;

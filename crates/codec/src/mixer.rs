@@ -13,7 +13,7 @@ const ONE: i32 = 1 << 16;
 const WEIGHT_MAX: i32 = 1 << 24;
 /// Learning rate: a weight moves by input × error × `RATE` / 2^14 (the
 /// error in 1/4096).
-const RATE: i32 = 6;
+const RATE: i32 = 4;
 
 /// `4096 / (1 + e^(−d/256))` at d = −2048, −1920, …, 2048 (the paq table).
 const SQUASH_KNOTS: [i32; 33] = [

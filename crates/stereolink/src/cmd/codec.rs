@@ -231,8 +231,8 @@ pub fn run_bench(args: BenchArgs, out: &super::Output) -> anyhow::Result<()> {
     let nl = l.palette().len();
     let nr = r.palette().len();
     let mode = args.mode;
-    let left_bytes = labels::encode(l.labels(), nl, None, 0, mode);
-    let right_alone = labels::encode(r.labels(), nr, None, 0, mode);
+    let left_bytes = labels::encode(l.labels(), l.palette(), None, 0, mode);
+    let right_alone = labels::encode(r.labels(), r.palette(), None, 0, mode);
     let frame = StereoFrame {
         kind: SegmentationKind::None,
         levels: 0,

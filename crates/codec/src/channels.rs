@@ -1,0 +1,243 @@
+//! The strong label model's view of a label as colour-channel classes.
+//!
+//! A per-channel thresholding (FO-DPSO, PSO, Otsu at three levels) labels a
+//! pixel by its class in R, G and B, and its speckle flips one channel's
+//! class where that channel's value hovers near a threshold, whatever the
+//! others do. A label-by-label model must learn each of the 27 combinations
+//! in each neighbourhood; a channel model learns the three channels' classes
+//! apart, from the neighbours' classes in the same channel, and so predicts
+//! a combination it has seldom or never seen.
+//!
+//! When every channel of the palette takes at most three values, the class
+//! of label l in channel k is the rank of its colour's value among them
+//! ([`classes`]). A [`ChannelModel`] then gives each label a probability by
+//! the chain rule over the channels in its order o₀, o₁, o₂:
+//!
+//! P(l) = Π_j P(c_{o_j}(l) | classes of the template in channel o_j,
+//! which earlier channels differ from W's class),
+//!
+//! each factor from two adaptive counters: "the class is W's" and, if not,
+//! "it is the lower of the two others". The probability that the label is
+//! candidate c, given the candidates refused so far at this pixel, is
+//! P(c) / (Σ_palette P − Σ_refused P): an input of the strong mode's mixers
+//! for the candidate and missed-label decisions. `docs/wire-format.md`
+//! specifies the integer arithmetic bit for bit.
+
+use stereolink_image::Rgb;
+
+use crate::rangecoder::Counter;
+
+/// The class standing for a position outside the map.
+const OUTSIDE: u8 = 3;
+/// The channel counters stop slowing down here.
+const COUNT_LIMIT: u8 = 60;
+/// Largest palette given a channel model (the label coder's sequential limit).
+const MAX_LABELS: usize = 32;
+
+/// Each label's class per channel, or nothing when a channel of the palette
+/// takes more than three values (or the palette exceeds 32 colours): the
+/// rank of the label's value among the channel's distinct values.
+pub fn classes(palette: &[Rgb], out: &mut Vec<[u8; 3]>) {
+    out.clear();
+    if palette.len() > MAX_LABELS {
+        return;
+    }
+    let mut values = [[0u8; 3]; 3];
+    let mut counts = [0usize; 3];
+    for colour in palette {
+        for k in 0..3 {
+            let seen = &values[k][..counts[k]];
+            if !seen.contains(&colour[k]) {
+                if counts[k] == 3 {
+                    return;
+                }
+                values[k][counts[k]] = colour[k];
+                counts[k] += 1;
+            }
+        }
+    }
+    for k in 0..3 {
+        values[k][..counts[k]].sort_unstable();
+    }
+    out.extend(palette.iter().map(|colour| {
+        [0, 1, 2].map(|k| values[k][..counts[k]].partition_point(|&v| v < colour[k]) as u8)
+    }));
+}
+
+/// Whether `class`, not `w_class`, is the lower of the two classes besides it.
+#[inline(always)]
+fn is_lower(class: u8, w_class: u8) -> bool {
+    class == (w_class == 0) as u8
+}
+
+/// One chain-rule model: a channel order and the template positions (indices
+/// into the label coder's template, W first) whose classes are its context.
+pub struct ChannelModel {
+    order: [usize; 3],
+    positions: &'static [usize],
+    /// "The class is W's", then "it is the lower of the two others", by
+    /// [`ChannelModel::index`].
+    same: Vec<Counter>,
+    lower: Vec<Counter>,
+    /// Per channel: the template's classes packed two bits each, and W's class.
+    context: [usize; 3],
+    w_class: [u8; 3],
+    /// Σ P over the palette, and over the candidates refused at this pixel.
+    total: u32,
+    refused: u32,
+}
+
+impl ChannelModel {
+    /// A model of channel `order` with the classes at template `positions`.
+    pub const fn new(order: [usize; 3], positions: &'static [usize]) -> Self {
+        ChannelModel {
+            order,
+            positions,
+            same: Vec::new(),
+            lower: Vec::new(),
+            context: [0; 3],
+            w_class: [0; 3],
+            total: 0,
+            refused: 0,
+        }
+    }
+
+    /// Back to the initial state, reusing the storage.
+    pub fn reset(&mut self) {
+        let size = 3 * 4 << (2 * self.positions.len());
+        for t in [&mut self.same, &mut self.lower] {
+            t.clear();
+            t.resize(size, Counter::default());
+        }
+    }
+
+    /// The counters' index for the `j`-th channel of the order, `k`, with
+    /// `differ` the earlier channels whose class is not W's (bit i: the i-th).
+    #[inline(always)]
+    fn index(&self, j: usize, k: usize, differ: usize) -> usize {
+        (j * 4 + differ) << (2 * self.positions.len()) | self.context[k]
+    }
+
+    /// Sets the pixel's context from its template's labels (`NONE`: outside)
+    /// and computes Σ P over the palette.
+    pub fn prepare(&mut self, classes: &[[u8; 3]], template: &[u32]) {
+        let class = |l: u32, k: usize| classes.get(l as usize).map_or(OUTSIDE, |c| c[k]);
+        for k in 0..3 {
+            self.context[k] = self
+                .positions
+                .iter()
+                .fold(0, |c, &p| c << 2 | class(template[p], k) as usize);
+            // W's class, else N's, else the middle one.
+            self.w_class[k] = [template[0], template[1]]
+                .into_iter()
+                .map(|l| class(l, k))
+                .find(|&c| c != OUTSIDE)
+                .unwrap_or(1);
+        }
+        self.refused = 0;
+        self.total = classes.iter().map(|c| self.prob(c)).sum();
+    }
+
+    /// P(label with classes `c`) in 1/2^16 by the chain rule, each factor
+    /// and product rounded down.
+    #[inline(always)]
+    fn prob(&self, c: &[u8; 3]) -> u32 {
+        let mut p = 1u32 << 16;
+        let mut differ = 0;
+        for (j, k) in self.order.into_iter().enumerate() {
+            let i = self.index(j, k, differ);
+            let same = (1 << 16) - self.same[i].p0();
+            let f = if c[k] == self.w_class[k] {
+                same
+            } else {
+                let lower = (1 << 16) - self.lower[i].p0();
+                let f = if is_lower(c[k], self.w_class[k]) {
+                    lower
+                } else {
+                    (1 << 16) - lower
+                };
+                differ |= 1 << j;
+                ((1 << 16) - same) * f >> 16
+            };
+            p = ((p as u64 * f as u64) >> 16) as u32;
+        }
+        p
+    }
+
+    /// The probability of a 0 (in 1/2^16, within [32, 65504]) of the
+    /// decision "the label is `l`", given the labels refused at this pixel.
+    #[inline(always)]
+    pub fn p0(&self, classes: &[[u8; 3]], l: u32) -> u32 {
+        let Some(c) = classes.get(l as usize) else {
+            return 1 << 15;
+        };
+        let rest = self.total.saturating_sub(self.refused).max(1);
+        let p = ((self.prob(c) as u64) << 16) / rest as u64;
+        ((1u32 << 16).saturating_sub(p.min(1 << 16) as u32)).clamp(32, 65504)
+    }
+
+    /// Learns that the label is not `l`.
+    #[inline(always)]
+    pub fn refuse(&mut self, classes: &[[u8; 3]], l: u32) {
+        if let Some(c) = classes.get(l as usize) {
+            self.refused += self.prob(c);
+        }
+    }
+
+    /// Learns the pixel's label `l`.
+    pub fn learn(&mut self, classes: &[[u8; 3]], l: u32) {
+        let Some(c) = classes.get(l as usize) else {
+            return;
+        };
+        let mut differ = 0;
+        for (j, k) in self.order.into_iter().enumerate() {
+            let i = self.index(j, k, differ);
+            let same = c[k] == self.w_class[k];
+            self.same[i].update_to(same, COUNT_LIMIT);
+            if !same {
+                self.lower[i].update_to(is_lower(c[k], self.w_class[k]), COUNT_LIMIT);
+                differ |= 1 << j;
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn classes_rank_each_channel() {
+        let palette = [[10, 200, 5], [90, 200, 7], [10, 50, 9]];
+        let mut c = Vec::new();
+        classes(&palette, &mut c);
+        assert_eq!(c, vec![[0, 1, 0], [1, 1, 1], [0, 0, 2]]);
+        // A fourth value in a channel: no classes.
+        classes(&[[0; 3], [1; 3], [2; 3], [3; 3]], &mut c);
+        assert!(c.is_empty());
+    }
+
+    #[test]
+    fn probabilities_sum_to_one_and_learn() {
+        // All 27 combinations: the chain rule sums to about 1.
+        let palette: Vec<Rgb> = (0..27u8).map(|i| [i % 3, i / 3 % 3, i / 9]).collect();
+        let mut c = Vec::new();
+        classes(&palette, &mut c);
+        let mut m = ChannelModel::new([0, 1, 2], &[0, 1, 2, 3]);
+        m.reset();
+        let template = [13u32; 12];
+        m.prepare(&c, &template);
+        assert!((65536 - 64..=65536).contains(&m.total), "{}", m.total);
+        let before = m.p0(&c, 13);
+        for _ in 0..50 {
+            m.prepare(&c, &template);
+            m.learn(&c, 13);
+        }
+        m.prepare(&c, &template);
+        assert!(m.p0(&c, 13) < before / 10, "{} {}", m.p0(&c, 13), before);
+        // Refusing W's label leaves the others all the mass.
+        m.refuse(&c, 13);
+        let rest: u32 = (0..27).filter(|&l| l != 13).map(|l| 65536 - m.p0(&c, l)).sum();
+        assert!(rest.abs_diff(65536) < 27 * 64, "{rest}");
+    }
+}
