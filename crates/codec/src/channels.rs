@@ -75,14 +75,15 @@ fn is_lower(class: u8, w_class: u8) -> bool {
 pub struct ChannelModel {
     order: [usize; 3],
     positions: &'static [usize],
-    /// "The class is W's", then "it is the lower of the two others", by
-    /// [`ChannelModel::index`].
-    same: Vec<Counter>,
-    lower: Vec<Counter>,
+    /// Pairs of counters, "the class is W's" and "it is the lower of the
+    /// two others", by [`ChannelModel::index`].
+    counters: Vec<[Counter; 2]>,
     /// Per channel: the template's classes packed two bits each, and W's class.
     context: [usize; 3],
     w_class: [u8; 3],
-    /// Σ P over the palette, and over the candidates refused at this pixel.
+    /// This pixel's P of each label, their sum, and the sum over the
+    /// candidates refused so far.
+    probs: [u32; MAX_LABELS],
     total: u32,
     refused: u32,
 }
@@ -93,10 +94,10 @@ impl ChannelModel {
         ChannelModel {
             order,
             positions,
-            same: Vec::new(),
-            lower: Vec::new(),
+            counters: Vec::new(),
             context: [0; 3],
             w_class: [0; 3],
+            probs: [0; MAX_LABELS],
             total: 0,
             refused: 0,
         }
@@ -104,22 +105,22 @@ impl ChannelModel {
 
     /// Back to the initial state, reusing the storage.
     pub fn reset(&mut self) {
-        let size = 3 * 4 << (2 * self.positions.len());
-        for t in [&mut self.same, &mut self.lower] {
-            t.clear();
-            t.resize(size, Counter::default());
-        }
+        self.counters.clear();
+        self.counters
+            .resize(16 << (2 * self.positions.len()), Default::default());
     }
 
     /// The counters' index for the `j`-th channel of the order, `k`, with
-    /// `differ` the earlier channels whose class is not W's (bit i: the i-th).
+    /// `differ` the earlier channels whose class is not W's (bit i: the
+    /// i-th): one pixel's pairs lie together.
     #[inline(always)]
     fn index(&self, j: usize, k: usize, differ: usize) -> usize {
-        (j * 4 + differ) << (2 * self.positions.len()) | self.context[k]
+        self.context[k] << 4 | j << 2 | differ
     }
 
     /// Sets the pixel's context from its template's labels (`NONE`: outside)
-    /// and computes Σ P over the palette.
+    /// and computes each label's P (in 1/2^16) by the chain rule, each
+    /// factor and product rounded down.
     pub fn prepare(&mut self, classes: &[[u8; 3]], template: &[u32]) {
         let class = |l: u32, k: usize| classes.get(l as usize).map_or(OUTSIDE, |c| c[k]);
         for k in 0..3 {
@@ -134,53 +135,61 @@ impl ChannelModel {
                 .find(|&c| c != OUTSIDE)
                 .unwrap_or(1);
         }
-        self.refused = 0;
-        self.total = classes.iter().map(|c| self.prob(c)).sum();
-    }
-
-    /// P(label with classes `c`) in 1/2^16 by the chain rule, each factor
-    /// and product rounded down.
-    #[inline(always)]
-    fn prob(&self, c: &[u8; 3]) -> u32 {
-        let mut p = 1u32 << 16;
-        let mut differ = 0;
+        // factor[j][differ][class]: the j-th channel's factor.
+        let mut factor = [[[0u32; 3]; 4]; 3];
         for (j, k) in self.order.into_iter().enumerate() {
-            let i = self.index(j, k, differ);
-            let same = (1 << 16) - self.same[i].p0();
-            let f = if c[k] == self.w_class[k] {
-                same
-            } else {
-                let lower = (1 << 16) - self.lower[i].p0();
-                let f = if is_lower(c[k], self.w_class[k]) {
-                    lower
-                } else {
-                    (1 << 16) - lower
-                };
-                differ |= 1 << j;
-                ((1 << 16) - same) * f >> 16
-            };
-            p = ((p as u64 * f as u64) >> 16) as u32;
+            for (differ, f) in factor[j].iter_mut().enumerate().take(1 << j) {
+                let [same, lower] = self.counters[self.index(j, k, differ)];
+                let (same, lower) = ((1 << 16) - same.p0(), (1 << 16) - lower.p0());
+                for (class, f) in f.iter_mut().enumerate() {
+                    *f = match class as u8 {
+                        c if c == self.w_class[k] => same,
+                        c if is_lower(c, self.w_class[k]) => ((1 << 16) - same) * lower >> 16,
+                        _ => ((1 << 16) - same) * ((1 << 16) - lower) >> 16,
+                    };
+                }
+            }
         }
-        p
+        // P of each class triple, in the order's channels: the products
+        // of the factors, rounded down at each step.
+        let mul = |p: u32, f: u32| ((p as u64 * f as u64) >> 16) as u32;
+        let differs = |j: usize, c: usize| ((c as u8 != self.w_class[self.order[j]]) as usize) << j;
+        let mut triples = [0u32; 27];
+        for c0 in 0..3 {
+            let p0 = mul(1 << 16, factor[0][0][c0]);
+            for c1 in 0..3 {
+                let p1 = mul(p0, factor[1][differs(0, c0)][c1]);
+                let d = differs(0, c0) | differs(1, c1);
+                for c2 in 0..3 {
+                    triples[c0 * 9 + c1 * 3 + c2] = mul(p1, factor[2][d][c2]);
+                }
+            }
+        }
+        let [k0, k1, k2] = self.order;
+        for (p, c) in self.probs.iter_mut().zip(classes) {
+            *p = triples[c[k0] as usize * 9 + c[k1] as usize * 3 + c[k2] as usize];
+        }
+        self.total = self.probs[..classes.len()].iter().sum();
+        self.refused = 0;
     }
 
     /// The probability of a 0 (in 1/2^16, within [32, 65504]) of the
     /// decision "the label is `l`", given the labels refused at this pixel.
     #[inline(always)]
-    pub fn p0(&self, classes: &[[u8; 3]], l: u32) -> u32 {
-        let Some(c) = classes.get(l as usize) else {
+    pub fn p0(&self, l: u32) -> u32 {
+        let Some(&p) = self.probs.get(l as usize) else {
             return 1 << 15;
         };
         let rest = self.total.saturating_sub(self.refused).max(1);
-        let p = ((self.prob(c) as u64) << 16) / rest as u64;
+        let p = ((p as u64) << 16) / rest as u64;
         ((1u32 << 16).saturating_sub(p.min(1 << 16) as u32)).clamp(32, 65504)
     }
 
     /// Learns that the label is not `l`.
     #[inline(always)]
-    pub fn refuse(&mut self, classes: &[[u8; 3]], l: u32) {
-        if let Some(c) = classes.get(l as usize) {
-            self.refused += self.prob(c);
+    pub fn refuse(&mut self, l: u32) {
+        if let Some(&p) = self.probs.get(l as usize) {
+            self.refused += p;
         }
     }
 
@@ -192,10 +201,11 @@ impl ChannelModel {
         let mut differ = 0;
         for (j, k) in self.order.into_iter().enumerate() {
             let i = self.index(j, k, differ);
-            let same = c[k] == self.w_class[k];
-            self.same[i].update_to(same, COUNT_LIMIT);
-            if !same {
-                self.lower[i].update_to(is_lower(c[k], self.w_class[k]), COUNT_LIMIT);
+            let [same, lower] = &mut self.counters[i];
+            let is_same = c[k] == self.w_class[k];
+            same.update_to(is_same, COUNT_LIMIT);
+            if !is_same {
+                lower.update_to(is_lower(c[k], self.w_class[k]), COUNT_LIMIT);
                 differ |= 1 << j;
             }
         }
@@ -228,16 +238,16 @@ mod tests {
         let template = [13u32; 12];
         m.prepare(&c, &template);
         assert!((65536 - 64..=65536).contains(&m.total), "{}", m.total);
-        let before = m.p0(&c, 13);
+        let before = m.p0(13);
         for _ in 0..50 {
             m.prepare(&c, &template);
             m.learn(&c, 13);
         }
         m.prepare(&c, &template);
-        assert!(m.p0(&c, 13) < before / 10, "{} {}", m.p0(&c, 13), before);
+        assert!(m.p0(13) < before / 10, "{} {}", m.p0(13), before);
         // Refusing W's label leaves the others all the mass.
-        m.refuse(&c, 13);
-        let rest: u32 = (0..27).filter(|&l| l != 13).map(|l| 65536 - m.p0(&c, l)).sum();
+        m.refuse(13);
+        let rest: u32 = (0..27).filter(|&l| l != 13).map(|l| 65536 - m.p0(l)).sum();
         assert!(rest.abs_diff(65536) < 27 * 64, "{rest}");
     }
 }

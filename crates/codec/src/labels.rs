@@ -93,7 +93,7 @@ const RANKS: usize = 4;
 /// Counters of the strong mode's candidate decisions (one per context).
 const COUNTER_INPUTS: usize = 9;
 /// Chain-rule channel models ([`crate::channels`]) mixed with the counters.
-const CHANNEL_MODELS: usize = 3;
+const CHANNEL_MODELS: usize = 4;
 /// Mixed inputs of the strong mode's candidate decisions.
 const STRONG_INPUTS: usize = COUNTER_INPUTS + CHANNEL_MODELS;
 /// Context bits besides the rank of the strong mode's mixed models: W … NWW
@@ -130,6 +130,9 @@ const OUTER_LEN: usize = 8;
 /// segmented view drift across it (about 0.5 % smaller than the fast
 /// mode's limit).
 const STRONG_COUNT_LIMIT: u8 = 30;
+/// The limits of the candidate decisions' counters, context by context:
+/// the label hashes, sparse, learn fastest.
+const COUNT_LIMITS: [u8; COUNTER_INPUTS] = [120, 120, 60, 10, 10, 60, 10, 60, 30];
 /// Contexts of the strong mode's [`Apm`]: rank and own mask.
 const APM_CONTEXTS: usize = RANKS << OWN_LEN;
 /// Weight sets of the strong mode's second mixer: candidate label (up to
@@ -143,9 +146,10 @@ const MISSED_INPUTS: usize = MISSED_COUNTERS + CHANNEL_MODELS;
 /// W, N, NW, NE, WW, NN; B, G, R with W, N, NW, NE; G, B, R with W, N, NE,
 /// WW, NN, NEE.
 const CHANNEL_ORDERS: [ChannelModel; CHANNEL_MODELS] = [
-    ChannelModel::new([0, 1, 2], &[0, 1, 2, 3, 4, 5]),
+    ChannelModel::new([0, 1, 2], &[0, 1, 2, 3, 4, 5, 6, 7]),
     ChannelModel::new([2, 1, 0], &[0, 1, 2, 3]),
     ChannelModel::new([1, 2, 0], &[0, 1, 3, 4, 5, 6]),
+    ChannelModel::new([2, 0, 1], &[0, 1, 4, 5, 7, 8]),
 ];
 /// Bits of the label hashes.
 const LABEL_HASH_BITS: u32 = 18;
@@ -512,8 +516,8 @@ fn code_candidate<I: BitIo, const STRONG: bool, const COND: bool>(
     model.mixer.update(&mix, bit);
     model.label_mixer.update(&by_label, bit);
     model.apm.update(&refined, bit);
-    for c in counters {
-        c.update_to(bit, STRONG_COUNT_LIMIT);
+    for (c, limit) in counters.into_iter().zip(COUNT_LIMITS) {
+        c.update_to(bit, limit);
     }
     if !bit {
         refuse(model, c);
@@ -533,7 +537,7 @@ fn with_channels<const N: usize, const M: usize>(
     all[..N].copy_from_slice(&p0);
     if !classes.is_empty() {
         for (a, m) in all[N..].iter_mut().zip(channels) {
-            *a = m.p0(classes, l);
+            *a = m.p0(l);
         }
     }
     all
@@ -544,7 +548,7 @@ fn with_channels<const N: usize, const M: usize>(
 fn refuse(model: &mut Model, l: u32) {
     if !model.classes.is_empty() {
         for m in &mut model.channels {
-            m.refuse(&model.classes, l);
+            m.refuse(l);
         }
     }
 }
@@ -1124,7 +1128,7 @@ mod tests {
         assert_eq!(decode(&streams[2], 6, 3, &palette, Some(&left)).unwrap(), right);
         assert_eq!(
             streams.map(hex),
-            ["00d79196c5c800", "01db7d4977d39600", "0000db8ed295bd5d50"]
+            ["00d79196c5c800", "01ddb21ec8212800", "0000db8ed295bd5d50"]
         );
     }
 
