@@ -64,6 +64,13 @@ pub fn classes(palette: &[Rgb], out: &mut Vec<[u8; 3]>) {
     }));
 }
 
+/// The classes of a template's labels (`OUTSIDE` for a position outside
+/// the map, whose label is none of the palette's).
+#[inline(always)]
+pub fn template_classes<const N: usize>(classes: &[[u8; 3]], template: &[u32; N]) -> [[u8; 3]; N] {
+    template.map(|l| classes.get(l as usize).copied().unwrap_or([OUTSIDE; 3]))
+}
+
 /// Whether `class`, not `w_class`, is the lower of the two classes besides it.
 #[inline(always)]
 fn is_lower(class: u8, w_class: u8) -> bool {
@@ -81,9 +88,10 @@ pub struct ChannelModel {
     /// Per channel: the template's classes packed two bits each, and W's class.
     context: [usize; 3],
     w_class: [u8; 3],
-    /// This pixel's P of each label, their sum, and the sum over the
-    /// candidates refused so far.
+    /// This pixel's P of each of the palette's `labels` labels, their sum,
+    /// and the sum over the candidates refused so far.
     probs: [u32; MAX_LABELS],
+    labels: usize,
     total: u32,
     refused: u32,
 }
@@ -98,6 +106,7 @@ impl ChannelModel {
             context: [0; 3],
             w_class: [0; 3],
             probs: [0; MAX_LABELS],
+            labels: 0,
             total: 0,
             refused: 0,
         }
@@ -118,20 +127,18 @@ impl ChannelModel {
         self.context[k] << 4 | j << 2 | differ
     }
 
-    /// Sets the pixel's context from its template's labels (`NONE`: outside)
-    /// and computes each label's P (in 1/2^16) by the chain rule, each
-    /// factor and product rounded down.
-    pub fn prepare(&mut self, classes: &[[u8; 3]], template: &[u32]) {
-        let class = |l: u32, k: usize| classes.get(l as usize).map_or(OUTSIDE, |c| c[k]);
+    /// Sets the pixel's context from its template's classes (`template`,
+    /// from [`template_classes`]) and computes each label's P (in 1/2^16)
+    /// by the chain rule, each factor and product rounded down.
+    pub fn prepare(&mut self, classes: &[[u8; 3]], template: &[[u8; 3]]) {
         for k in 0..3 {
             self.context[k] = self
                 .positions
                 .iter()
-                .fold(0, |c, &p| c << 2 | class(template[p], k) as usize);
+                .fold(0, |c, &p| c << 2 | template[p][k] as usize);
             // W's class, else N's, else the middle one.
-            self.w_class[k] = [template[0], template[1]]
+            self.w_class[k] = [template[0][k], template[1][k]]
                 .into_iter()
-                .map(|l| class(l, k))
                 .find(|&c| c != OUTSIDE)
                 .unwrap_or(1);
         }
@@ -169,7 +176,8 @@ impl ChannelModel {
         for (p, c) in self.probs.iter_mut().zip(classes) {
             *p = triples[c[k0] as usize * 9 + c[k1] as usize * 3 + c[k2] as usize];
         }
-        self.total = self.probs[..classes.len()].iter().sum();
+        self.labels = classes.len().min(MAX_LABELS);
+        self.total = self.probs[..self.labels].iter().sum();
         self.refused = 0;
     }
 
@@ -177,7 +185,7 @@ impl ChannelModel {
     /// decision "the label is `l`", given the labels refused at this pixel.
     #[inline(always)]
     pub fn p0(&self, l: u32) -> u32 {
-        let Some(&p) = self.probs.get(l as usize) else {
+        let Some(&p) = self.probs[..self.labels].get(l as usize) else {
             return 1 << 15;
         };
         let rest = self.total.saturating_sub(self.refused).max(1);
@@ -188,7 +196,7 @@ impl ChannelModel {
     /// Learns that the label is not `l`.
     #[inline(always)]
     pub fn refuse(&mut self, l: u32) {
-        if let Some(&p) = self.probs.get(l as usize) {
+        if let Some(&p) = self.probs[..self.labels].get(l as usize) {
             self.refused += p;
         }
     }
@@ -235,7 +243,7 @@ mod tests {
         classes(&palette, &mut c);
         let mut m = ChannelModel::new([0, 1, 2], &[0, 1, 2, 3]);
         m.reset();
-        let template = [13u32; 12];
+        let template = template_classes(&c, &[13u32; 12]);
         m.prepare(&c, &template);
         assert!((65536 - 64..=65536).contains(&m.total), "{}", m.total);
         let before = m.p0(13);

@@ -853,7 +853,8 @@ fn code_rows<I: BitIo, const STRONG: bool, const COND: bool>(
                 };
                 let classes = &model.classes;
                 if !classes.is_empty() {
-                    model.channels.iter_mut().for_each(|m| m.prepare(classes, &own));
+                    let template = channels::template_classes(classes, &own);
+                    model.channels.iter_mut().for_each(|m| m.prepare(classes, &template));
                 }
                 let l = code_pixel::<I, true, COND>(io, model, n_labels, (&own, flat), &rf, v)?;
                 let classes = &model.classes;
