@@ -9,7 +9,13 @@ use stereolink_image::LabelMap;
 fn coding(c: &mut Criterion) {
     let left = LabelMap::from_fn(480, 272, |x, y| (((x / 23) ^ (y / 17)) % 5) as u16);
     let right = LabelMap::from_fn(480, 272, |x, y| left.get((x + 7).min(479), y));
-    let palette = [[0, 0, 0], [255, 0, 0], [0, 255, 0], [0, 0, 255], [255, 255, 255]];
+    let palette = [
+        [0, 0, 0],
+        [255, 0, 0],
+        [0, 255, 0],
+        [0, 0, 255],
+        [255, 255, 255],
+    ];
     let (a, b) = (
         labels::encode(&left, &palette, None, 0, Mode::Fast),
         labels::encode(&right, &palette, Some(&left), 32, Mode::Fast),

@@ -131,13 +131,13 @@ impl ChannelModel {
     /// from [`template_classes`]) and computes each label's P (in 1/2^16)
     /// by the chain rule, each factor and product rounded down.
     pub fn prepare(&mut self, classes: &[[u8; 3]], template: &[[u8; 3]]) {
-        for k in 0..3 {
-            self.context[k] = self
+        for (k, (context, w_class)) in self.context.iter_mut().zip(&mut self.w_class).enumerate() {
+            *context = self
                 .positions
                 .iter()
                 .fold(0, |c, &p| c << 2 | template[p][k] as usize);
             // W's class, else N's, else the middle one.
-            self.w_class[k] = [template[0][k], template[1][k]]
+            *w_class = [template[0][k], template[1][k]]
                 .into_iter()
                 .find(|&c| c != OUTSIDE)
                 .unwrap_or(1);
@@ -151,8 +151,8 @@ impl ChannelModel {
                 for (class, f) in f.iter_mut().enumerate() {
                     *f = match class as u8 {
                         c if c == self.w_class[k] => same,
-                        c if is_lower(c, self.w_class[k]) => ((1 << 16) - same) * lower >> 16,
-                        _ => ((1 << 16) - same) * ((1 << 16) - lower) >> 16,
+                        c if is_lower(c, self.w_class[k]) => (((1 << 16) - same) * lower) >> 16,
+                        _ => (((1 << 16) - same) * ((1 << 16) - lower)) >> 16,
                     };
                 }
             }

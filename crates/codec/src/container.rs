@@ -214,20 +214,18 @@ fn encode_frame(w: &mut Writer, f: &StereoFrame, mode: labels::Mode) {
 
 fn encode_view(w: &mut Writer, view: &View, reference: Option<&IndexedImage>, mode: labels::Mode) {
     let (code, palette, payload): (u8, &[Rgb], Vec<u8>) = match view {
-        View::Indexed(img) => {
-            match reference {
-                Some(r) => (
-                    coding::LABELS_CONDITIONED,
-                    img.palette(),
-                    conditioned_payload(r, img, mode),
-                ),
-                None => (
-                    coding::LABELS,
-                    img.palette(),
-                    labels::encode(img.labels(), img.palette(), None, 0, mode),
-                ),
-            }
-        }
+        View::Indexed(img) => match reference {
+            Some(r) => (
+                coding::LABELS_CONDITIONED,
+                img.palette(),
+                conditioned_payload(r, img, mode),
+            ),
+            None => (
+                coding::LABELS,
+                img.palette(),
+                labels::encode(img.labels(), img.palette(), None, 0, mode),
+            ),
+        },
         View::Rgb(img) => (coding::RGB, &[], rgb::encode(img)),
     };
     w.u8(code);
@@ -441,14 +439,16 @@ impl ViewRef<'_> {
         self.palette.len() / 3
     }
 
-    /// The palette's colours.
-    pub fn palette(&self) -> &[Rgb] {
-        self.palette.as_chunks().0
-    }
-
     /// Colour `i` of the palette.
     fn colour(&self, i: u16) -> Rgb {
-        self.palette()[i as usize]
+        let c = &self.palette[3 * i as usize..3 * i as usize + 3];
+        [c[0], c[1], c[2]]
+    }
+
+    /// The palette's colours, into `out`.
+    fn palette_into(&self, out: &mut Vec<Rgb>) {
+        out.clear();
+        out.extend((0..self.colours() as u16).map(|i| self.colour(i)));
     }
 }
 
@@ -544,8 +544,12 @@ impl FrameRef<'_> {
             Ok(match v.coding {
                 coding::RGB => View::Rgb(rgb),
                 _ => View::Indexed(
-                    IndexedImage::new(labels, v.palette().to_vec())
-                        .map_err(|e| CodecError::Invalid(e.to_string()))?,
+                    IndexedImage::new(labels, {
+                        let mut palette = Vec::new();
+                        v.palette_into(&mut palette);
+                        palette
+                    })
+                    .map_err(|e| CodecError::Invalid(e.to_string()))?,
                 ),
             })
         };
@@ -571,6 +575,8 @@ pub struct FrameDecoder {
     predicted: LabelMap,
     /// The conditioned view's label table.
     table: Vec<u16>,
+    /// The view's palette, for the label decoder.
+    palette: Vec<Rgb>,
     label_decoder: labels::LabelDecoder,
     rgb_decoder: rgb::RgbDecoder,
 }
@@ -606,6 +612,7 @@ impl FrameDecoder {
                 (&mut self.labels.1, &mut self.rgb.1)
             };
             let n = view.colours();
+            view.palette_into(&mut self.palette);
             match view.coding {
                 coding::RGB => {
                     rgb.reset(w, h, [0; 3]);
@@ -614,7 +621,7 @@ impl FrameDecoder {
                 coding::LABELS => {
                     labels.reset(w, h, 0);
                     self.label_decoder
-                        .decode_into(view.payload, view.palette(), None, labels)?;
+                        .decode_into(view.payload, &self.palette, None, labels)?;
                 }
                 _ => {
                     // Conditioned: the label table (one u16 per left label,
@@ -644,8 +651,12 @@ impl FrameDecoder {
                         .map_into(&mut self.predicted, |l| table[l as usize]);
                     let right = &mut self.labels.1;
                     right.reset(w, h, 0);
-                    self.label_decoder
-                        .decode_into(coded, view.palette(), Some(&self.predicted), right)?;
+                    self.label_decoder.decode_into(
+                        coded,
+                        &self.palette,
+                        Some(&self.predicted),
+                        right,
+                    )?;
                 }
             }
         }

@@ -17,9 +17,11 @@
 //! Two [`Mode`]s: *fast* gives each decision one context; *strong* mixes
 //! nine ([`crate::mixer`]: the two masks at three sizes, an outer ring of
 //! the template, runs, the equalities among the neighbours and three hashes
-//! of labels) with two weight sets averaged, refines the result with an
-//! [`Apm`], and mixes the missed-label decisions too: about 11 % smaller
-//! (FO-DPSO) and about ten times slower to decode.
+//! of labels) and, for palettes of per-channel classes, four
+//! [channel models](crate::channels), with two weight sets averaged,
+//! refines the result with an [`Apm`], and mixes the missed-label
+//! decisions too: about 14 % smaller (FO-DPSO) and about 30 times slower
+//! to decode.
 //! Probabilities are [`Counter`]s, which learn fast in rare contexts.
 //! `docs/wire-format.md` specifies the stream bit for bit.
 
@@ -37,7 +39,8 @@ pub enum Mode {
     /// One context per decision: the fast decoder (what a receiver wants).
     #[default]
     Fast = 0,
-    /// Nine contexts per decision, logistically mixed: smaller, slower.
+    /// Nine contexts and four channel models per decision, logistically
+    /// mixed: smaller, much slower.
     Strong = 1,
 }
 
@@ -142,9 +145,10 @@ const LABEL_MIX_SETS: usize = 64 * RANKS;
 const MISSED_COUNTERS: usize = 5;
 /// Mixed inputs of the strong mode's missed-label decisions.
 const MISSED_INPUTS: usize = MISSED_COUNTERS + CHANNEL_MODELS;
-/// The strong mode's channel models: channels R, G, B with the classes of
-/// W, N, NW, NE, WW, NN; B, G, R with W, N, NW, NE; G, B, R with W, N, NE,
-/// WW, NN, NEE.
+/// The strong mode's channel models (channel order; own template
+/// positions): R, G, B with W, N, NW, NE, WW, NN, NEE, NWW; B, G, R with W,
+/// N, NW, NE; G, B, R with W, N, NE, WW, NN, NEE; B, R, G with W, N, WW,
+/// NN, NWW, NNW.
 const CHANNEL_ORDERS: [ChannelModel; CHANNEL_MODELS] = [
     ChannelModel::new([0, 1, 2], &[0, 1, 2, 3, 4, 5, 6, 7]),
     ChannelModel::new([2, 1, 0], &[0, 1, 2, 3]),
@@ -783,7 +787,13 @@ fn code_after_w<I: BitIo, const STRONG: bool, const COND: bool>(
 
 /// What [`code_map`] codes: the map, its width, the palette, the reference
 /// and the encoder's shifts.
-type MapArgs<'a> = (&'a mut [u16], usize, &'a [Rgb], Option<&'a LabelMap>, &'a [u8]);
+type MapArgs<'a> = (
+    &'a mut [u16],
+    usize,
+    &'a [Rgb],
+    Option<&'a LabelMap>,
+    &'a [u8],
+);
 
 /// Codes a whole map: `data` holds it for the encoder and receives it in
 /// the decoder; `plan` holds the encoder's shifts (row-major, one per block).
@@ -854,12 +864,18 @@ fn code_rows<I: BitIo, const STRONG: bool, const COND: bool>(
                 let classes = &model.classes;
                 if !classes.is_empty() {
                     let template = channels::template_classes(classes, &own);
-                    model.channels.iter_mut().for_each(|m| m.prepare(classes, &template));
+                    model
+                        .channels
+                        .iter_mut()
+                        .for_each(|m| m.prepare(classes, &template));
                 }
                 let l = code_pixel::<I, true, COND>(io, model, n_labels, (&own, flat), &rf, v)?;
                 let classes = &model.classes;
                 if !classes.is_empty() {
-                    model.channels.iter_mut().for_each(|m| m.learn(classes, l as u32));
+                    model
+                        .channels
+                        .iter_mut()
+                        .for_each(|m| m.learn(classes, l as u32));
                 }
                 l
             } else {
@@ -1126,7 +1142,10 @@ mod tests {
         for s in &streams[..2] {
             assert_eq!(decode(s, 6, 3, &palette, None).unwrap(), left);
         }
-        assert_eq!(decode(&streams[2], 6, 3, &palette, Some(&left)).unwrap(), right);
+        assert_eq!(
+            decode(&streams[2], 6, 3, &palette, Some(&left)).unwrap(),
+            right
+        );
         assert_eq!(
             streams.map(hex),
             ["00d79196c5c800", "01ddb21ec8212800", "0000db8ed295bd5d50"]

@@ -6,7 +6,8 @@
 //! * [`labels`] codes a label map with an adaptive context model and a binary
 //!   range coder, in a fast or a strong ([`mixer`]: contexts mixed) mode;
 //!   the right view can be coded *conditioned on the left* (predicted
-//!   through per-block disparity shifts).
+//!   through per-block disparity shifts). [`channels`] models a label as
+//!   its colour channels' classes for the strong mode.
 //! * [`rgb`] codes unsegmented RGB losslessly (MED predictor), so the
 //!   original pair can be sent for comparison.
 //! * [`container`] frames [`Message`]s ([`StereoFrame`], [`DepthReport`],

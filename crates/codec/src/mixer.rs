@@ -22,7 +22,7 @@ const SQUASH_KNOTS: [i32; 33] = [
 ];
 
 /// The logistic function, 12-bit probability of `d` (a stretch, 8 fractional
-/// bits), interpolating [`SQUASH_KNOTS`]; 1..4095.
+/// bits), interpolating `SQUASH_KNOTS`; 1..4095.
 pub const fn squash(d: i32) -> i32 {
     if d > 2047 {
         return 4095;
@@ -132,7 +132,7 @@ const APM_RATE: u32 = 6;
 
 /// Secondary estimation (APM / SSE, after paq): refines a probability by a
 /// small context. Each context holds a piecewise-linear map of the
-/// stretched probability: [`APM_KNOTS`] 16-bit probabilities of a 1, which
+/// stretched probability: `APM_KNOTS` 16-bit probabilities of a 1, which
 /// start on the identity (the squash of the knot's stretch). The input is
 /// interpolated between its two knots, and the nearer knot learns the bit.
 /// It corrects what the mixer gets wrong in a context, systematically
