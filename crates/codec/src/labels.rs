@@ -129,12 +129,13 @@ const OUTER: [(isize, isize); OUTER_LEN] = [
     (3, -2),
 ];
 const OUTER_LEN: usize = 8;
-/// The strong mode's counters stop slowing down here: the statistics of a
-/// segmented view drift across it (about 0.5 % smaller than the fast
-/// mode's limit).
+/// The strong mode's missed-label counters stop slowing down here: the
+/// statistics of a segmented view drift across it.
 const STRONG_COUNT_LIMIT: u8 = 30;
-/// The limits of the candidate decisions' counters, context by context:
-/// the label hashes, sparse, learn fastest.
+/// The limits of the strong mode's candidate counters, context by context:
+/// the sparse label hashes learn fastest, the dense masks slowest (about
+/// 0.2 % smaller than 30 for all; chosen on the ten 2001–2005 scenes and
+/// smaller on the ten 2006–2014 ones too).
 const COUNT_LIMITS: [u8; COUNTER_INPUTS] = [120, 120, 60, 10, 10, 60, 10, 60, 30];
 /// Contexts of the strong mode's [`Apm`]: rank and own mask.
 const APM_CONTEXTS: usize = RANKS << OWN_LEN;
