@@ -1153,6 +1153,40 @@ mod tests {
         );
     }
 
+    /// A map of three thresholded channels, each flipping on its own near its
+    /// thresholds (speckle), codes smaller in the strong mode when the
+    /// palette tells the channels apart than when it does not.
+    #[test]
+    fn channel_models_pay_on_per_channel_speckle() {
+        let (w, h) = (160, 120);
+        let mut s = 0x2545_F491_4F6C_DD1Du64;
+        let mut noise = move || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            (s >> 40) as f64 / (1u64 << 24) as f64 - 0.5
+        };
+        let class = |v: f64| (v > 0.33) as u16 + (v > 0.66) as u16;
+        let map = LabelMap::from_fn(w, h, |x, y| {
+            let (u, v) = (x as f64 / w as f64, y as f64 / h as f64);
+            let r = class(u + 0.15 * noise());
+            let g = class(v + 0.15 * noise());
+            let b = class((u + v) / 2.0 + 0.15 * noise());
+            r + 3 * g + 9 * b
+        });
+        let classes = palette(27);
+        let grey: Vec<Rgb> = (0..27).map(|i| [i as u8 * 9; 3]).collect();
+        let with = encode(&map, &classes, None, 0, Mode::Strong);
+        let without = encode(&map, &grey, None, 0, Mode::Strong);
+        assert_eq!(decode(&with, w, h, &classes, None).unwrap(), map);
+        assert!(
+            with.len() * 100 < without.len() * 97,
+            "with classes {} bytes, without {}",
+            with.len(),
+            without.len()
+        );
+    }
+
     #[test]
     fn conditioning_on_the_left_view_pays() {
         let left = blobs(200, 100, 6, 1);
