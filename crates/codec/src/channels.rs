@@ -132,15 +132,16 @@ impl ChannelModel {
         }
         self.counters.clear();
         self.counters
-            .resize(16 << (2 * self.positions.len()), Default::default());
+            .resize(7 << (2 * self.positions.len()), Default::default());
     }
 
     /// The counters' index for the `j`-th channel of the order, `k`, with
     /// `differ` the earlier channels whose class is not W's (bit i: the
-    /// i-th): one pixel's pairs lie together.
+    /// i-th): a table per j of 2^j pairs per context, packed, so that the
+    /// pairs in use are dense in the cache.
     #[inline(always)]
     fn index(&self, j: usize, k: usize, differ: usize) -> usize {
-        self.context[k] << 4 | j << 2 | differ
+        (((1 << j) - 1) << (2 * self.positions.len())) + (self.context[k] << j | differ)
     }
 
     /// Sets the pixel's context from its template's classes (`template`,
