@@ -88,10 +88,16 @@ pub struct ChannelModel {
     /// Per channel: the template's classes packed two bits each, and W's class.
     context: [usize; 3],
     w_class: [u8; 3],
-    /// This pixel's P of each of the palette's `labels` labels, their sum,
-    /// and the sum over the candidates refused so far.
-    probs: [u32; MAX_LABELS],
+    /// Each of the palette's `labels` labels' class triple (its index in
+    /// `triples`), and how many labels have each triple: set by
+    /// [`ChannelModel::reset`] for the palette.
+    triple: [u8; MAX_LABELS],
     labels: usize,
+    multiplicity: [u32; 27],
+    /// This pixel's P of each class triple, their sum over the palette's
+    /// labels, and the sum over the candidates refused so far. A label's P
+    /// is its triple's, looked up when a decision needs it.
+    triples: [u32; 27],
     total: u32,
     refused: u32,
 }
@@ -105,32 +111,43 @@ impl ChannelModel {
             counters: Vec::new(),
             context: [0; 3],
             w_class: [0; 3],
-            probs: [0; MAX_LABELS],
+            triple: [0; MAX_LABELS],
             labels: 0,
+            multiplicity: [0; 27],
+            triples: [0; 27],
             total: 0,
             refused: 0,
         }
     }
 
-    /// Back to the initial state, reusing the storage.
-    pub fn reset(&mut self) {
+    /// Back to the initial state for a palette of `classes` (from
+    /// [`classes`], not empty), reusing the storage.
+    pub fn reset(&mut self, classes: &[[u8; 3]]) {
+        let [k0, k1, k2] = self.order;
+        self.labels = classes.len().min(MAX_LABELS);
+        self.multiplicity = [0; 27];
+        for (t, c) in self.triple.iter_mut().zip(classes) {
+            *t = c[k0] * 9 + c[k1] * 3 + c[k2];
+            self.multiplicity[*t as usize] += 1;
+        }
         self.counters.clear();
         self.counters
-            .resize(16 << (2 * self.positions.len()), Default::default());
+            .resize(7 << (2 * self.positions.len()), Default::default());
     }
 
     /// The counters' index for the `j`-th channel of the order, `k`, with
     /// `differ` the earlier channels whose class is not W's (bit i: the
-    /// i-th): one pixel's pairs lie together.
+    /// i-th): a table per j of 2^j pairs per context, packed, so that the
+    /// pairs in use are dense in the cache.
     #[inline(always)]
     fn index(&self, j: usize, k: usize, differ: usize) -> usize {
-        self.context[k] << 4 | j << 2 | differ
+        (((1 << j) - 1) << (2 * self.positions.len())) + (self.context[k] << j | differ)
     }
 
     /// Sets the pixel's context from its template's classes (`template`,
-    /// from [`template_classes`]) and computes each label's P (in 1/2^16)
-    /// by the chain rule, each factor and product rounded down.
-    pub fn prepare(&mut self, classes: &[[u8; 3]], template: &[[u8; 3]]) {
+    /// from [`template_classes`]) and computes each class triple's P (in
+    /// 1/2^16) by the chain rule, each factor and product rounded down.
+    pub fn prepare(&mut self, template: &[[u8; 3]]) {
         for (k, (context, w_class)) in self.context.iter_mut().zip(&mut self.w_class).enumerate() {
             *context = self
                 .positions
@@ -172,12 +189,13 @@ impl ChannelModel {
                 }
             }
         }
-        let [k0, k1, k2] = self.order;
-        for (p, c) in self.probs.iter_mut().zip(classes) {
-            *p = triples[c[k0] as usize * 9 + c[k1] as usize * 3 + c[k2] as usize];
-        }
-        self.labels = classes.len().min(MAX_LABELS);
-        self.total = self.probs[..self.labels].iter().sum();
+        // The sum over the palette's labels, by triple (a fixed-size loop).
+        self.triples = triples;
+        self.total = triples
+            .iter()
+            .zip(&self.multiplicity)
+            .map(|(p, m)| p * m)
+            .sum();
         self.refused = 0;
     }
 
@@ -185,7 +203,7 @@ impl ChannelModel {
     /// decision "the label is `l`", given the labels refused at this pixel.
     #[inline(always)]
     pub fn p0(&self, l: u32) -> u32 {
-        let Some(&p) = self.probs[..self.labels].get(l as usize) else {
+        let Some(p) = self.p(l) else {
             return 1 << 15;
         };
         let rest = self.total.saturating_sub(self.refused).max(1);
@@ -196,9 +214,16 @@ impl ChannelModel {
     /// Learns that the label is not `l`.
     #[inline(always)]
     pub fn refuse(&mut self, l: u32) {
-        if let Some(&p) = self.probs[..self.labels].get(l as usize) {
+        if let Some(p) = self.p(l) {
             self.refused += p;
         }
+    }
+
+    /// This pixel's P of label `l`, if the palette holds it.
+    #[inline(always)]
+    fn p(&self, l: u32) -> Option<u32> {
+        let t = self.triple[..self.labels].get(l as usize)?;
+        Some(self.triples[*t as usize])
     }
 
     /// Learns the pixel's label `l`.
@@ -242,16 +267,16 @@ mod tests {
         let mut c = Vec::new();
         classes(&palette, &mut c);
         let mut m = ChannelModel::new([0, 1, 2], &[0, 1, 2, 3]);
-        m.reset();
+        m.reset(&c);
         let template = template_classes(&c, &[13u32; 12]);
-        m.prepare(&c, &template);
+        m.prepare(&template);
         assert!((65536 - 64..=65536).contains(&m.total), "{}", m.total);
         let before = m.p0(13);
         for _ in 0..50 {
-            m.prepare(&c, &template);
+            m.prepare(&template);
             m.learn(&c, 13);
         }
-        m.prepare(&c, &template);
+        m.prepare(&template);
         assert!(m.p0(13) < before / 10, "{} {}", m.p0(13), before);
         // Refusing W's label leaves the others all the mass.
         m.refuse(13);

@@ -224,7 +224,8 @@ impl Model {
         if strong {
             channels::classes(palette, &mut self.classes);
             if !self.classes.is_empty() {
-                self.channels.iter_mut().for_each(ChannelModel::reset);
+                let classes = &self.classes;
+                self.channels.iter_mut().for_each(|m| m.reset(classes));
             }
             sizes = CONTEXT_BITS.map(|b| RANKS << b);
             missed_sizes = MISSED_SIZES;
@@ -865,10 +866,7 @@ fn code_rows<I: BitIo, const STRONG: bool, const COND: bool>(
                 let classes = &model.classes;
                 if !classes.is_empty() {
                     let template = channels::template_classes(classes, &own);
-                    model
-                        .channels
-                        .iter_mut()
-                        .for_each(|m| m.prepare(classes, &template));
+                    model.channels.iter_mut().for_each(|m| m.prepare(&template));
                 }
                 let l = code_pixel::<I, true, COND>(io, model, n_labels, (&own, flat), &rf, v)?;
                 let classes = &model.classes;
