@@ -677,6 +677,40 @@ fn code_pixel<I: BitIo, const STRONG: bool, const COND: bool>(
     code_after_w::<I, STRONG, COND>(io, model, n_labels, own, rf, v)
 }
 
+/// [`code_pixel`] in the strong mode: the channel models prepare the pixel
+/// from its template and learn its label.
+#[inline(always)]
+fn code_pixel_strong<I: BitIo, const COND: bool>(
+    io: &mut I,
+    model: &mut Model,
+    n_labels: usize,
+    (data, w, x, y): (&[u16], usize, usize, usize),
+    rf: &[u32; 6],
+    v: u32,
+) -> Result<u16, CodecError> {
+    let (own, flat) = match flat_inside(data, w, x, y) {
+        Some(wv) => ([wv; OWN_LEN], true),
+        None => {
+            let t = own_template(data, w, x, y);
+            (t, is_flat(&t))
+        }
+    };
+    let channels = !model.classes.is_empty();
+    if channels {
+        let template = channels::template_classes(&model.classes, &own);
+        model.channels.iter_mut().for_each(|m| m.prepare(&template));
+    }
+    let l = code_pixel::<I, true, COND>(io, model, n_labels, (&own, flat), rf, v)?;
+    if channels {
+        let classes = &model.classes;
+        model
+            .channels
+            .iter_mut()
+            .for_each(|m| m.learn(classes, l as u32));
+    }
+    Ok(l)
+}
+
 /// [`code_pixel`] in the fast mode, whose context for W needs only a few own
 /// positions (W, N, NW, NE conditioned, the eight nearest alone) and the
 /// prediction's mask: those are read first, and the whole template only
@@ -849,34 +883,12 @@ fn code_rows<I: BitIo, const STRONG: bool, const COND: bool>(
             };
             let i = y * w + x;
             let v = data[i] as u32;
-            if STRONG {
+            data[i] = if STRONG {
                 // Bit length of a run, up to 7.
                 let q = |n: u32| (u32::BITS - n.leading_zeros()).min(7) as usize;
                 model.runs = q(row_run) << 3 | q(model.column_runs[x]);
                 model.outer = outer_template(data, w, x, y);
-            }
-            data[i] = if STRONG {
-                let (own, flat) = match flat_inside(data, w, x, y) {
-                    Some(wv) => ([wv; OWN_LEN], true),
-                    None => {
-                        let t = own_template(data, w, x, y);
-                        (t, is_flat(&t))
-                    }
-                };
-                let classes = &model.classes;
-                if !classes.is_empty() {
-                    let template = channels::template_classes(classes, &own);
-                    model.channels.iter_mut().for_each(|m| m.prepare(&template));
-                }
-                let l = code_pixel::<I, true, COND>(io, model, n_labels, (&own, flat), &rf, v)?;
-                let classes = &model.classes;
-                if !classes.is_empty() {
-                    model
-                        .channels
-                        .iter_mut()
-                        .for_each(|m| m.learn(classes, l as u32));
-                }
-                l
+                code_pixel_strong::<I, COND>(io, model, n_labels, (data, w, x, y), &rf, v)?
             } else {
                 code_pixel_fast::<I, COND>(io, model, n_labels, (data, w, x, y), &rf, v)?
             };
