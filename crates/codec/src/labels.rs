@@ -20,7 +20,7 @@
 //! of labels) and, for palettes of per-channel classes, four
 //! [channel models](crate::channels), with two weight sets averaged,
 //! refines the result with an [`Apm`], and mixes the missed-label
-//! decisions too: about 14 % smaller (FO-DPSO) and about 30 times slower
+//! decisions too: about 14 % smaller (FO-DPSO) and about 27 times slower
 //! to decode.
 //! Probabilities are [`Counter`]s, which learn fast in rare contexts.
 //! `docs/wire-format.md` specifies the stream bit for bit.
