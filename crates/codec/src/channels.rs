@@ -227,18 +227,20 @@ impl ChannelModel {
     }
 
     /// Learns the pixel's label `l`.
-    pub fn learn(&mut self, classes: &[[u8; 3]], l: u32) {
-        let Some(c) = classes.get(l as usize) else {
+    pub fn learn(&mut self, l: u32) {
+        let Some(&t) = self.triple[..self.labels].get(l as usize) else {
             return;
         };
+        // The label's classes in the order's channels: its triple's digits.
+        let classes = [t / 9, t / 3 % 3, t % 3];
         let mut differ = 0;
-        for (j, k) in self.order.into_iter().enumerate() {
+        for (j, (k, class)) in self.order.into_iter().zip(classes).enumerate() {
             let i = self.index(j, k, differ);
             let [same, lower] = &mut self.counters[i];
-            let is_same = c[k] == self.w_class[k];
+            let is_same = class == self.w_class[k];
             same.update_to(is_same, COUNT_LIMIT);
             if !is_same {
-                lower.update_to(is_lower(c[k], self.w_class[k]), COUNT_LIMIT);
+                lower.update_to(is_lower(class, self.w_class[k]), COUNT_LIMIT);
                 differ |= 1 << j;
             }
         }
@@ -274,7 +276,7 @@ mod tests {
         let before = m.p0(13);
         for _ in 0..50 {
             m.prepare(&template);
-            m.learn(&c, 13);
+            m.learn(13);
         }
         m.prepare(&template);
         assert!(m.p0(13) < before / 10, "{} {}", m.p0(13), before);

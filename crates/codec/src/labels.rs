@@ -195,6 +195,15 @@ struct Model {
 }
 
 impl Model {
+    /// The channel models in use: none when the palette has no classes.
+    fn channels(&self) -> &[ChannelModel] {
+        &self.channels[..CHANNEL_MODELS * !self.classes.is_empty() as usize]
+    }
+
+    fn channels_mut(&mut self) -> &mut [ChannelModel] {
+        &mut self.channels[..CHANNEL_MODELS * !self.classes.is_empty() as usize]
+    }
+
     fn new() -> Self {
         Model {
             flags: Default::default(),
@@ -223,8 +232,8 @@ impl Model {
         self.classes.clear();
         if strong {
             channels::classes(palette, &mut self.classes);
-            if !self.classes.is_empty() {
-                let classes = &self.classes;
+            let classes = &self.classes;
+            if !classes.is_empty() {
                 self.channels.iter_mut().for_each(|m| m.reset(classes));
             }
             sizes = CONTEXT_BITS.map(|b| RANKS << b);
@@ -498,6 +507,7 @@ fn code_candidate<I: BitIo, const STRONG: bool, const COND: bool>(
         r << 14 | model.runs << 8 | (mo & 255),
         r << 12 | equalities(own) << 4 | (mo & 15),
     ];
+    let channels = channel_p0(model.channels(), c);
     let [t0, t1, t2, t3, t4, t5, t6, t7, t8] = &mut model.flags;
     let counters = [
         &mut t0[ctx[0]],
@@ -510,8 +520,7 @@ fn code_candidate<I: BitIo, const STRONG: bool, const COND: bool>(
         &mut t7[ctx[7]],
         &mut t8[ctx[8]],
     ];
-    let channels = (&model.channels[..], &model.classes[..]);
-    let p0 = with_channels(channels, counters.each_ref().map(|c| c.p0()), c);
+    let p0 = inputs(counters.each_ref().map(|c| c.p0()), channels);
     let mix = model.mixer.mix(r << 5 | (mo & 15) << 1 | (mr & 1), p0);
     let by_label = model.label_mixer.mix((c as usize).min(63) << 2 | r, p0);
     let d = (mix.stretch() + by_label.stretch()) >> 1;
@@ -526,37 +535,32 @@ fn code_candidate<I: BitIo, const STRONG: bool, const COND: bool>(
         c.update_to(bit, limit);
     }
     if !bit {
-        refuse(model, c);
+        model.channels_mut().iter_mut().for_each(|m| m.refuse(c));
     }
     bit
 }
 
-/// The mixed inputs of a decision "the label is `l`": the counters' `p0`,
-/// then the channel models' (½ without classes).
+/// The channel models' `p0` of the decision "the label is `l`" (½ each
+/// without classes).
 #[inline(always)]
-fn with_channels<const N: usize, const M: usize>(
-    (channels, classes): (&[ChannelModel], &[[u8; 3]]),
-    p0: [u32; N],
-    l: u32,
-) -> [u32; M] {
-    let mut all = [1 << 15; M];
-    all[..N].copy_from_slice(&p0);
-    if !classes.is_empty() {
-        for (a, m) in all[N..].iter_mut().zip(channels) {
-            *a = m.p0(l);
-        }
+fn channel_p0(channels: &[ChannelModel], l: u32) -> [u32; CHANNEL_MODELS] {
+    let mut p0 = [1 << 15; CHANNEL_MODELS];
+    for (p, m) in p0.iter_mut().zip(channels) {
+        *p = m.p0(l);
     }
-    all
+    p0
 }
 
-/// Tells the channel models that the label is not `l`.
+/// The mixed inputs of a decision: the counters' `p0`, then the channel models'.
 #[inline(always)]
-fn refuse(model: &mut Model, l: u32) {
-    if !model.classes.is_empty() {
-        for m in &mut model.channels {
-            m.refuse(l);
-        }
-    }
+fn inputs<const N: usize, const M: usize>(
+    counters: [u32; N],
+    channels: [u32; CHANNEL_MODELS],
+) -> [u32; M] {
+    let mut all = [0; M];
+    all[..N].copy_from_slice(&counters);
+    all[N..].copy_from_slice(&channels);
+    all
 }
 
 /// Which pairs of the own template hold the same label (NONE equals NONE),
@@ -611,6 +615,7 @@ fn code_missed<I: BitIo>(
         label_hash(&[l + 64, own[0], own[2], own[3]]) >> 2,
         label_hash(&[l + 128, own[0], own[1], own[4], own[5]]) >> 2,
     ];
+    let channels = channel_p0(model.channels(), l);
     let [t0, t1, t2, t3, t4] = &mut model.missed;
     let counters = [
         &mut t0[ctx[0]],
@@ -619,8 +624,7 @@ fn code_missed<I: BitIo>(
         &mut t3[ctx[3]],
         &mut t4[ctx[4]],
     ];
-    let channels = (&model.channels[..], &model.classes[..]);
-    let p0 = with_channels(channels, counters.each_ref().map(|c| c.p0()), l);
+    let p0 = inputs(counters.each_ref().map(|c| c.p0()), channels);
     let mix = model.missed_mixer.mix(0, p0);
     let bit = io.code(mix.p0(), bit);
     model.missed_mixer.update(&mix, bit);
@@ -628,7 +632,7 @@ fn code_missed<I: BitIo>(
         c.update_to(bit, STRONG_COUNT_LIMIT);
     }
     if !bit {
-        refuse(model, l);
+        model.channels_mut().iter_mut().for_each(|m| m.refuse(l));
     }
     bit
 }
@@ -695,19 +699,15 @@ fn code_pixel_strong<I: BitIo, const COND: bool>(
             (t, is_flat(&t))
         }
     };
-    let channels = !model.classes.is_empty();
-    if channels {
+    if !model.classes.is_empty() {
         let template = channels::template_classes(&model.classes, &own);
         model.channels.iter_mut().for_each(|m| m.prepare(&template));
     }
     let l = code_pixel::<I, true, COND>(io, model, n_labels, (&own, flat), rf, v)?;
-    if channels {
-        let classes = &model.classes;
-        model
-            .channels
-            .iter_mut()
-            .for_each(|m| m.learn(classes, l as u32));
-    }
+    model
+        .channels_mut()
+        .iter_mut()
+        .for_each(|m| m.learn(l as u32));
     Ok(l)
 }
 
