@@ -445,10 +445,9 @@ impl ViewRef<'_> {
         [c[0], c[1], c[2]]
     }
 
-    /// The palette's colours, into `out`.
-    fn palette_into(&self, out: &mut Vec<Rgb>) {
-        out.clear();
-        out.extend((0..self.colours() as u16).map(|i| self.colour(i)));
+    /// The palette's colours.
+    fn palette(&self) -> impl Iterator<Item = Rgb> + '_ {
+        self.palette.chunks_exact(3).map(|c| [c[0], c[1], c[2]])
     }
 }
 
@@ -544,12 +543,8 @@ impl FrameRef<'_> {
             Ok(match v.coding {
                 coding::RGB => View::Rgb(rgb),
                 _ => View::Indexed(
-                    IndexedImage::new(labels, {
-                        let mut palette = Vec::new();
-                        v.palette_into(&mut palette);
-                        palette
-                    })
-                    .map_err(|e| CodecError::Invalid(e.to_string()))?,
+                    IndexedImage::new(labels, v.palette().collect())
+                        .map_err(|e| CodecError::Invalid(e.to_string()))?,
                 ),
             })
         };
@@ -612,7 +607,8 @@ impl FrameDecoder {
                 (&mut self.labels.1, &mut self.rgb.1)
             };
             let n = view.colours();
-            view.palette_into(&mut self.palette);
+            self.palette.clear();
+            self.palette.extend(view.palette());
             match view.coding {
                 coding::RGB => {
                     rgb.reset(w, h, [0; 3]);
@@ -752,6 +748,23 @@ mod tests {
         assert_eq!(decode(&encode(&m, 1, 2), &Limits::default()).unwrap().1, m);
         let c = Message::Control(vec![1, 2, 3]);
         assert_eq!(decode(&encode(&c, 1, 2), &Limits::default()).unwrap().1, c);
+    }
+
+    /// The largest palette the default limits accept, 65536 colours (labels
+    /// are u16), comes back whole.
+    #[test]
+    fn largest_palette_round_trips() {
+        let palette: Vec<Rgb> = (0..1u32 << 16)
+            .map(|i| [i as u8, (i >> 8) as u8, 7])
+            .collect();
+        let left =
+            IndexedImage::new(LabelMap::from_fn(2, 1, |x, _| x as u16 * 65535), palette).unwrap();
+        let m = Message::StereoFrame(Box::new(StereoFrame {
+            left: View::Indexed(left),
+            right: View::Rgb(RgbImage::new(2, 1, [1, 2, 3])),
+            ..frame(2, 1)
+        }));
+        assert_eq!(decode(&encode(&m, 1, 2), &Limits::default()).unwrap().1, m);
     }
 
     #[test]
