@@ -200,6 +200,7 @@ impl Model {
         &self.channels[..CHANNEL_MODELS * !self.classes.is_empty() as usize]
     }
 
+    /// [`Model::channels`], to learn.
     fn channels_mut(&mut self) -> &mut [ChannelModel] {
         &mut self.channels[..CHANNEL_MODELS * !self.classes.is_empty() as usize]
     }
