@@ -1,0 +1,18 @@
+//! The sensor end of stereolink: from two cameras to a rectified pair.
+//!
+//! # Brief overview
+//!
+//! * [`camera`]: the pinhole + Brown–Conrady model (OpenCV's and the MATLAB
+//!   toolbox's 5 coefficients) and rigid poses.
+//!
+//! Lengths (translations, the baseline) are in the units of the chessboard's
+//! square size: give the square in metres and the baseline comes out in
+//! metres.
+
+#![deny(missing_docs)]
+
+pub mod camera;
+mod error;
+
+pub use camera::{Camera, Distortion, Pose};
+pub use error::{Error, Result};
