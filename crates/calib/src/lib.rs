@@ -4,6 +4,8 @@
 //!
 //! * [`camera`]: the pinhole + Brown–Conrady model (OpenCV's and the MATLAB
 //!   toolbox's 5 coefficients) and rigid poses.
+//! * [`rig`]: a calibrated stereo rig ([`StereoRig`]) and its Bouguet
+//!   [`Rectification`], together a [`StereoCalibration`].
 //!
 //! Lengths (translations, the baseline) are in the units of the chessboard's
 //! square size: give the square in metres and the baseline comes out in
@@ -13,6 +15,8 @@
 
 pub mod camera;
 mod error;
+pub mod rig;
 
 pub use camera::{Camera, Distortion, Pose};
 pub use error::{Error, Result};
+pub use rig::{Rectification, StereoCalibration, StereoRig};
