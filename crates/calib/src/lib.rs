@@ -13,10 +13,15 @@
 
 #![deny(missing_docs)]
 
+pub mod board;
 pub mod camera;
 mod error;
+mod lm;
+pub mod mono;
 pub mod rig;
+mod zhang;
 
 pub use camera::{Camera, Distortion, Pose};
 pub use error::{Error, Result};
+pub use mono::{calibrate_camera, MonoCalibration};
 pub use rig::{Rectification, StereoCalibration, StereoRig};
