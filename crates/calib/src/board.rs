@@ -8,7 +8,9 @@ use nalgebra::Point3;
 /// rows: corner `k` is at `(k % cols, k / cols) · square`.
 pub fn board_points(cols: usize, rows: usize, square: f64) -> Vec<Point3<f64>> {
     (0..rows)
-        .flat_map(|r| (0..cols).map(move |c| Point3::new(c as f64 * square, r as f64 * square, 0.0)))
+        .flat_map(|r| {
+            (0..cols).map(move |c| Point3::new(c as f64 * square, r as f64 * square, 0.0))
+        })
         .collect()
 }
 
@@ -37,7 +39,10 @@ pub(crate) mod tests {
                     11.0 * square * (1.0 + 0.3 * ((i % 4) as f64 / 3.0)),
                 );
                 let t = at - r * centre;
-                Pose { rotation: r.scaled_axis(), translation: t }
+                Pose {
+                    rotation: r.scaled_axis(),
+                    translation: t,
+                }
             })
             .collect()
     }

@@ -19,9 +19,11 @@ mod error;
 mod lm;
 pub mod mono;
 pub mod rig;
+pub mod stereo;
 mod zhang;
 
 pub use camera::{Camera, Distortion, Pose};
 pub use error::{Error, Result};
 pub use mono::{calibrate_camera, MonoCalibration};
 pub use rig::{Rectification, StereoCalibration, StereoRig};
+pub use stereo::{calibrate_stereo, StereoFit};

@@ -37,7 +37,10 @@ pub(crate) struct LmOptions {
 
 impl Default for LmOptions {
     fn default() -> Self {
-        LmOptions { max_iterations: 100, tolerance: 1e-12 }
+        LmOptions {
+            max_iterations: 100,
+            tolerance: 1e-12,
+        }
     }
 }
 
@@ -64,7 +67,9 @@ impl LmResult {
         let dof = self.residuals.saturating_sub(n).max(1) as f64;
         let sigma2 = self.cost / dof;
         match self.jtj.clone().try_inverse() {
-            Some(inv) => (0..n).map(|i| (sigma2 * inv[(i, i)]).max(0.0).sqrt()).collect(),
+            Some(inv) => (0..n)
+                .map(|i| (sigma2 * inv[(i, i)]).max(0.0).sqrt())
+                .collect(),
             None => vec![f64::INFINITY; n],
         }
     }
@@ -180,7 +185,13 @@ pub(crate) fn minimise(problem: &impl BlockProblem, x0: Vec<f64>, options: LmOpt
             }
         }
     }
-    LmResult { x, cost: current, residuals, jtj, iterations }
+    LmResult {
+        x,
+        cost: current,
+        residuals,
+        jtj,
+        iterations,
+    }
 }
 
 #[cfg(test)]

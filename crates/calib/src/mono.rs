@@ -45,7 +45,13 @@ pub(crate) fn camera_from(p: &[f64], size: (usize, usize)) -> Camera {
         fy: p[1],
         cx: p[2],
         cy: p[3],
-        distortion: Distortion { k1: p[4], k2: p[5], p1: p[6], p2: p[7], k3: p[8] },
+        distortion: Distortion {
+            k1: p[4],
+            k2: p[5],
+            p1: p[6],
+            p2: p[7],
+            k3: p[8],
+        },
         width: size.0,
         height: size.1,
     }
@@ -57,7 +63,10 @@ pub(crate) fn camera_params(c: &Camera) -> [f64; INTRINSICS] {
 }
 
 pub(crate) fn pose_from(p: &[f64]) -> Pose {
-    Pose { rotation: Vector3::new(p[0], p[1], p[2]), translation: Vector3::new(p[3], p[4], p[5]) }
+    Pose {
+        rotation: Vector3::new(p[0], p[1], p[2]),
+        translation: Vector3::new(p[3], p[4], p[5]),
+    }
 }
 
 pub(crate) fn pose_params(p: &Pose) -> [f64; 6] {
@@ -118,7 +127,11 @@ pub(crate) fn check_views(object: &[Point3<f64>], views: &[Vec<Point2<f64>>]) ->
             hint: "take more views of the board, tilted in different directions".into(),
         });
     }
-    if let Some((i, v)) = views.iter().enumerate().find(|(_, v)| v.len() != object.len()) {
+    if let Some((i, v)) = views
+        .iter()
+        .enumerate()
+        .find(|(_, v)| v.len() != object.len())
+    {
         return Err(Error::SizeMismatch(format!(
             "view {} has {} corners, the board has {}",
             i + 1,
@@ -145,10 +158,16 @@ pub fn calibrate_camera(
     })?;
     let mut x0: Vec<f64> = camera_params(&init).to_vec();
     x0.extend(poses.iter().flat_map(pose_params));
-    let problem = Mono { object, views, size };
+    let problem = Mono {
+        object,
+        views,
+        size,
+    };
     let fit = minimise(&problem, x0, LmOptions::default());
     let camera = camera_from(&fit.x, size);
-    let poses: Vec<Pose> = (0..views.len()).map(|i| pose_from(&fit.x[INTRINSICS + 6 * i..])).collect();
+    let poses: Vec<Pose> = (0..views.len())
+        .map(|i| pose_from(&fit.x[INTRINSICS + 6 * i..]))
+        .collect();
     let mut residuals = Vec::new();
     let view_rms: Vec<f64> = (0..views.len())
         .map(|b| {
@@ -161,9 +180,19 @@ pub fn calibrate_camera(
     let std_devs: [f64; INTRINSICS] = std::array::from_fn(|i| sd[i]);
     let warnings = focal_warnings(&camera, &std_devs);
     if !camera.fx.is_finite() || camera.fx <= 0.0 || camera.fy <= 0.0 {
-        return Err(Error::Failed(format!("the focal length diverged ({:.1}, {:.1})", camera.fx, camera.fy)));
+        return Err(Error::Failed(format!(
+            "the focal length diverged ({:.1}, {:.1})",
+            camera.fx, camera.fy
+        )));
     }
-    Ok(MonoCalibration { camera, poses, rms: all, view_rms, std_devs, warnings })
+    Ok(MonoCalibration {
+        camera,
+        poses,
+        rms: all,
+        view_rms,
+        std_devs,
+        warnings,
+    })
 }
 
 /// A warning when a focal length is poorly constrained, which happens when
@@ -195,7 +224,9 @@ pub fn outlier_views(view_rms: &[f64]) -> Vec<usize> {
     let m = median(&mut view_rms.to_vec());
     let mad = median(&mut view_rms.iter().map(|r| (r - m).abs()).collect());
     let limit = (2.0 * m).max(m + 3.0 * 1.4826 * mad);
-    (0..view_rms.len()).filter(|&i| view_rms[i] > limit).collect()
+    (0..view_rms.len())
+        .filter(|&i| view_rms[i] > limit)
+        .collect()
 }
 
 #[cfg(test)]
@@ -212,7 +243,13 @@ pub(crate) mod tests {
             fy: 669.5,
             cx: 318.4,
             cy: 243.1,
-            distortion: Distortion { k1: -0.21, k2: 0.09, p1: 0.0008, p2: -0.0011, k3: -0.01 },
+            distortion: Distortion {
+                k1: -0.21,
+                k2: 0.09,
+                p1: 0.0008,
+                p2: -0.0011,
+                k3: -0.01,
+            },
             width: 640,
             height: 480,
         }
@@ -220,7 +257,12 @@ pub(crate) mod tests {
 
     /// Projects the board through `camera` at `poses`, with Gaussian noise
     /// of `sigma` pixels on each coordinate.
-    pub(crate) fn views(camera: &Camera, poses: &[Pose], sigma: f64, seed: u64) -> Vec<Vec<Point2<f64>>> {
+    pub(crate) fn views(
+        camera: &Camera,
+        poses: &[Pose],
+        sigma: f64,
+        seed: u64,
+    ) -> Vec<Vec<Point2<f64>>> {
         let mut rng = ChaCha8Rng::seed_from_u64(seed);
         let mut gauss = move || {
             // Box–Muller.
@@ -266,7 +308,11 @@ pub(crate) mod tests {
         }
         let f_rms = (f_sq / draws as f64).sqrt();
         let pp_rms = (pp_sq / draws as f64).sqrt();
-        assert!(f_rms < 1e-3, "focal length RMS error {:.3} %", 100.0 * f_rms);
+        assert!(
+            f_rms < 1e-3,
+            "focal length RMS error {:.3} %",
+            100.0 * f_rms
+        );
         assert!(pp_rms < 0.5, "principal point RMS error {pp_rms} px");
     }
 

@@ -54,7 +54,10 @@ pub(crate) fn homography(object: &[Point3<f64>], image: &[Point2<f64>]) -> Optio
 /// Hartley's similarity: centroid to the origin, mean distance √2.
 fn normaliser(points: &[Point2<f64>]) -> Option<Matrix3<f64>> {
     let n = points.len() as f64;
-    let c = points.iter().fold(Vector3::zeros(), |a, p| a + Vector3::new(p.x, p.y, 0.0)) / n;
+    let c = points
+        .iter()
+        .fold(Vector3::zeros(), |a, p| a + Vector3::new(p.x, p.y, 0.0))
+        / n;
     let mean = points
         .iter()
         .map(|p| ((p.x - c.x).powi(2) + (p.y - c.y).powi(2)).sqrt())
@@ -64,7 +67,17 @@ fn normaliser(points: &[Point2<f64>]) -> Option<Matrix3<f64>> {
         return None;
     }
     let s = std::f64::consts::SQRT_2 / mean;
-    Some(Matrix3::new(s, 0.0, -s * c.x, 0.0, s, -s * c.y, 0.0, 0.0, 1.0))
+    Some(Matrix3::new(
+        s,
+        0.0,
+        -s * c.x,
+        0.0,
+        s,
+        -s * c.y,
+        0.0,
+        0.0,
+        1.0,
+    ))
 }
 
 /// Zhang's `v_ij` (his eq. 7) of homography `h`'s columns `i` and `j`.
@@ -123,9 +136,15 @@ fn focal_only(homographies: &[Matrix3<f64>]) -> Option<[f64; 4]> {
     let mut atb = nalgebra::Vector2::<f64>::zeros();
     for h in homographies {
         let rows = [
-            ([h[(0, 0)] * h[(0, 1)], h[(1, 0)] * h[(1, 1)]], -h[(2, 0)] * h[(2, 1)]),
             (
-                [h[(0, 0)].powi(2) - h[(0, 1)].powi(2), h[(1, 0)].powi(2) - h[(1, 1)].powi(2)],
+                [h[(0, 0)] * h[(0, 1)], h[(1, 0)] * h[(1, 1)]],
+                -h[(2, 0)] * h[(2, 1)],
+            ),
+            (
+                [
+                    h[(0, 0)].powi(2) - h[(0, 1)].powi(2),
+                    h[(1, 0)].powi(2) - h[(1, 1)].powi(2),
+                ],
                 -(h[(2, 0)].powi(2) - h[(2, 1)].powi(2)),
             ),
         ];
@@ -151,13 +170,20 @@ pub(crate) fn initialise(
     let homographies: Vec<Matrix3<f64>> = views
         .iter()
         .map(|v| {
-            let normalised: Vec<Point2<f64>> =
-                v.iter().map(|p| Point2::new((p.x - ox) / scale, (p.y - oy) / scale)).collect();
+            let normalised: Vec<Point2<f64>> = v
+                .iter()
+                .map(|p| Point2::new((p.x - ox) / scale, (p.y - oy) / scale))
+                .collect();
             homography(object, &normalised)
         })
         .collect::<Option<_>>()?;
     let plausible = |k: &[f64; 4]| {
-        k[0] > 0.05 && k[1] > 0.05 && k[0] < 50.0 && k[1] < 50.0 && k[2].abs() < 0.5 && k[3].abs() < 0.5
+        k[0] > 0.05
+            && k[1] > 0.05
+            && k[0] < 50.0
+            && k[1] < 50.0
+            && k[2].abs() < 0.5
+            && k[3].abs() < 0.5
     };
     let k = closed_form(&homographies)
         .filter(plausible)
@@ -173,7 +199,10 @@ pub(crate) fn initialise(
     };
     let kn = Matrix3::new(k[0], 0.0, k[2], 0.0, k[1], k[3], 0.0, 0.0, 1.0);
     let kinv = kn.try_inverse()?;
-    let poses = homographies.iter().map(|h| pose_from_homography(&kinv, h)).collect::<Option<_>>()?;
+    let poses = homographies
+        .iter()
+        .map(|h| pose_from_homography(&kinv, h))
+        .collect::<Option<_>>()?;
     Some((camera, poses))
 }
 
@@ -181,7 +210,11 @@ pub(crate) fn initialise(
 /// made orthonormal by SVD and the board put in front of the camera.
 pub(crate) fn pose_from_homography(kinv: &Matrix3<f64>, h: &Matrix3<f64>) -> Option<Pose> {
     let m = kinv * h;
-    let (c1, c2, c3) = (m.column(0).into_owned(), m.column(1).into_owned(), m.column(2).into_owned());
+    let (c1, c2, c3) = (
+        m.column(0).into_owned(),
+        m.column(1).into_owned(),
+        m.column(2).into_owned(),
+    );
     let mut lambda = 2.0 / (c1.norm() + c2.norm());
     if !lambda.is_finite() {
         return None;
@@ -233,8 +266,10 @@ mod tests {
         };
         let object = board_points(9, 6, 0.025);
         let poses = crate::board::tests::spread_poses(0.025, 8);
-        let views: Vec<Vec<Point2<f64>>> =
-            poses.iter().map(|pose| object.iter().map(|p| camera.project(pose, p)).collect()).collect();
+        let views: Vec<Vec<Point2<f64>>> = poses
+            .iter()
+            .map(|pose| object.iter().map(|p| camera.project(pose, p)).collect())
+            .collect();
         let (init, _) = initialise(&object, &views, (640, 480)).unwrap();
         assert!((init.fx - 670.0).abs() < 1e-3, "{init:?}");
         assert!((init.fy - 665.0).abs() < 1e-3, "{init:?}");
