@@ -4,6 +4,8 @@
 //!
 //! * [`camera`]: the pinhole + Brown–Conrady model (OpenCV's and the MATLAB
 //!   toolbox's 5 coefficients) and rigid poses.
+//! * [`chessboard`]: inner corners of a chessboard, ordered consistently
+//!   between views and refined to subpixel accuracy ([`find_chessboard`]).
 //! * [`rig`]: a calibrated stereo rig ([`StereoRig`]) and its Bouguet
 //!   [`Rectification`], together a [`StereoCalibration`].
 //!
@@ -15,6 +17,7 @@
 
 pub mod board;
 pub mod camera;
+pub mod chessboard;
 mod error;
 mod lm;
 pub mod mono;
@@ -24,6 +27,7 @@ pub mod stereo;
 mod zhang;
 
 pub use camera::{Camera, Distortion, Pose};
+pub use chessboard::{find_chessboard, BoardSize, ChessboardOptions, NotFound};
 pub use error::{Error, Result};
 pub use mono::{calibrate_camera, MonoCalibration};
 pub use rectify::stereo_rectify;

@@ -1,0 +1,304 @@
+use std::path::PathBuf;
+
+use nalgebra::{Matrix3, Point2, Vector3};
+use rand::{Rng, SeedableRng};
+use rand_chacha::ChaCha8Rng;
+use stereolink_image::GrayImage;
+
+use super::*;
+
+const BOARD: BoardSize = BoardSize::new(9, 6);
+
+/// A rendered board: the image and the true corners in the documented order.
+struct Rendered {
+    image: GrayImage,
+    corners: Vec<Point2<f64>>,
+}
+
+/// Renders a `pattern` board with squares of side 1 and the outer square
+/// (0,0) dark, mapped by `h` (board units → pixels), 8x8 supersampled, with
+/// a one-square white margin on a mid-gray background, then `light` scaling
+/// (a lighting gradient) and uniform noise of `noise` gray levels.
+fn render(
+    pattern: BoardSize,
+    h: Matrix3<f64>,
+    (width, height): (usize, usize),
+    light: impl Fn(usize, usize) -> f64,
+    noise: f64,
+    seed: u64,
+) -> Rendered {
+    let inv = h.try_inverse().expect("invertible homography");
+    let (sq_w, sq_h) = ((pattern.cols + 1) as f64, (pattern.rows + 1) as f64);
+    let shade = |x: f64, y: f64| {
+        let b = inv * Vector3::new(x, y, 1.0);
+        let (u, v) = (b.x / b.z, b.y / b.z);
+        if b.z <= 0.0 || u < -1.0 || v < -1.0 || u > sq_w + 1.0 || v > sq_h + 1.0 {
+            120.0
+        } else if u < 0.0 || v < 0.0 || u >= sq_w || v >= sq_h {
+            220.0
+        } else if (u.floor() as i64 + v.floor() as i64) % 2 == 0 {
+            30.0
+        } else {
+            220.0
+        }
+    };
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    const SS: usize = 8;
+    let image = GrayImage::from_fn(width, height, |x, y| {
+        let mut sum = 0.0;
+        for sy in 0..SS {
+            for sx in 0..SS {
+                let px = x as f64 + (sx as f64 + 0.5) / SS as f64 - 0.5;
+                let py = y as f64 + (sy as f64 + 0.5) / SS as f64 - 0.5;
+                sum += shade(px, py);
+            }
+        }
+        let v = sum / (SS * SS) as f64 * light(x, y) + noise * (rng.gen::<f64>() - 0.5) * 2.0;
+        v.round().clamp(0.0, 255.0) as u8
+    });
+    let corners = (0..pattern.count())
+        .map(|k| {
+            let b = h * Vector3::new(
+                (k % pattern.cols + 1) as f64,
+                (k / pattern.cols + 1) as f64,
+                1.0,
+            );
+            Point2::new(b.x / b.z, b.y / b.z)
+        })
+        .collect();
+    Rendered { image, corners }
+}
+
+/// A homography: board units scaled by `scale`, rotated by `angle`, shifted
+/// to `(tx, ty)`, with perspective terms `(px, py)`.
+fn homography(scale: f64, angle: f64, (tx, ty): (f64, f64), (px, py): (f64, f64)) -> Matrix3<f64> {
+    let (s, c) = angle.sin_cos();
+    Matrix3::new(
+        scale * c,
+        -scale * s,
+        tx,
+        scale * s,
+        scale * c,
+        ty,
+        px,
+        py,
+        1.0,
+    )
+}
+
+fn rms(a: &[Point2<f64>], b: &[Point2<f64>]) -> f64 {
+    assert_eq!(a.len(), b.len());
+    (a.iter()
+        .zip(b)
+        .map(|(p, q)| (p - q).norm_squared())
+        .sum::<f64>()
+        / a.len() as f64)
+        .sqrt()
+}
+
+fn flat(_: usize, _: usize) -> f64 {
+    1.0
+}
+
+#[test]
+fn synthetic_board_is_found_to_subpixel_accuracy() {
+    let board = render(
+        BOARD,
+        homography(30.0, 0.1, (120.0, 90.0), (0.0, 0.0)),
+        (480, 360),
+        flat,
+        4.0,
+        1,
+    );
+    let found = find_chessboard(&board.image, BOARD).expect("board found");
+    let err = rms(&found, &board.corners);
+    assert!(err < 0.05, "RMS error {err:.4} px");
+}
+
+#[test]
+fn tilted_rotated_and_upside_down_boards_keep_the_board_order() {
+    // The order follows the board (dark outer square at corner 0), whatever
+    // the rotation, including 180°, and under strong perspective.
+    for (i, (angle, persp)) in [
+        (0.6, (0.0005, 0.0)),
+        (3.0, (0.0, 0.0008)),
+        (-2.0, (-0.0006, 0.0004)),
+    ]
+    .into_iter()
+    .enumerate()
+    {
+        let h = homography(26.0, angle, (320.0, 240.0), persp)
+            * Matrix3::new(1.0, 0.0, -5.0, 0.0, 1.0, -3.5, 0.0, 0.0, 1.0);
+        let h = h / h[(2, 2)];
+        let board = render(BOARD, h, (640, 480), flat, 3.0, i as u64);
+        let found =
+            find_chessboard(&board.image, BOARD).unwrap_or_else(|e| panic!("case {i}: {e}"));
+        let err = rms(&found, &board.corners);
+        assert!(err < 0.05, "case {i}: RMS error {err:.4} px");
+    }
+}
+
+#[test]
+fn blur_noise_and_lighting_gradient() {
+    let h = homography(24.0, -0.3, (150.0, 160.0), (0.0003, -0.0002));
+    let gradient = |x: usize, _y: usize| 0.25 + 0.75 * x as f64 / 560.0;
+    let sharp = render(BOARD, h, (560, 420), gradient, 8.0, 7);
+    let blurred = saddle::smooth(&sharp.image, 1.5);
+    let (w, hgt) = blurred.dims();
+    let image = GrayImage::from_fn(w, hgt, |x, y| {
+        blurred.sample(x as f64, y as f64).round() as u8
+    });
+    let found = find_chessboard(&image, BOARD).expect("board found");
+    let err = rms(&found, &sharp.corners);
+    assert!(err < 0.1, "RMS error {err:.4} px");
+}
+
+#[test]
+fn a_transposed_request_reads_the_board_by_columns() {
+    let board = render(
+        BOARD,
+        homography(30.0, 0.2, (150.0, 80.0), (0.0, 0.0)),
+        (480, 400),
+        flat,
+        2.0,
+        3,
+    );
+    let found = find_chessboard(&board.image, BOARD.transposed()).expect("board found");
+    assert_eq!(found.len(), BOARD.count());
+    for p in &found {
+        let nearest = board
+            .corners
+            .iter()
+            .map(|q| (p - q).norm())
+            .fold(f64::INFINITY, f64::min);
+        assert!(nearest < 0.2, "corner {p} is no board corner");
+    }
+    // 6 per row now: the first row runs along the board's first column.
+    let u = found[1] - found[0];
+    let v = found[6] - found[0];
+    assert!(u.x * v.y - u.y * v.x > 0.0, "clockwise reading");
+}
+
+#[test]
+fn wrong_sizes_are_reported() {
+    let board = render(
+        BOARD,
+        homography(28.0, 0.0, (100.0, 80.0), (0.0, 0.0)),
+        (440, 340),
+        flat,
+        2.0,
+        4,
+    );
+    assert_eq!(
+        find_chessboard(&board.image, BoardSize::new(8, 6)),
+        Err(NotFound::WrongSize {
+            found: BOARD,
+            expected: BoardSize::new(8, 6)
+        })
+    );
+    assert_eq!(
+        find_chessboard(&board.image, BoardSize::new(10, 7)),
+        Err(NotFound::Partial {
+            found: BOARD,
+            expected: BoardSize::new(10, 7)
+        })
+    );
+    assert_eq!(
+        find_chessboard(&board.image, BoardSize::new(2, 6)),
+        Err(NotFound::BoardTooSmall(BoardSize::new(2, 6)))
+    );
+}
+
+#[test]
+fn degenerate_images_are_refused_without_panic() {
+    let mut rng = ChaCha8Rng::seed_from_u64(9);
+    let noise = GrayImage::from_fn(200, 150, |_, _| rng.gen());
+    for (name, img) in [
+        ("empty", GrayImage::new(0, 0, 0)),
+        ("1x1", GrayImage::new(1, 1, 255)),
+        ("black", GrayImage::new(320, 240, 0)),
+        ("white", GrayImage::new(320, 240, 255)),
+        ("noise", noise),
+    ] {
+        assert!(find_chessboard(&img, BOARD).is_err(), "{name}");
+    }
+    assert!(matches!(
+        find_chessboard(&GrayImage::new(1, 1, 0), BOARD),
+        Err(NotFound::ImageTooSmall {
+            width: 1,
+            height: 1
+        })
+    ));
+}
+
+#[test]
+fn board_size_parses() {
+    assert_eq!("9x6".parse::<BoardSize>(), Ok(BoardSize::new(9, 6)));
+    assert!("9by6".parse::<BoardSize>().is_err());
+    assert_eq!(BoardSize::new(9, 6).to_string(), "9x6");
+}
+
+fn calib_data() -> Option<PathBuf> {
+    let dir = std::env::var_os("STEREOLINK_CALIB_DATA")
+        .map(PathBuf::from)
+        .unwrap_or_else(|| {
+            PathBuf::from(concat!(
+                env!("CARGO_MANIFEST_DIR"),
+                "/../../../shared/data/calibration"
+            ))
+        });
+    let dir = dir.join("ximea-9x6");
+    if dir.is_dir() {
+        Some(dir)
+    } else {
+        println!(
+            "skipped: no calibration data at {} (set STEREOLINK_CALIB_DATA)",
+            dir.display()
+        );
+        None
+    }
+}
+
+#[test]
+fn real_stereo_set_is_found_in_both_views_in_the_same_order() {
+    let Some(dir) = calib_data() else { return };
+    for n in 1..=25 {
+        let read = |side: &str| {
+            let path = dir.join(format!("{side}{n:02}.jpg"));
+            let img = stereolink_image::io::read_gray(&path).expect("readable image");
+            find_chessboard(&img, BOARD).unwrap_or_else(|e| panic!("{}: {e}", path.display()))
+        };
+        let (left, right) = (read("left"), read("right"));
+        // The cameras are side by side and the board far: corner k moves by
+        // about the same vector between the views. A reading rotated by 180°
+        // in one view would move corners by up to the board's size.
+        let shifts: Vec<_> = left.iter().zip(&right).map(|(l, r)| r - l).collect();
+        let mean = shifts.iter().sum::<nalgebra::Vector2<f64>>() / shifts.len() as f64;
+        let spread = shifts.iter().map(|s| (s - mean).norm()).fold(0.0, f64::max);
+        assert!(
+            spread < 20.0,
+            "pair {n}: corner shifts spread by {spread:.1} px"
+        );
+    }
+}
+
+mod proptests {
+    use proptest::prelude::*;
+
+    use super::*;
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(64))]
+
+        #[test]
+        fn random_small_images_never_panic(
+            (w, h, pixels) in (0usize..48, 0usize..48)
+                .prop_flat_map(|(w, h)| (Just(w), Just(h), proptest::collection::vec(any::<u8>(), w * h)))
+        ) {
+            let img = GrayImage::from_vec(w, h, pixels).expect("sized");
+            if let Ok(corners) = find_chessboard(&img, BoardSize::new(3, 3)) {
+                prop_assert_eq!(corners.len(), 9);
+            }
+        }
+    }
+}
