@@ -24,6 +24,8 @@ pub mod mono;
 pub mod rectify;
 pub mod rig;
 pub mod stereo;
+pub mod synth;
+pub mod workflow;
 mod zhang;
 
 pub use camera::{Camera, Distortion, Pose};

@@ -271,7 +271,10 @@ mod tests {
                 let d = l.x - r.x;
                 let doffs = rect.p2[(0, 2)] - rect.p1[(0, 2)];
                 let z = f * baseline / (d + doffs);
-                assert!((z - depth).abs() < 1e-6 * depth, "alpha {alpha}: {z} vs {depth}");
+                assert!(
+                    (z - depth).abs() < 1e-6 * depth,
+                    "alpha {alpha}: {z} vs {depth}"
+                );
                 // Q gives the same point.
                 let h = rect.q * nalgebra::Vector4::new(l.x, l.y, d, 1.0);
                 assert!((h.z / h.w - depth).abs() < 1e-6 * depth);
