@@ -6,6 +6,14 @@
 //!   toolbox's 5 coefficients) and rigid poses.
 //! * [`rig`]: a calibrated stereo rig ([`StereoRig`]) and its Bouguet
 //!   [`Rectification`], together a [`StereoCalibration`].
+//! * [`files`]: the calibration files, OpenCV `FileStorage` YAML (read and
+//!   written) and ROS `camera_info` YAML (written).
+//! * [`remap`]: the rectification maps, computed once and applied to every
+//!   frame in fixed point ([`RectifyMap`], [`StereoRectifier`]).
+//! * [`preview`]: a rectified pair side by side with horizontal guide lines,
+//!   for a person to judge a calibration.
+//! * [`synthetic`]: rigs around a known rectification and raw views
+//!   rendered from rectified ones, the truth of tests and benches.
 //!
 //! Lengths (translations, the baseline) are in the units of the chessboard's
 //! square size: give the square in metres and the baseline comes out in
@@ -15,8 +23,13 @@
 
 pub mod camera;
 mod error;
+pub mod files;
+pub mod preview;
+pub mod remap;
 pub mod rig;
+pub mod synthetic;
 
 pub use camera::{Camera, Distortion, Pose};
 pub use error::{Error, Result};
+pub use remap::{RectifyMap, StereoRectifier};
 pub use rig::{Rectification, StereoCalibration, StereoRig};
