@@ -9,7 +9,9 @@
 pub mod opencv;
 pub mod ros;
 
-pub use opencv::{from_opencv_yaml, is_opencv_yaml, read_opencv, to_opencv_yaml, write_opencv};
+pub use opencv::{
+    from_opencv_yaml, is_opencv_yaml, read_opencv, read_text, to_opencv_yaml, write_opencv,
+};
 pub use ros::{to_camera_info_yaml, write_camera_info, Side};
 
 #[cfg(test)]

@@ -162,8 +162,9 @@ pub fn write_opencv(path: &Path, calib: &StereoCalibration) -> Result<()> {
     })
 }
 
-/// Reads a text file of at most [`MAX_FILE_BYTES`].
-pub(crate) fn read_text(path: &Path) -> Result<String> {
+/// Reads a calibration text file of at most [`MAX_FILE_BYTES`] (larger
+/// files and files that are not UTF-8 are refused unread).
+pub fn read_text(path: &Path) -> Result<String> {
     use std::io::Read;
     let io = |source| Error::Io {
         path: path.to_owned(),
