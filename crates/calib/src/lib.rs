@@ -8,6 +8,14 @@
 //!   between views and refined to subpixel accuracy ([`find_chessboard`]).
 //! * [`rig`]: a calibrated stereo rig ([`StereoRig`]) and its Bouguet
 //!   [`Rectification`], together a [`StereoCalibration`].
+//! * [`files`]: the calibration files, OpenCV `FileStorage` YAML (read and
+//!   written) and ROS `camera_info` YAML (written).
+//! * [`remap`]: the rectification maps, computed once and applied to every
+//!   frame in fixed point ([`RectifyMap`], [`StereoRectifier`]).
+//! * [`preview`]: a rectified pair side by side with horizontal guide lines,
+//!   for a person to judge a calibration.
+//! * [`synthetic`]: rigs around a known rectification and raw views
+//!   rendered from rectified ones, the truth of tests and benches.
 //!
 //! Lengths (translations, the baseline) are in the units of the chessboard's
 //! square size: give the square in metres and the baseline comes out in
@@ -19,12 +27,16 @@ pub mod board;
 pub mod camera;
 pub mod chessboard;
 mod error;
+pub mod files;
 mod lm;
 pub mod mono;
+pub mod preview;
 pub mod rectify;
+pub mod remap;
 pub mod rig;
 pub mod stereo;
 pub mod synth;
+pub mod synthetic;
 pub mod workflow;
 mod zhang;
 
@@ -33,5 +45,6 @@ pub use chessboard::{find_chessboard, BoardSize, ChessboardOptions, NotFound};
 pub use error::{Error, Result};
 pub use mono::{calibrate_camera, MonoCalibration};
 pub use rectify::stereo_rectify;
+pub use remap::{RectifyMap, StereoRectifier};
 pub use rig::{Rectification, StereoCalibration, StereoRig};
 pub use stereo::{calibrate_stereo, StereoFit};

@@ -58,3 +58,18 @@ pub struct StereoCalibration {
     /// How to rectify their images.
     pub rectification: Rectification,
 }
+
+impl Rectification {
+    /// The depth geometry of the rectified pair, from `P1` and `P2`: the
+    /// focal length `f = P1[0][0]` in pixels, the baseline `b =
+    /// −P2[0][3]/P2[0][0]` (in the square size's units) and `doffs =
+    /// P2[0][2] − P1[0][2]`, so that `Z = b·f / (d + doffs)`.
+    pub fn depth_geometry(&self) -> (f64, f64, f64) {
+        let (p1, p2) = (&self.p1, &self.p2);
+        (
+            p1[(0, 0)],
+            -p2[(0, 3)] / p2[(0, 0)],
+            p2[(0, 2)] - p1[(0, 2)],
+        )
+    }
+}

@@ -13,6 +13,9 @@ pub enum Target {
     Segment(super::segment::BenchArgs),
     /// Time the codec (JSON keys `encode_ms`, `decode_ms`, bytes per view).
     Codec(super::codec::BenchArgs),
+    /// Time the rectification of a raw pair (JSON keys `gray_median_ms`,
+    /// `rgb_median_ms`).
+    Rectify(super::rectify::BenchArgs),
 }
 
 /// Runs the chosen benchmark.
@@ -21,5 +24,6 @@ pub fn run(target: Target, out: &super::Output) -> anyhow::Result<()> {
         Target::Match(args) => super::matching::run_bench(args, out),
         Target::Segment(args) => super::segment::run_bench(args, out),
         Target::Codec(args) => super::codec::run_bench(args, out),
+        Target::Rectify(args) => super::rectify::run_bench(args, out),
     }
 }

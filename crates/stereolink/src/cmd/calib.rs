@@ -1,11 +1,14 @@
 //! Calibration options shared by the commands that turn disparity into
-//! distance (`depth`, `send`): flags, a Middlebury `calib.txt`, a TOML file,
+//! distance (`depth`, `match`, `send`): flags, a Middlebury `calib.txt` or a
+//! stereo calibration YAML (which also rectifies a raw pair), a TOML file,
 //! or the YAML of OpenCV's `stereoRectify` or a ROS `camera_info`.
 
 use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use stereolink_image::Calibration;
+
+use crate::pipeline::sensor::Sensor;
 
 /// Where focal length, baseline and `doffs` come from. A file gives all
 /// three; `--focal-px` and `--baseline-m` override it.
@@ -20,7 +23,11 @@ pub struct CalibArgs {
     /// Disparity offset between the principal points (Middlebury 2014 `doffs`).
     #[arg(long, default_value_t = 0.0)]
     pub doffs: f64,
-    /// Read focal length, baseline and doffs from a Middlebury calib.txt.
+    /// Read focal length, baseline and doffs from a Middlebury calib.txt of
+    /// a rectified pair, or from a stereo calibration YAML of a raw pair
+    /// (OpenCV FileStorage with M1, D1, M2, D2, R, T, R1, R2, P1, P2, Q, as
+    /// `calibrate` writes; told apart by its %YAML line or M1 matrix): the
+    /// pair is then rectified first and depth comes from P1 and P2.
     #[arg(long, value_name = "FILE", group = "calib_file")]
     pub calib: Option<PathBuf>,
     /// Read them from a TOML file with keys focal_px, baseline_m, doffs.
@@ -30,10 +37,20 @@ pub struct CalibArgs {
     /// camera_info of the right camera (projection_matrix).
     #[arg(long, value_name = "FILE", group = "calib_file")]
     pub calib_yaml: Option<PathBuf>,
-    /// Unit of the YAML's translation: m (ROS; OpenCV calibrated in metres),
-    /// cm or mm (OpenCV calibrated with a target measured in them).
-    #[arg(long, default_value = "m", value_parser = ["m", "cm", "mm"], requires = "calib_yaml")]
+    /// Unit of a YAML's translation (--calib-yaml, or a stereo YAML given to
+    /// --calib): m (ROS; OpenCV calibrated in metres), cm or mm (OpenCV
+    /// calibrated with the chessboard's square measured in them).
+    #[arg(long, default_value = "m", value_parser = ["m", "cm", "mm"])]
     pub calib_units: String,
+}
+
+/// Metres per unit of `--calib-units`.
+pub fn metres_per_unit(units: &str) -> f64 {
+    match units {
+        "mm" => 1e-3,
+        "cm" => 1e-2,
+        _ => 1.0,
+    }
 }
 
 #[derive(serde::Deserialize)]
@@ -51,16 +68,23 @@ fn read(path: &Path) -> anyhow::Result<String> {
 impl CalibArgs {
     /// The calibration, with `ndisp` for the disparity range.
     pub fn calibration(&self, ndisp: usize) -> anyhow::Result<Calibration> {
+        Ok(self.sensor(ndisp)?.depth)
+    }
+
+    /// The calibration and, for a stereo calibration YAML, the maps that
+    /// rectify the raw pair first; `ndisp` is the disparity range.
+    pub fn sensor(&self, ndisp: usize) -> anyhow::Result<Sensor> {
         let mut c = Calibration {
             focal_px: None,
             baseline_m: None,
             doffs: self.doffs,
             ndisp,
         };
+        let mut rectifier = None;
         if let Some(p) = &self.calib {
-            let file = Calibration::parse_middlebury(&read(p)?)
-                .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?;
-            c = Calibration { ndisp, ..file };
+            let sensor = Sensor::from_file(p, metres_per_unit(&self.calib_units), ndisp)?;
+            rectifier = sensor.rectifier;
+            c = sensor.depth;
         }
         if let Some(p) = &self.calib_toml {
             let t: TomlCalib = toml::from_str(&read(p)?).with_context(|| {
@@ -74,17 +98,15 @@ impl CalibArgs {
             };
         }
         if let Some(p) = &self.calib_yaml {
-            let scale = match self.calib_units.as_str() {
-                "mm" => 1e-3,
-                "cm" => 1e-2,
-                _ => 1.0,
-            };
-            let file = Calibration::parse_yaml(&read(p)?, scale)
+            let file = Calibration::parse_yaml(&read(p)?, metres_per_unit(&self.calib_units))
                 .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?;
             c = Calibration { ndisp, ..file };
         }
         c.focal_px = self.focal_px.or(c.focal_px);
         c.baseline_m = self.baseline_m.or(c.baseline_m);
-        Ok(c)
+        Ok(Sensor {
+            rectifier,
+            depth: c,
+        })
     }
 }

@@ -9,10 +9,12 @@ use stereolink_image::Scene;
 use stereolink_link::sim::SimConfig;
 use stereolink_stereo::depth::LevelSpec;
 
+use super::calib::metres_per_unit;
 use super::matching::MatcherArgs;
 use super::segment::SegmentArgs;
 use crate::pipeline::demo::{run as run_demo, DemoConfig};
 use crate::pipeline::sender::SenderConfig;
+use crate::pipeline::sensor::Sensor;
 
 /// Arguments of `stereolink demo`.
 #[derive(Debug, clap::Args)]
@@ -23,6 +25,14 @@ pub struct Args {
     /// Run on this scene folder instead of the built-in synthetic scene.
     #[arg(long)]
     pub scene: Option<PathBuf>,
+    /// The scene's views are raw: rectify them with this stereo calibration
+    /// YAML first and take depth from its P1/P2 (the scene's ground truth,
+    /// of the raw views, is then not used).
+    #[arg(long, value_name = "FILE", requires = "scene")]
+    pub calib: Option<PathBuf>,
+    /// Unit of the calibration's T, the chessboard square's: m, cm or mm.
+    #[arg(long, default_value = "m", value_parser = ["m", "cm", "mm"], requires = "calib")]
+    pub calib_units: String,
     /// Frame loss of the simulated radio link.
     #[arg(long, default_value_t = 0.1)]
     pub loss: f64,
@@ -44,15 +54,44 @@ pub struct Args {
     pub matcher: MatcherArgs,
 }
 
+/// A raw scene rectified by `sensor`, with its depth calibration; the
+/// ground truth and masks, of the raw views, are dropped.
+fn rectified_scene(scene: Scene, sensor: &Sensor) -> anyhow::Result<Scene> {
+    let (left, right) =
+        sensor.rectify(scene.left, scene.right, &format!("scene {}", scene.name))?;
+    Ok(Scene {
+        name: scene.name,
+        left,
+        right,
+        gt_left: None,
+        gt_right: None,
+        masks: Default::default(),
+        calib: sensor.depth,
+    })
+}
+
 /// Runs the demo and prints its summary.
 pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
-    let scene = match &args.scene {
+    let mut scene = match &args.scene {
         Some(dir) => Scene::load(dir).context("cannot load the scene")?,
         None => synthesize(&SynthSpec {
             seed: args.sim_seed,
             ..SynthSpec::default()
         })?,
     };
+    if let Some(path) = &args.calib {
+        let sensor =
+            Sensor::from_file(path, metres_per_unit(&args.calib_units), scene.calib.ndisp)?;
+        anyhow::ensure!(
+            sensor.rectifier.is_some(),
+            "{}: not a stereo calibration YAML; a scene's own calib.txt is read without --calib",
+            path.display()
+        );
+        if let Some(w) = sensor.range_warning() {
+            eprintln!("warning: {w}");
+        }
+        scene = rectified_scene(scene, &sensor)?;
+    }
     let max_disp = scene.calib.ndisp.saturating_sub(1).max(1);
     let sink: Option<Box<dyn stereolink_display::Sink>> = if args.web {
         let v = stereolink_display::web::WebViewer::start(&args.web_addr)

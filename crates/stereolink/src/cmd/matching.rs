@@ -6,8 +6,12 @@ use std::time::Instant;
 use anyhow::Context;
 use serde::Serialize;
 use stereolink_image::{colormap, io, pfm, Scene};
+use stereolink_stereo::depth::region_distance;
 use stereolink_stereo::refine::{HoleFill, WeightedMedian};
 use stereolink_stereo::{compute_disparity, Algorithm, MatchSpec, Matcher, Refinement};
+
+use super::calib::CalibArgs;
+use crate::pipeline::sender::default_roi;
 
 /// Matcher options shared by `match`, `eval` and `bench match`.
 #[derive(Debug, Clone, clap::Args)]
@@ -167,6 +171,11 @@ pub struct Args {
     /// Also write a colour-mapped PNG with a colour bar.
     #[arg(long)]
     pub png: Option<PathBuf>,
+    /// Focal length, baseline and doffs for the distance of the central
+    /// region; with a stereo calibration YAML (`--calib stereo.yml`) the
+    /// raw pair is rectified first and depth comes from P1/P2.
+    #[command(flatten)]
+    pub calib: CalibArgs,
     #[command(flatten)]
     pub matcher: MatcherArgs,
 }
@@ -179,12 +188,25 @@ struct Matched {
     height: usize,
     time_ms: f64,
     valid_fraction: f64,
+    rectified: bool,
+    focal_px: Option<f64>,
+    baseline_m: Option<f64>,
+    doffs: f64,
+    /// Distance of the central ninth (median disparity), when calibrated.
+    distance_m: Option<f64>,
 }
 
 /// Matches a pair and writes the disparity map.
 pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
-    let left = io::read_rgb(&args.left)?;
-    let right = io::read_rgb(&args.right)?;
+    let sensor = args.calib.sensor(args.max_disp + 1)?;
+    if let Some(w) = sensor.range_warning() {
+        eprintln!("warning: {w}");
+    }
+    let (left, right) = sensor.rectify(
+        io::read_rgb(&args.left)?,
+        io::read_rgb(&args.right)?,
+        &format!("{} and {}", args.left.display(), args.right.display()),
+    )?;
     let spec = args.matcher.spec(args.min_disp, args.max_disp)?;
     let start = Instant::now();
     let disp = compute_disparity(&left, &right, &spec).with_context(|| {
@@ -204,6 +226,8 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     }
     let valid =
         disp.as_slice().iter().filter(|d| d.is_finite()).count() as f64 / disp.len().max(1) as f64;
+    let c = sensor.depth;
+    let roi = default_roi(disp.width(), disp.height());
     let m = Matched {
         output: args.output.clone(),
         algorithm: spec.algorithm,
@@ -211,13 +235,31 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         height: left.height(),
         time_ms,
         valid_fraction: valid,
+        rectified: sensor.rectifier.is_some(),
+        focal_px: c.focal_px,
+        baseline_m: c.baseline_m,
+        doffs: c.doffs,
+        distance_m: region_distance(&disp, roi, &c).ok().flatten(),
     };
     out.emit(&m, || {
+        let distance = m.distance_m.map_or(String::new(), |z| {
+            format!(
+                "; central region at {z:.3} m (f {:.1} px, baseline {:.4} m, doffs {:.2} px)",
+                m.focal_px.unwrap_or(0.0),
+                m.baseline_m.unwrap_or(0.0),
+                m.doffs
+            )
+        });
         format!(
-            "{} disparity map {}x{} written to {} in {:.1} ms ({:.1} % valid)\n",
+            "{} disparity map {}x{}{} written to {} in {:.1} ms ({:.1} % valid){distance}\n",
             m.algorithm,
             m.width,
             m.height,
+            if m.rectified {
+                " (rectified first)"
+            } else {
+                ""
+            },
             m.output.display(),
             m.time_ms,
             m.valid_fraction * 100.0

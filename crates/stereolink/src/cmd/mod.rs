@@ -13,6 +13,7 @@ pub mod info;
 pub mod link_test;
 pub mod matching;
 pub mod receive;
+pub mod rectify;
 pub mod report;
 pub mod segment;
 pub mod send;
@@ -102,6 +103,8 @@ pub enum Command {
     Synth(synth::Args),
     /// Segment an image or a stereo pair (k-means, mean shift, PSO, DPSO, FO-DPSO, exact Otsu).
     Segment(segment::Args),
+    /// Rectify a raw stereo pair with a stereo calibration YAML.
+    Rectify(rectify::Args),
     /// Compute a disparity map (WTA-SAD, line growing, SGM).
     #[command(name = "match")]
     Match(matching::Args),
@@ -134,6 +137,7 @@ impl Command {
             Command::Info(args) => info::run(args, out),
             Command::Synth(args) => synth::run(args, out),
             Command::Segment(args) => segment::run(args, out),
+            Command::Rectify(args) => rectify::run(args, out),
             Command::Match(args) => matching::run(args, out),
             Command::Depth(args) => depth::run(args, out),
             Command::Eval(args) => eval::run(args, out),

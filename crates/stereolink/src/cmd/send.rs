@@ -7,6 +7,7 @@ use std::time::Duration;
 
 use anyhow::Context;
 use serde::Serialize;
+use stereolink_calib::StereoRectifier;
 use stereolink_image::{io, Calibration, RgbImage};
 use stereolink_link::endpoint::Endpoint;
 use stereolink_link::spec;
@@ -75,7 +76,10 @@ struct Sent {
 /// Prepares and sends the pair, or each pair of the watched folder.
 pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     let spec = super::link_spec(&args.link)?;
-    let calib = args.calib.calibration(args.max_disp + 1)?;
+    let sensor = args.calib.sensor(args.max_disp + 1)?;
+    if let Some(w) = sensor.range_warning() {
+        eprintln!("warning: {w}");
+    }
     let cfg = SenderConfig {
         method: args.segment.method()?,
         levels: args.segment.levels,
@@ -89,7 +93,9 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         ep: Endpoint::new(
             spec::open(&spec).with_context(|| format!("cannot open link {}", args.link))?,
         ),
-        calib,
+        calib: sensor.depth,
+        rectifier: sensor.rectifier,
+        rectified: Default::default(),
         cfg,
         save: args.save.clone(),
         json: out.json,
@@ -115,6 +121,10 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
 struct Sender {
     ep: Endpoint,
     calib: Calibration,
+    /// The maps of a raw pair (`--calib stereo.yml`).
+    rectifier: Option<StereoRectifier>,
+    /// The rectified views, reused from pair to pair.
+    rectified: (RgbImage, RgbImage),
     cfg: SenderConfig,
     save: Option<PathBuf>,
     json: bool,
@@ -122,8 +132,18 @@ struct Sender {
 }
 
 impl Sender {
-    /// Prepares one pair and sends its frame and depth report.
+    /// Prepares one pair (rectified first with `--calib stereo.yml`) and
+    /// sends its frame and depth report.
     fn send(&mut self, left: &RgbImage, right: &RgbImage, frame_id: u32) -> anyhow::Result<()> {
+        let (left, right) = match &self.rectifier {
+            Some(r) => {
+                let (a, b) = &mut self.rectified;
+                r.rectify_into(left, right, a, b)
+                    .with_context(|| format!("cannot rectify pair {frame_id}"))?;
+                (&self.rectified.0, &self.rectified.1)
+            }
+            None => (left, right),
+        };
         let p = prepare(left, right, &self.calib, &self.cfg, frame_id)?;
         if let Some(dir) = &self.save {
             std::fs::create_dir_all(dir)

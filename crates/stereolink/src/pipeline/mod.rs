@@ -1,10 +1,12 @@
 //! The pipelines that join the crates, as library functions the CLI and the
 //! tests call: the sender ([`sender`]: segment, encode, match, depth report)
 //! and the board's receiver ([`receiver`]: decode, rebuild, match, render,
-//! drive the axis), the whole system in one process ([`demo`]), and the
-//! pairs arriving in a camera folder ([`watch`]).
+//! drive the axis), the whole system in one process ([`demo`]), the pairs
+//! arriving in a camera folder ([`watch`]), and the calibration of a raw
+//! pair ([`sensor`]: rectification maps and depth from `P1`/`P2`).
 
 pub mod demo;
 pub mod receiver;
 pub mod sender;
+pub mod sensor;
 pub mod watch;

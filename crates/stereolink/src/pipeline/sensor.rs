@@ -1,0 +1,144 @@
+//! The sensor end of the pipelines: a calibration file read once into the
+//! rectification maps (when the pair is raw) and the depth calibration of
+//! the pair the matcher sees, shared by `rectify`, `match`, `send` and
+//! `demo --scene`.
+//!
+//! A file given to `--calib` is told by its content: a stereo calibration
+//! in OpenCV's YAML (a `%YAML` directive or an `M1` matrix) means a raw
+//! pair, rectified first, with depth from the rectified `P1`/`P2`
+//! ([`stereolink_calib::Rectification::depth_geometry`]); anything else is a
+//! Middlebury `calib.txt` of an already rectified pair.
+
+use std::path::Path;
+
+use anyhow::Context;
+use stereolink_calib::{files, StereoCalibration, StereoRectifier};
+use stereolink_image::{Calibration, RgbImage};
+
+/// What a calibration file gives a pipeline.
+pub struct Sensor {
+    /// The maps of a raw pair, or `None` for a pair that is already rectified.
+    pub rectifier: Option<StereoRectifier>,
+    /// Focal length, baseline (metres) and `doffs` of the pair as matched.
+    pub depth: Calibration,
+}
+
+/// `text` of file `path` as a stereo calibration YAML, if it is one (by
+/// content).
+fn parse_stereo_yaml(text: &str, path: &Path) -> anyhow::Result<Option<StereoCalibration>> {
+    if !files::is_opencv_yaml(text) {
+        return Ok(None);
+    }
+    let calib = files::from_opencv_yaml(text, path).map_err(|e| {
+        anyhow::anyhow!("{e} (for depth alone from P1 and P2, give the file to --calib-yaml)")
+    })?;
+    Ok(Some(calib))
+}
+
+/// Reads `path` as a stereo calibration YAML, failing if it is something else.
+pub fn read_stereo_yaml(path: &Path) -> anyhow::Result<StereoCalibration> {
+    parse_stereo_yaml(&files::read_text(path)?, path)?.ok_or_else(|| {
+        anyhow::anyhow!(
+            "{}: not a stereo calibration YAML (expected OpenCV FileStorage with M1, D1, \
+             M2, D2, R, T, R1, R2, P1, P2 and Q)",
+            path.display()
+        )
+    })
+}
+
+/// The depth calibration of a rectified pair: `f = P1[0][0]`, `b =
+/// −P2[0][3]/P2[0][0]` times `metres_per_unit` (T is in the square size's
+/// units), `doffs = P2[0][2] − P1[0][2]`; `ndisp` is the search range.
+pub fn depth_of_rectified(
+    calib: &StereoCalibration,
+    metres_per_unit: f64,
+    ndisp: usize,
+    path: &Path,
+) -> anyhow::Result<Calibration> {
+    let rect = &calib.rectification;
+    let (f, b, doffs) = rect.depth_geometry();
+    anyhow::ensure!(
+        rect.p2[(1, 3)].abs() <= 1e-9 * rect.p2[(0, 3)].abs().max(1.0),
+        "{}: P2 is of a vertical rig (P2[1][3] ≠ 0); only horizontal rigs are supported",
+        path.display()
+    );
+    anyhow::ensure!(
+        f.is_finite() && f > 0.0 && b.is_finite() && b > 0.0,
+        "{}: P1/P2 give focal length {f} px and baseline {b}: both must be positive \
+         (a negative baseline means the left and right cameras are swapped)",
+        path.display()
+    );
+    Ok(Calibration {
+        focal_px: Some(f),
+        baseline_m: Some(b * metres_per_unit),
+        doffs,
+        ndisp,
+    })
+}
+
+impl Sensor {
+    /// The sensor of a `--calib FILE`: a stereo calibration YAML's maps and
+    /// rectified depth, or a Middlebury calib.txt's depth; `ndisp` is the
+    /// disparity range.
+    pub fn from_file(path: &Path, metres_per_unit: f64, ndisp: usize) -> anyhow::Result<Self> {
+        let text = files::read_text(path)?;
+        if let Some(stereo) = parse_stereo_yaml(&text, path)? {
+            return Self::from_stereo(&stereo, metres_per_unit, ndisp, path);
+        }
+        let file = Calibration::parse_middlebury(&text)
+            .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+        Ok(Sensor {
+            rectifier: None,
+            depth: Calibration { ndisp, ..file },
+        })
+    }
+
+    /// The sensor of a stereo calibration: its maps and its rectified
+    /// depth calibration.
+    pub fn from_stereo(
+        calib: &StereoCalibration,
+        metres_per_unit: f64,
+        ndisp: usize,
+        path: &Path,
+    ) -> anyhow::Result<Self> {
+        let rectifier = StereoRectifier::new(calib)
+            .with_context(|| format!("cannot build rectification maps from {}", path.display()))?;
+        Ok(Sensor {
+            rectifier: Some(rectifier),
+            depth: depth_of_rectified(calib, metres_per_unit, ndisp, path)?,
+        })
+    }
+
+    /// Rectifies a raw pair (or passes a rectified one through); `what`
+    /// names the pair in errors.
+    pub fn rectify(
+        &self,
+        left: RgbImage,
+        right: RgbImage,
+        what: &str,
+    ) -> anyhow::Result<(RgbImage, RgbImage)> {
+        match &self.rectifier {
+            Some(r) => r
+                .rectify(&left, &right)
+                .with_context(|| format!("cannot rectify {what}")),
+            None => Ok((left, right)),
+        }
+    }
+
+    /// A warning when some depths cannot be matched: with `doffs > 0` a
+    /// point beyond `f·b/doffs` has a negative disparity, below the
+    /// matchers' range, which starts at 0.
+    pub fn range_warning(&self) -> Option<String> {
+        let c = &self.depth;
+        let (f, b) = (c.focal_px?, c.baseline_m?);
+        (self.rectifier.is_some() && c.doffs > 0.0).then(|| {
+            format!(
+                "the rectified principal points differ by doffs = {:.2} px: points farther \
+                 than {:.2} m have negative disparity and are not matched (rectify with \
+                 CALIB_ZERO_DISPARITY to avoid this)",
+                c.doffs,
+                f * b / c.doffs
+            )
+        })
+    }
+}
