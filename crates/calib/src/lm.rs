@@ -55,8 +55,6 @@ pub(crate) struct LmResult {
     pub residuals: usize,
     /// `JᵀJ` at the minimum (undamped), for parameter uncertainties.
     pub jtj: DMatrix<f64>,
-    /// Iterations run.
-    pub iterations: usize,
 }
 
 impl LmResult {
@@ -190,7 +188,6 @@ pub(crate) fn minimise(problem: &impl BlockProblem, x0: Vec<f64>, options: LmOpt
         cost: current,
         residuals,
         jtj,
-        iterations,
     }
 }
 

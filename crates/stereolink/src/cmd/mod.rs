@@ -5,6 +5,7 @@ use clap::{Parser, Subcommand};
 
 pub mod bench;
 pub mod calib;
+pub mod calibrate;
 pub mod codec;
 pub mod demo;
 pub mod depth;
@@ -103,6 +104,8 @@ pub enum Command {
     Synth(synth::Args),
     /// Segment an image or a stereo pair (k-means, mean shift, PSO, DPSO, FO-DPSO, exact Otsu).
     Segment(segment::Args),
+    /// Calibrate a stereo pair of cameras from chessboard image pairs.
+    Calibrate(calibrate::Args),
     /// Rectify a raw stereo pair with a stereo calibration YAML.
     Rectify(rectify::Args),
     /// Compute a disparity map (WTA-SAD, line growing, SGM).
@@ -137,6 +140,7 @@ impl Command {
             Command::Info(args) => info::run(args, out),
             Command::Synth(args) => synth::run(args, out),
             Command::Segment(args) => segment::run(args, out),
+            Command::Calibrate(args) => calibrate::run(args, out),
             Command::Rectify(args) => rectify::run(args, out),
             Command::Match(args) => matching::run(args, out),
             Command::Depth(args) => depth::run(args, out),
