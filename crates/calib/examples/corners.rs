@@ -11,25 +11,35 @@
 use std::collections::BTreeMap;
 use std::time::Instant;
 
-use stereolink_calib::chessboard::{find_chessboard, BoardSize};
+use stereolink_calib::chessboard::{find_chessboard_with, BoardSize, ChessboardOptions};
 
 fn main() {
     let mut args = std::env::args().skip(1);
     let mut board = BoardSize::new(9, 6);
+    let mut options = ChessboardOptions::default();
     let mut files = Vec::new();
+    let usage = |e: String| -> ! {
+        eprintln!("corners: {e}");
+        std::process::exit(2)
+    };
     while let Some(arg) = args.next() {
         if arg == "--board" {
+            board = args
+                .next()
+                .unwrap_or_default()
+                .parse()
+                .unwrap_or_else(|e| usage(e));
+        } else if arg == "--subpix-sigma" {
             let value = args.next().unwrap_or_default();
-            board = value.parse().unwrap_or_else(|e: String| {
-                eprintln!("corners: {e}");
-                std::process::exit(2)
-            });
+            options.subpix.sigma = value
+                .parse()
+                .unwrap_or_else(|_| usage(format!("--subpix-sigma {value:?} is not a number")));
         } else {
             files.push(arg);
         }
     }
     if files.is_empty() {
-        eprintln!("usage: corners [--board COLSxROWS] FILE...");
+        eprintln!("usage: corners [--board COLSxROWS] [--subpix-sigma PX] FILE...");
         std::process::exit(2);
     }
     let mut out = BTreeMap::new();
@@ -43,7 +53,7 @@ fn main() {
             }
         };
         let start = Instant::now();
-        let found = find_chessboard(&image, board);
+        let found = find_chessboard_with(&image, board, &options);
         seconds += start.elapsed().as_secs_f64();
         let corners = match found {
             Ok(corners) => Some(corners.iter().map(|p| [p.x, p.y]).collect::<Vec<_>>()),
