@@ -36,7 +36,7 @@ mod subpix;
 use nalgebra::Point2;
 use stereolink_image::{GrayImage, RgbImage};
 
-pub use subpix::{refine_corners, SubpixOptions};
+pub use subpix::{refine_corners, SubpixOptions, MAX_HALF_WINDOW};
 
 /// A chessboard's size in **inner** corners: a board of 10x7 squares is
 /// `BoardSize { cols: 9, rows: 6 }`.
@@ -208,7 +208,7 @@ pub fn find_chessboard_with(
     }
     let (width, height) = image.dims();
     let margin = saddle::margin(options);
-    if width < 4 * margin || height < 4 * margin {
+    if width < margin.saturating_mul(4) || height < margin.saturating_mul(4) {
         return Err(NotFound::ImageTooSmall { width, height });
     }
     let smooth = saddle::smooth(image, options.sigma);

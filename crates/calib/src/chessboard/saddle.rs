@@ -70,7 +70,8 @@ pub(super) fn smooth(image: &GrayImage, sigma: f64) -> Smooth {
             data: image.as_slice().iter().map(|&v| v as f32).collect(),
         };
     }
-    let radius = (3.0 * sigma).ceil() as usize;
+    // Beyond the image size a wider kernel only repeats border pixels.
+    let radius = ((3.0 * sigma).ceil() as usize).min(width.max(height));
     let kernel: Vec<f32> = {
         let raw: Vec<f64> = (0..=2 * radius)
             .map(|i| {

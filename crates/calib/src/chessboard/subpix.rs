@@ -15,14 +15,17 @@ use stereolink_image::GrayImage;
 
 use super::saddle::smooth;
 
+/// Largest accepted [`SubpixOptions::half_window`].
+pub const MAX_HALF_WINDOW: usize = 64;
+
 /// Tuning of [`refine_corners`]; the defaults are the usual OpenCV
 /// calibration call, `cornerSubPix(winSize (5,5) i.e. 11x11, zeroZone
 /// (-1,-1), EPS + MAX_ITER 30, 0.001)`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SubpixOptions {
-    /// Half the window side: the window is `(2·half_window + 1)²` pixels.
-    /// It should cover the corner but not the next one (at most half a
-    /// square side).
+    /// Half the window side: the window is `(2·half_window + 1)²` pixels
+    /// (`half_window` is clamped to 1..=[`MAX_HALF_WINDOW`]). It should cover
+    /// the corner but not the next one (at most half a square side).
     pub half_window: usize,
     /// Most iterations.
     pub max_iterations: usize,
@@ -52,7 +55,7 @@ pub fn refine_corners(image: &GrayImage, corners: &mut [Point2<f64>], options: &
     if image.is_empty() {
         return;
     }
-    let half = options.half_window.max(1);
+    let half = options.half_window.clamp(1, MAX_HALF_WINDOW);
     let side = 2 * half + 1;
     let weights: Vec<f64> = (0..side * side)
         .map(|k| {

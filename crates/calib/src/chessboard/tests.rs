@@ -199,6 +199,48 @@ fn blur_noise_and_lighting_gradient() {
 }
 
 #[test]
+fn random_poses_are_found_in_board_order() {
+    // Seeded random views: any rotation, 18–34 px squares, tilt, blur and
+    // noise; each must be found, in the board's order, to 0.1 px.
+    let mut rng = ChaCha8Rng::seed_from_u64(2026);
+    for case in 0..16 {
+        let scale = rng.gen_range(18.0..34.0);
+        let angle = rng.gen_range(-std::f64::consts::PI..std::f64::consts::PI);
+        let persp = (rng.gen_range(-6e-4..6e-4), rng.gen_range(-6e-4..6e-4));
+        let h = homography(scale, angle, (320.0, 256.0), persp)
+            * Matrix3::new(1.0, 0.0, -5.0, 0.0, 1.0, -3.5, 0.0, 0.0, 1.0);
+        let imaging = Imaging {
+            psf: rng.gen_range(0.5..1.2),
+            noise: rng.gen_range(0.0..6.0),
+            ..camera(case)
+        };
+        let board = render(BOARD, h / h[(2, 2)], (640, 512), &imaging);
+        let found = find_chessboard(&board.image, BOARD)
+            .unwrap_or_else(|e| panic!("case {case} (scale {scale:.1}, angle {angle:.2}): {e}"));
+        let err = rms(&found, &board.corners);
+        assert!(err < 0.1, "case {case}: RMS error {err:.4} px");
+    }
+}
+
+#[test]
+fn cluttered_noise_is_rejected_quickly() {
+    // The work is bounded by max_candidates, not by what the image holds.
+    let mut rng = ChaCha8Rng::seed_from_u64(5);
+    let noise = GrayImage::from_fn(640, 512, |_, _| if rng.gen::<bool>() { 0 } else { 255 });
+    // Blobs a few pixels wide: saddles everywhere between them.
+    let blobs = saddle::smooth(&noise, 2.5);
+    let blobs = GrayImage::from_fn(640, 512, |x, y| {
+        ((blobs.pixel(x as isize, y as isize) - 128.0) * 8.0 + 128.0).clamp(0.0, 255.0) as u8
+    });
+    for (name, image) in [("noise", noise), ("blobs", blobs)] {
+        let start = std::time::Instant::now();
+        assert!(find_chessboard(&image, BOARD).is_err(), "{name}");
+        let took = start.elapsed();
+        assert!(took.as_secs_f64() < 2.0, "{name} took {took:?}");
+    }
+}
+
+#[test]
 fn a_transposed_request_reads_the_board_by_columns() {
     let board = render(
         BOARD,
