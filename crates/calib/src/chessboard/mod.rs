@@ -28,6 +28,21 @@
 //! even the board is symmetric and the reading whose corner 0 is nearer the
 //! image's top-left (smaller `x + y`) is chosen, which is consistent between
 //! nearby viewpoints unless the board is seen at about 45°.
+//!
+//! # Limits
+//!
+//! Squares should be at least about 12 px (twice
+//! [`ChessboardOptions::ring_radius`] plus a margin), every inner corner at
+//! least `ring_radius + 2` px inside the image, and the whole board visible.
+//!
+//! # Measured
+//!
+//! On the 25 ximea-9x6 pairs (`bench/chessboard_vs_opencv.py`): 50 of 50
+//! boards, OpenCV's order, corners 0.002 px RMS from OpenCV's
+//! `findChessboardCorners` + `cornerSubPix` (two OpenCV corners 5–7 px off
+//! the corner excepted), about 12x faster. The `calib-targets` crate
+//! (0.16.1, ChESS corners and grid growing) also finds 50 of 50, but its
+//! corners lie 0.18–0.21 px RMS from OpenCV's and it took about 4x our time.
 
 mod grid;
 mod saddle;
