@@ -2,19 +2,19 @@
 //!
 //! Three stages, each in its own module:
 //!
-//! 1. [`saddle`]: candidate X-junctions, the saddle points of the smoothed
-//!    image (positive `Ixy² − Ixx·Iyy`, the negated Hessian determinant, as in
-//!    the corner likelihood of Geiger et al. 2012 and the saddle detector of
-//!    Chen & Zhang 2005), kept when a ring around them crosses four
-//!    alternating light/dark sectors bounded by two straight edges.
-//! 2. [`grid`]: a 3x3 seed grid grown row by row and column by column, in the
+//! 1. `saddle`: candidate X-junctions, the saddle points of the smoothed
+//!    image (positive `Ixy² − Ixx·Iyy`, the negated Hessian determinant, as
+//!    in Chen & Zhang 2005, "Sub-pixel detection of X-corners"), kept when a
+//!    ring around them crosses four alternating light/dark sectors bounded by
+//!    two straight edges.
+//! 2. `grid`: a 3x3 seed grid grown row by row and column by column, in the
 //!    manner of Geiger et al. 2012, "Automatic camera and range sensor
 //!    calibration using a single shot" (ICRA), §III-B, with square colours
 //!    checked instead of an energy: a grid line is added only when every
 //!    predicted corner is found and the new squares alternate dark/light.
-//! 3. [`subpix`]: the gradient-orthogonality refinement of OpenCV's
-//!    `cornerSubPix` (Förstner & Gülch 1987), so the corners agree with the
-//!    OpenCV tool chain.
+//! 3. `subpix` ([`refine_corners`]): the gradient-orthogonality refinement
+//!    of OpenCV's `cornerSubPix` (Förstner & Gülch 1987), so the corners
+//!    agree with the OpenCV tool chain.
 //!
 //! # Ordering
 //!
