@@ -136,8 +136,8 @@ impl Growing {
         self.rows.iter().flatten().copied().collect()
     }
 
-    /// The `k`-th line from `side` (0 = the outermost), outward order
-    /// irrelevant: along the side, in increasing grid index.
+    /// The `k`-th line from `side` (0 = the outermost), its corners in
+    /// increasing grid index along the side.
     fn line(&self, side: Side, k: usize) -> Vec<usize> {
         match side {
             Side::Top => self.rows[k].clone(),

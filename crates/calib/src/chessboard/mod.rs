@@ -123,18 +123,21 @@ pub enum NotFound {
          the board may be cut by the image border, occluded or blurred"
     )]
     Partial {
-        /// The largest grid found, `cols >= rows` oriented like `expected`.
+        /// The largest grid found, oriented like `expected` (both wider than
+        /// tall, or both taller).
         found: BoardSize,
         /// The requested size.
         expected: BoardSize,
     },
-    /// A grid larger than the requested board: the size is probably wrong.
+    /// A grid larger than the requested board in some direction: the size is
+    /// probably wrong. (A transposed size, 6x9 for 9x6, is no error: it reads
+    /// the board by columns.)
     #[error(
         "found a {found} grid of inner corners, {expected} expected: check the board \
          size (count inner corners, not squares)"
     )]
     WrongSize {
-        /// The largest grid found.
+        /// The largest grid found, oriented like `expected`.
         found: BoardSize,
         /// The requested size.
         expected: BoardSize,

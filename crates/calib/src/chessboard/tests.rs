@@ -265,6 +265,37 @@ fn a_transposed_request_reads_the_board_by_columns() {
 }
 
 #[test]
+fn a_symmetric_board_starts_nearest_the_top_left() {
+    // 8x6: cols + rows even, so the colours cannot tell a board from its
+    // 180° rotation; corner 0 is then the end nearer the image's top-left.
+    let pattern = BoardSize::new(8, 6);
+    for (i, angle) in [0.2, 3.3].into_iter().enumerate() {
+        let h = homography(28.0, angle, (320.0, 240.0), (0.0, 0.0))
+            * Matrix3::new(1.0, 0.0, -4.5, 0.0, 1.0, -3.5, 0.0, 0.0, 1.0);
+        let board = render(pattern, h, (640, 480), &camera(20 + i as u64));
+        let found = find_chessboard(&board.image, pattern).expect("board found");
+        let (first, last) = (found[0], found[pattern.count() - 1]);
+        assert!(first.x + first.y < last.x + last.y, "angle {angle}");
+        let (u, v) = (found[1] - first, found[8] - first);
+        assert!(
+            u.x * v.y - u.y * v.x > 0.0,
+            "angle {angle}: clockwise reading"
+        );
+    }
+}
+
+#[test]
+fn rgb_input_is_converted() {
+    let h = homography(30.0, 0.4, (160.0, 60.0), (0.0, 0.0));
+    let board = render(BOARD, h, (480, 400), &camera(30));
+    let rgb = stereolink_image::color::gray_to_rgb(&board.image);
+    assert_eq!(
+        find_chessboard_rgb(&rgb, BOARD),
+        find_chessboard(&board.image, BOARD)
+    );
+}
+
+#[test]
 fn wrong_sizes_are_reported() {
     let board = render(
         BOARD,
