@@ -40,7 +40,7 @@
 //! On the 25 ximea-9x6 pairs (`bench/chessboard_vs_opencv.py`): 50 of 50
 //! boards, OpenCV's order, corners 0.002 px RMS from OpenCV's
 //! `findChessboardCorners` + `cornerSubPix` (two OpenCV corners 5–7 px off
-//! the corner excepted), about 12x faster. The `calib-targets` crate
+//! the corner excepted), 9–12x faster. The `calib-targets` crate
 //! (0.16.1, ChESS corners and grid growing) also finds 50 of 50, but its
 //! corners lie 0.18–0.21 px RMS from OpenCV's and it took about 4x our time.
 
