@@ -1,4 +1,5 @@
-//! Reading and writing PNG, PPM and PGM files through the `image` crate.
+//! Reading and writing PNG, PPM and PGM files (and reading JPEG) through the
+//! `image` crate.
 //!
 //! Decoding is bounded: images above [`MAX_PIXELS`] are refused before their
 //! pixels are allocated, so a forged header cannot exhaust memory.
@@ -18,7 +19,7 @@ fn decode(path: &Path, bytes: &[u8]) -> Result<DynamicImage> {
         .with_guessed_format()
         .map_err(|e| Error::io(path, e))?;
     if reader.format().is_none() {
-        return Err(Error::decode(path, "not a PNG, PPM or PGM file"));
+        return Err(Error::decode(path, "not a PNG, JPEG, PPM or PGM file"));
     }
     let mut limits = Limits::default();
     limits.max_alloc = Some(MAX_PIXELS as u64 * 8);

@@ -14,7 +14,7 @@
 
 use nalgebra::{Point2, Vector2};
 
-use super::saddle::{Candidate, Smooth};
+use super::saddle::Smooth;
 use super::{BoardSize, ChessboardOptions, NotFound};
 
 /// Nearest neighbours of a seed tried as its first grid neighbour.
@@ -24,7 +24,7 @@ const SEED_NEIGHBOURS: usize = 10;
 
 /// A uniform-bucket index of candidate positions for radius queries.
 struct Index<'a> {
-    candidates: &'a [Candidate],
+    candidates: &'a [Point2<f64>],
     cell: f64,
     cols: usize,
     rows: usize,
@@ -32,7 +32,7 @@ struct Index<'a> {
 }
 
 impl<'a> Index<'a> {
-    fn new(candidates: &'a [Candidate], (width, height): (usize, usize)) -> Self {
+    fn new(candidates: &'a [Point2<f64>], (width, height): (usize, usize)) -> Self {
         let cell = 16.0;
         let cols = (width as f64 / cell).ceil().max(1.0) as usize;
         let rows = (height as f64 / cell).ceil().max(1.0) as usize;
@@ -45,7 +45,7 @@ impl<'a> Index<'a> {
             buckets: Vec::new(),
         };
         for (i, c) in candidates.iter().enumerate() {
-            let (bx, by) = index.bucket(c.pos);
+            let (bx, by) = index.bucket(*c);
             buckets[by * cols + bx].push(i);
         }
         index.buckets = buckets;
@@ -59,7 +59,7 @@ impl<'a> Index<'a> {
     }
 
     fn pos(&self, i: usize) -> Point2<f64> {
-        self.candidates[i].pos
+        self.candidates[i]
     }
 
     /// The candidate nearest `target` within `radius`, skipping `taken`.
@@ -136,8 +136,8 @@ impl Growing {
         self.rows.iter().flatten().copied().collect()
     }
 
-    /// The `k`-th line from `side` (0 = the outermost), outward order
-    /// irrelevant: along the side, in increasing grid index.
+    /// The `k`-th line from `side` (0 = the outermost), its corners in
+    /// increasing grid index along the side.
     fn line(&self, side: Side, k: usize) -> Vec<usize> {
         match side {
             Side::Top => self.rows[k].clone(),
@@ -263,7 +263,7 @@ fn square_intensity(smooth: &Smooth, quad: [Point2<f64>; 4]) -> f64 {
 /// first grid of `pattern`'s size, or the reason none is.
 pub(super) fn find_grid(
     smooth: &Smooth,
-    candidates: &[Candidate],
+    candidates: &[Point2<f64>],
     pattern: BoardSize,
     options: &ChessboardOptions,
 ) -> Result<Grid, NotFound> {

@@ -31,29 +31,26 @@ impl Smooth {
         (self.width, self.height)
     }
 
+    /// The pixel at `(x, y)`, coordinates clamped to the image (replicated
+    /// borders); the image must not be empty.
     #[inline]
-    fn at(&self, x: usize, y: usize) -> f32 {
-        self.data[y * self.width + x]
+    pub(super) fn pixel(&self, x: isize, y: isize) -> f64 {
+        let x = x.clamp(0, self.width as isize - 1) as usize;
+        let y = y.clamp(0, self.height as isize - 1) as usize;
+        self.data[y * self.width + x] as f64
     }
 
-    /// Bilinear sample at `(x, y)`, coordinates clamped to the image.
+    /// Bilinear sample at `(x, y)` with replicated borders.
     pub(super) fn sample(&self, x: f64, y: f64) -> f64 {
-        let x = x.clamp(0.0, (self.width - 1) as f64);
-        let y = y.clamp(0.0, (self.height - 1) as f64);
-        let (x0, y0) = (x.floor() as usize, y.floor() as usize);
-        let (x1, y1) = ((x0 + 1).min(self.width - 1), (y0 + 1).min(self.height - 1));
-        let (fx, fy) = (x - x0 as f64, y - y0 as f64);
-        let top = self.at(x0, y0) as f64 * (1.0 - fx) + self.at(x1, y0) as f64 * fx;
-        let bottom = self.at(x0, y1) as f64 * (1.0 - fx) + self.at(x1, y1) as f64 * fx;
-        top * (1.0 - fy) + bottom * fy
+        let limit = (self.width + self.height) as f64;
+        let (x, y) = (x.clamp(-1.0, limit), y.clamp(-1.0, limit));
+        let (fx, fy) = (x.floor(), y.floor());
+        let (ax, ay) = (x - fx, y - fy);
+        let (ix, iy) = (fx as isize, fy as isize);
+        let top = self.pixel(ix, iy) * (1.0 - ax) + self.pixel(ix + 1, iy) * ax;
+        let bottom = self.pixel(ix, iy + 1) * (1.0 - ax) + self.pixel(ix + 1, iy + 1) * ax;
+        top * (1.0 - ay) + bottom * ay
     }
-}
-
-/// A candidate corner: position (to about 0.3 px) and saddle response.
-#[derive(Clone, Copy, Debug)]
-pub(super) struct Candidate {
-    pub(super) pos: Point2<f64>,
-    pub(super) response: f32,
 }
 
 /// Pixels at the border where no candidate can be (ring plus the Hessian's
@@ -62,57 +59,56 @@ pub(super) fn margin(options: &ChessboardOptions) -> usize {
     options.ring_radius.max(1.0).ceil() as usize + 2
 }
 
-/// Separable Gaussian smoothing of standard deviation `sigma` (clamped
-/// borders); `sigma <= 0` only converts.
+/// Separable Gaussian smoothing of standard deviation `sigma` (replicated
+/// borders); `sigma <= 0` only converts to `f32`.
 pub(super) fn smooth(image: &GrayImage, sigma: f64) -> Smooth {
     let (width, height) = image.dims();
-    let src: Vec<f32> = image.as_slice().iter().map(|&v| v as f32).collect();
-    let radius = if sigma > 0.0 {
-        (3.0 * sigma).ceil() as usize
-    } else {
-        0
-    };
+    if sigma <= 0.0 || width == 0 || height == 0 {
+        return Smooth {
+            width,
+            height,
+            data: image.as_slice().iter().map(|&v| v as f32).collect(),
+        };
+    }
+    // Beyond the image size a wider kernel only repeats border pixels.
+    let radius = ((3.0 * sigma).ceil() as usize).min(width.max(height));
     let kernel: Vec<f32> = {
         let raw: Vec<f64> = (0..=2 * radius)
             .map(|i| {
                 let d = i as f64 - radius as f64;
-                (-d * d / (2.0 * sigma * sigma).max(f64::MIN_POSITIVE)).exp()
+                (-d * d / (2.0 * sigma * sigma)).exp()
             })
             .collect();
         let sum: f64 = raw.iter().sum();
         raw.iter().map(|k| (k / sum) as f32).collect()
     };
-    let clamp = |i: isize, n: usize| i.clamp(0, n as isize - 1) as usize;
+    // Rows: each tap adds a shifted copy of the (border-padded) row, a loop
+    // the compiler vectorises.
     let mut horizontal = vec![0f32; width * height];
-    for y in 0..height {
-        let row = &src[y * width..(y + 1) * width];
+    let mut padded = vec![0f32; width + 2 * radius];
+    for (y, row) in image.rows().enumerate() {
+        padded[..radius].fill(row[0] as f32);
+        for (p, &v) in padded[radius..radius + width].iter_mut().zip(row) {
+            *p = v as f32;
+        }
+        padded[radius + width..].fill(row[width - 1] as f32);
         let out = &mut horizontal[y * width..(y + 1) * width];
-        for (x, o) in out.iter_mut().enumerate() {
-            let interior = x >= radius && x + radius < width;
-            *o = if interior {
-                row[x - radius..=x + radius]
-                    .iter()
-                    .zip(&kernel)
-                    .map(|(v, k)| v * k)
-                    .sum()
-            } else {
-                kernel
-                    .iter()
-                    .enumerate()
-                    .map(|(i, k)| row[clamp(x as isize + i as isize - radius as isize, width)] * k)
-                    .sum()
-            };
+        for (i, k) in kernel.iter().enumerate() {
+            for (o, v) in out.iter_mut().zip(&padded[i..i + width]) {
+                *o += k * v;
+            }
         }
     }
+    // Columns: the same, a shifted row at a time.
     let mut data = vec![0f32; width * height];
-    for (i, k) in kernel.iter().enumerate() {
-        for y in 0..height {
-            let sy = clamp(y as isize + i as isize - radius as isize, height);
-            let (src_row, out) = (
-                &horizontal[sy * width..(sy + 1) * width],
-                &mut data[y * width..(y + 1) * width],
-            );
-            for (o, v) in out.iter_mut().zip(src_row) {
+    for y in 0..height {
+        let out = &mut data[y * width..(y + 1) * width];
+        for (i, k) in kernel.iter().enumerate() {
+            let sy = (y + i).saturating_sub(radius).min(height - 1);
+            for (o, v) in out
+                .iter_mut()
+                .zip(&horizontal[sy * width..(sy + 1) * width])
+            {
                 *o += k * v;
             }
         }
@@ -142,9 +138,9 @@ fn response(smooth: &Smooth, margin: usize) -> Vec<f32> {
     out
 }
 
-/// Candidates, strongest first, at most
-/// [`ChessboardOptions::max_candidates`].
-pub(super) fn candidates(smooth: &Smooth, options: &ChessboardOptions) -> Vec<Candidate> {
+/// Candidate corner positions (to about 0.3 px), strongest response first,
+/// at most [`ChessboardOptions::max_candidates`].
+pub(super) fn candidates(smooth: &Smooth, options: &ChessboardOptions) -> Vec<Point2<f64>> {
     let (w, h) = smooth.dims();
     let margin = margin(options);
     if w <= 2 * margin || h <= 2 * margin {
@@ -160,21 +156,38 @@ pub(super) fn candidates(smooth: &Smooth, options: &ChessboardOptions) -> Vec<Ca
     let mut maxima = Vec::new();
     for y in margin..h - margin {
         for x in margin..w - margin {
-            let v = resp[y * w + x];
-            if v >= threshold && is_local_max(&resp, w, h, x, y, r) {
+            let i = y * w + x;
+            let v = resp[i];
+            if v < threshold
+                || v < resp[i - 1]
+                || v < resp[i + 1]
+                || v < resp[i - w]
+                || v < resp[i + w]
+            {
+                continue;
+            }
+            if is_local_max(&resp, w, h, x, y, r) {
                 maxima.push((x, y, v));
             }
         }
     }
     maxima.sort_by(|a, b| b.2.total_cmp(&a.2));
+    // Ring samples at whole-pixel offsets: the test reads signs of a smooth
+    // image, where half a pixel of position moves a transition by < 0.1 rad.
+    let step = std::f64::consts::TAU / RING_SAMPLES as f64;
+    let ring: [isize; RING_SAMPLES] = std::array::from_fn(|i| {
+        let (sin, cos) = (i as f64 * step).sin_cos();
+        let dx = (options.ring_radius * cos).round() as isize;
+        let dy = (options.ring_radius * sin).round() as isize;
+        dy * w as isize + dx
+    });
     let mut out = Vec::new();
-    for &(x, y, v) in &maxima {
+    for &(x, y, _) in &maxima {
         if out.len() >= options.max_candidates {
             break;
         }
-        let pos = peak_position(&resp, w, x, y);
-        if is_x_junction(smooth, pos, options) {
-            out.push(Candidate { pos, response: v });
+        if is_x_junction(&smooth.data, y * w + x, &ring, options) {
+            out.push(peak_position(&resp, w, x, y));
         }
     }
     out
@@ -214,32 +227,32 @@ fn peak_position(resp: &[f32], w: usize, x: usize, y: usize) -> Point2<f64> {
     )
 }
 
-/// The ring test: four light/dark sectors of at least two samples each, with
-/// opposite boundaries π apart within [`ChessboardOptions::edge_tolerance`].
-fn is_x_junction(smooth: &Smooth, pos: Point2<f64>, options: &ChessboardOptions) -> bool {
-    let mut ring = [0f64; RING_SAMPLES];
-    let step = std::f64::consts::TAU / RING_SAMPLES as f64;
-    for (i, v) in ring.iter_mut().enumerate() {
-        let a = i as f64 * step;
-        *v = smooth.sample(
-            pos.x + options.ring_radius * a.cos(),
-            pos.y + options.ring_radius * a.sin(),
-        );
-    }
-    let (lo, hi) = ring
+/// The ring test at pixel `centre` (an index into `data`, with every
+/// `ring` offset inside): four light/dark sectors of at least two samples
+/// each, with opposite boundaries π apart within
+/// [`ChessboardOptions::edge_tolerance`].
+fn is_x_junction(
+    data: &[f32],
+    centre: usize,
+    ring: &[isize; RING_SAMPLES],
+    options: &ChessboardOptions,
+) -> bool {
+    let values: [f32; RING_SAMPLES] =
+        std::array::from_fn(|i| data[centre.wrapping_add_signed(ring[i])]);
+    let (lo, hi) = values
         .iter()
-        .fold((f64::INFINITY, f64::NEG_INFINITY), |(lo, hi), &v| {
+        .fold((f32::INFINITY, f32::NEG_INFINITY), |(lo, hi), &v| {
             (lo.min(v), hi.max(v))
         });
-    if hi - lo < options.min_contrast {
+    if ((hi - lo) as f64) < options.min_contrast {
         return false;
     }
     let mid = 0.5 * (lo + hi);
     let mut changes = [0usize; 4];
     let mut count = 0;
     for i in 0..RING_SAMPLES {
-        let prev = ring[(i + RING_SAMPLES - 1) % RING_SAMPLES] > mid;
-        if (ring[i] > mid) != prev {
+        let prev = values[(i + RING_SAMPLES - 1) % RING_SAMPLES] > mid;
+        if (values[i] > mid) != prev {
             if count == 4 {
                 return false;
             }
@@ -259,7 +272,7 @@ fn is_x_junction(smooth: &Smooth, pos: Point2<f64>, options: &ChessboardOptions)
         next - changes[k] >= 2
     });
     let half = RING_SAMPLES as f64 / 2.0;
-    let tolerance = options.edge_tolerance / step;
+    let tolerance = options.edge_tolerance * RING_SAMPLES as f64 / std::f64::consts::TAU;
     let opposite = |a: usize, b: usize| ((b - a) as f64 - half).abs() <= tolerance;
     sectors_long && opposite(changes[0], changes[2]) && opposite(changes[1], changes[3])
 }

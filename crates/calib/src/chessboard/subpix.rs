@@ -13,19 +13,28 @@
 use nalgebra::Point2;
 use stereolink_image::GrayImage;
 
+use super::saddle::smooth;
+
+/// Largest accepted [`SubpixOptions::half_window`].
+pub const MAX_HALF_WINDOW: usize = 64;
+
 /// Tuning of [`refine_corners`]; the defaults are the usual OpenCV
 /// calibration call, `cornerSubPix(winSize (5,5) i.e. 11x11, zeroZone
 /// (-1,-1), EPS + MAX_ITER 30, 0.001)`.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SubpixOptions {
-    /// Half the window side: the window is `(2·half_window + 1)²` pixels.
-    /// It should cover the corner but not the next one (at most half a
-    /// square side).
+    /// Half the window side: the window is `(2·half_window + 1)²` pixels
+    /// (`half_window` is clamped to 1..=[`MAX_HALF_WINDOW`]). It should cover
+    /// the corner but not the next one (at most half a square side).
     pub half_window: usize,
     /// Most iterations.
     pub max_iterations: usize,
     /// Stop when an iteration moves the corner by at most this (px).
     pub epsilon: f64,
+    /// Standard deviation (px) of a Gaussian applied before the gradients;
+    /// 0 is OpenCV's behaviour. A little smoothing removes the aliasing bias
+    /// of sharp, nearly axis-aligned edges (see the crate's tests).
+    pub sigma: f64,
 }
 
 impl Default for SubpixOptions {
@@ -34,6 +43,7 @@ impl Default for SubpixOptions {
             half_window: 5,
             max_iterations: 30,
             epsilon: 0.001,
+            sigma: 0.0,
         }
     }
 }
@@ -45,7 +55,7 @@ pub fn refine_corners(image: &GrayImage, corners: &mut [Point2<f64>], options: &
     if image.is_empty() {
         return;
     }
-    let half = options.half_window.max(1);
+    let half = options.half_window.clamp(1, MAX_HALF_WINDOW);
     let side = 2 * half + 1;
     let weights: Vec<f64> = (0..side * side)
         .map(|k| {
@@ -55,13 +65,43 @@ pub fn refine_corners(image: &GrayImage, corners: &mut [Point2<f64>], options: &
         })
         .collect();
     let mut patch = vec![0f64; (side + 2) * (side + 2)];
-    for corner in corners {
-        *corner = refine(image, *corner, half, &weights, &mut patch, options);
+    if options.sigma > 0.0 {
+        let plane = smooth(image, options.sigma);
+        let pixel = |x, y| plane.pixel(x, y);
+        for corner in corners {
+            *corner = refine(
+                pixel,
+                image.dims(),
+                *corner,
+                half,
+                &weights,
+                &mut patch,
+                options,
+            );
+        }
+    } else {
+        let (w, h) = (image.width() as isize, image.height() as isize);
+        let data = image.as_slice();
+        let pixel =
+            |x: isize, y: isize| data[(y.clamp(0, h - 1) * w + x.clamp(0, w - 1)) as usize] as f64;
+        for corner in corners {
+            *corner = refine(
+                pixel,
+                image.dims(),
+                *corner,
+                half,
+                &weights,
+                &mut patch,
+                options,
+            );
+        }
     }
 }
 
+/// One corner; `pixel(x, y)` reads the image with replicated borders.
 fn refine(
-    image: &GrayImage,
+    pixel: impl Fn(isize, isize) -> f64 + Copy,
+    (w, h): (usize, usize),
     start: Point2<f64>,
     half: usize,
     weights: &[f64],
@@ -70,11 +110,11 @@ fn refine(
 ) -> Point2<f64> {
     let side = 2 * half + 1;
     let stride = side + 2;
-    let (w, h) = (image.width() as f64, image.height() as f64);
+    let (w, h) = (w as f64, h as f64);
     let tolerance = options.epsilon * options.epsilon;
     let mut q = start;
     for _ in 0..options.max_iterations.max(1) {
-        sample_patch(image, q, stride, patch);
+        sample_patch(pixel, q, stride, patch);
         let (mut a, mut b, mut c, mut bb1, mut bb2) = (0.0, 0.0, 0.0, 0.0, 0.0);
         for i in 0..side {
             let py = i as f64 - half as f64;
@@ -115,27 +155,28 @@ fn refine(
 
 /// The `stride`² window centred on `centre`, bilinear, borders replicated
 /// (OpenCV's `getRectSubPix`).
-fn sample_patch(image: &GrayImage, centre: Point2<f64>, stride: usize, patch: &mut [f64]) {
-    let (w, h) = (image.width() as isize, image.height() as isize);
+fn sample_patch(
+    pixel: impl Fn(isize, isize) -> f64,
+    centre: Point2<f64>,
+    stride: usize,
+    patch: &mut [f64],
+) {
     let origin_x = centre.x - (stride - 1) as f64 / 2.0;
     let origin_y = centre.y - (stride - 1) as f64 / 2.0;
     let (fx, fy) = (origin_x.floor(), origin_y.floor());
     let (ax, ay) = (origin_x - fx, origin_y - fy);
+    // Far outside, every sample is a border pixel anyway.
+    let limit = 1e9;
     let (ix, iy) = (
-        fx.clamp(-2.0 * stride as f64, w as f64 + stride as f64) as isize,
-        fy.clamp(-2.0 * stride as f64, h as f64 + stride as f64) as isize,
+        fx.clamp(-limit, limit) as isize,
+        fy.clamp(-limit, limit) as isize,
     );
-    let data = image.as_slice();
-    let px = |x: isize, y: isize| {
-        let (x, y) = (x.clamp(0, w - 1), y.clamp(0, h - 1));
-        data[(y * w + x) as usize] as f64
-    };
     for i in 0..stride {
         let y = iy + i as isize;
         for j in 0..stride {
             let x = ix + j as isize;
-            let top = px(x, y) * (1.0 - ax) + px(x + 1, y) * ax;
-            let bottom = px(x, y + 1) * (1.0 - ax) + px(x + 1, y + 1) * ax;
+            let top = pixel(x, y) * (1.0 - ax) + pixel(x + 1, y) * ax;
+            let bottom = pixel(x, y + 1) * (1.0 - ax) + pixel(x + 1, y + 1) * ax;
             patch[i * stride + j] = top * (1.0 - ay) + bottom * ay;
         }
     }
