@@ -8,7 +8,7 @@ Usage (from the workspace root):
 DIR defaults to $STEREOLINK_CALIB_DATA/ximea-9x6 or ../shared/data/calibration/ximea-9x6.
 Builds and runs `cargo run --release -p stereolink-calib --example corners` on
 every left*/right* image and OpenCV's findChessboardCorners (adaptive threshold
-+ normalise) + cornerSubPix (11x11, zeroZone (-1,-1), EPS+MAX_ITER 30, 0.001),
++ normalise) + cornerSubPix (winSize (11,11), i.e. 23x23, zeroZone (-1,-1), EPS+MAX_ITER 30, 0.001),
 one thread each (cv2.setNumThreads(1)), and prints: detections of each (of
 all images), RMS and max corner difference left and right on the images both
 detect (also without corners more than 1 px apart, which are listed: one
@@ -39,7 +39,7 @@ def opencv_corners(files, board):
     for f, g in zip(files, images):
         ok, c = cv2.findChessboardCorners(g, board, flags)
         if ok:
-            c = cv2.cornerSubPix(g, c, (5, 5), (-1, -1), criteria)
+            c = cv2.cornerSubPix(g, c, (11, 11), (-1, -1), criteria)
             out[f] = c.reshape(-1, 2)
         else:
             out[f] = None

@@ -18,6 +18,11 @@ pub(crate) const INTRINSICS: usize = 9;
 /// homographies for 5 intrinsics.
 pub const MIN_VIEWS: usize = 3;
 
+/// No view whose RMS reprojection error is below this (pixels) is an
+/// outlier: that is within the noise of good subpixel corners, however
+/// much better the other views fit.
+pub const OUTLIER_FLOOR: f64 = 0.1;
+
 /// A focal length whose standard deviation exceeds this share of itself is
 /// reported as poorly constrained.
 const FOCAL_SPREAD_WARNING: f64 = 0.01;
@@ -210,9 +215,10 @@ pub(crate) fn focal_warnings(camera: &Camera, std_devs: &[f64; INTRINSICS]) -> V
     )]
 }
 
-/// The views whose RMS error stands out: above twice the median and above
-/// the median plus 3 robust standard deviations (1.4826 × the median
-/// absolute deviation). A bad detection or a moved board shows this way.
+/// The views whose RMS error stands out: above twice the median, above the
+/// median plus 3 robust standard deviations (1.4826 × the median absolute
+/// deviation), and above [`OUTLIER_FLOOR`]. A bad detection or a moved
+/// board shows this way.
 pub fn outlier_views(view_rms: &[f64]) -> Vec<usize> {
     if view_rms.len() < MIN_VIEWS {
         return Vec::new();
@@ -223,7 +229,7 @@ pub fn outlier_views(view_rms: &[f64]) -> Vec<usize> {
     };
     let m = median(&mut view_rms.to_vec());
     let mad = median(&mut view_rms.iter().map(|r| (r - m).abs()).collect());
-    let limit = (2.0 * m).max(m + 3.0 * 1.4826 * mad);
+    let limit = (2.0 * m).max(m + 3.0 * 1.4826 * mad).max(OUTLIER_FLOOR);
     (0..view_rms.len())
         .filter(|&i| view_rms[i] > limit)
         .collect()

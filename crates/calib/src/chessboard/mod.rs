@@ -233,8 +233,31 @@ pub fn find_chessboard_with(
     let candidates = saddle::candidates(&smooth, options);
     let board = grid::find_grid(&smooth, &candidates, pattern, options)?;
     let mut corners = board.ordered(&smooth, pattern);
-    refine_corners(image, &mut corners, &options.subpix);
+    let subpix = SubpixOptions {
+        half_window: refinement_window(&corners, pattern, options.subpix.half_window),
+        ..options.subpix
+    };
+    refine_corners(image, &mut corners, &subpix);
     Ok(corners)
+}
+
+/// The refinement's half window: at most `largest`, and at most 0.4 of the
+/// shortest distance between neighbouring corners, so that the window
+/// never reaches the next corner (at least 2 px).
+fn refinement_window(corners: &[Point2<f64>], pattern: BoardSize, largest: usize) -> usize {
+    let mut shortest = f64::INFINITY;
+    for r in 0..pattern.rows {
+        for c in 0..pattern.cols {
+            let p = corners[r * pattern.cols + c];
+            if c + 1 < pattern.cols {
+                shortest = shortest.min((corners[r * pattern.cols + c + 1] - p).norm());
+            }
+            if r + 1 < pattern.rows {
+                shortest = shortest.min((corners[(r + 1) * pattern.cols + c] - p).norm());
+            }
+        }
+    }
+    ((0.4 * shortest) as usize).clamp(2, largest.max(2))
 }
 
 #[cfg(test)]

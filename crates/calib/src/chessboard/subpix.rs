@@ -19,8 +19,12 @@ use super::saddle::smooth;
 pub const MAX_HALF_WINDOW: usize = 64;
 
 /// Tuning of [`refine_corners`]; the defaults are the usual OpenCV
-/// calibration call, `cornerSubPix(winSize (5,5) i.e. 11x11, zeroZone
-/// (-1,-1), EPS + MAX_ITER 30, 0.001)`.
+/// calibration call, `cornerSubPix(winSize (11,11) i.e. 23x23, zeroZone
+/// (-1,-1), EPS + MAX_ITER 30, 0.001)`, with light smoothing added (the call of OpenCV's calibration
+/// tutorial and of the shared set's MANIFEST). [`find_chessboard_with`]
+/// shrinks the window on boards whose squares are too small for it.
+///
+/// [`find_chessboard_with`]: super::find_chessboard_with
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SubpixOptions {
     /// Half the window side: the window is `(2·half_window + 1)²` pixels
@@ -32,18 +36,22 @@ pub struct SubpixOptions {
     /// Stop when an iteration moves the corner by at most this (px).
     pub epsilon: f64,
     /// Standard deviation (px) of a Gaussian applied before the gradients;
-    /// 0 is OpenCV's behaviour. A little smoothing removes the aliasing bias
-    /// of sharp, nearly axis-aligned edges (see the crate's tests).
+    /// 0 is OpenCV's behaviour. The default 0.8 removes the aliasing bias of
+    /// sharp, nearly axis-aligned edges (0.065 → 0.034 px RMS on a sharp
+    /// render, see the crate's tests) and on the shared real set lowers the
+    /// reprojection errors (stereo RMS 0.163 → 0.162 px) and the rectified
+    /// row offset (0.125 → 0.117 px), moving corners about 0.05 px from
+    /// OpenCV's.
     pub sigma: f64,
 }
 
 impl Default for SubpixOptions {
     fn default() -> Self {
         SubpixOptions {
-            half_window: 5,
+            half_window: 11,
             max_iterations: 30,
             epsilon: 0.001,
-            sigma: 0.0,
+            sigma: 0.8,
         }
     }
 }

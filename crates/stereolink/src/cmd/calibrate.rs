@@ -9,6 +9,7 @@ use std::time::Instant;
 use anyhow::{bail, Context};
 use rayon::prelude::*;
 use serde::Serialize;
+use stereolink_calib::chessboard::SubpixOptions;
 use stereolink_calib::files::{write_camera_info, write_opencv, Side};
 use stereolink_calib::preview::side_by_side_with_guides;
 use stereolink_calib::workflow::{
@@ -59,6 +60,16 @@ pub struct Args {
     /// output either way) and calibrate again.
     #[arg(long)]
     pub drop_outliers: bool,
+    /// Largest half side of the subpixel refinement's window, pixels
+    /// (OpenCV's cornerSubPix winSize); smaller on boards whose squares are
+    /// too small for it.
+    #[arg(long, default_value_t = SubpixOptions::default().half_window)]
+    pub corner_window: usize,
+    /// Gaussian smoothing before the refinement's gradients, pixels (0 is
+    /// OpenCV's cornerSubPix; the default removes the bias of sharp,
+    /// aliased edges).
+    #[arg(long, default_value_t = SubpixOptions::default().sigma)]
+    pub corner_sigma: f64,
 }
 
 #[derive(Serialize)]
@@ -182,7 +193,14 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         square: args.square,
         alpha: args.alpha,
         drop_outliers: args.drop_outliers,
-        chessboard: ChessboardOptions::default(),
+        chessboard: ChessboardOptions {
+            subpix: SubpixOptions {
+                half_window: args.corner_window,
+                sigma: args.corner_sigma,
+                ..SubpixOptions::default()
+            },
+            ..ChessboardOptions::default()
+        },
     };
     let report = calibrate_images(&pairs, &names, &options, &|| {
         bar.set_position(searched.fetch_add(1, Ordering::Relaxed) + 1);
