@@ -509,6 +509,18 @@ mod tests {
     }
 
     #[test]
+    fn the_image_crates_calib_yaml_reader_takes_our_file() {
+        // `--calib-yaml stereo.yml` (depth only, no rectification).
+        let c = calibration();
+        let depth = stereolink_image::Calibration::parse_yaml(&to_opencv_yaml(&c), 1.0).unwrap();
+        let (f, b, doffs) = c.rectification.depth_geometry();
+        assert_eq!(depth.focal_px, Some(f));
+        assert!((depth.baseline_m.unwrap() - b).abs() < 1e-12);
+        assert_eq!(depth.doffs, doffs);
+        assert_ne!(doffs, 0.0, "the test rig has a doffs to carry");
+    }
+
+    #[test]
     fn essential_and_fundamental_satisfy_the_epipolar_constraint() {
         let rig = calibration().rig;
         let x_l = Vector3::new(0.3, -0.2, 2.5);
