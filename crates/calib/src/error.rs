@@ -8,8 +8,10 @@ pub enum Error {
     /// An image could not be read or written.
     #[error(transparent)]
     Image(#[from] stereolink_image::Error),
-    /// A file could not be read or written.
-    #[error("{path}: {source}")]
+    /// A file could not be read or written (the message names the file; the
+    /// I/O error is its source, which a chain such as anyhow's `{:#}` prints
+    /// after it, as in `stereolink_image::Error::Io`).
+    #[error("{}", path.display())]
     Io {
         /// The file.
         path: PathBuf,
@@ -30,7 +32,7 @@ pub enum Error {
     #[error("size mismatch: {0}")]
     SizeMismatch(String),
     /// A calibration file that lacks what is needed or holds bad values.
-    #[error("{path}: {problem}")]
+    #[error("{}: {problem}", path.display())]
     File {
         /// The file.
         path: PathBuf,

@@ -39,7 +39,13 @@ pub trait Pixel: Copy + Default + Send + Sync + 'static {
     fn channel(self, c: usize) -> u8;
     /// A pixel whose channel `c` is `f(c)`.
     fn from_fn(f: impl FnMut(usize) -> u8) -> Self;
+    /// The bilinear blend of the four neighbours `p` (top-left, top-right,
+    /// bottom-left, bottom-right) with weights `w` summing to 1024, rounded.
+    fn blend(p: [Self; 4], w: &[u16; 4]) -> Self;
 }
+
+/// Half of the weights' sum: rounds a blend to nearest.
+const HALF: u32 = 1 << (WEIGHT_BITS - 1);
 
 impl Pixel for u8 {
     const CHANNELS: usize = 1;
@@ -51,6 +57,25 @@ impl Pixel for u8 {
     fn from_fn(mut f: impl FnMut(usize) -> u8) -> Self {
         f(0)
     }
+    #[inline(always)]
+    fn blend(p: [u8; 4], w: &[u16; 4]) -> u8 {
+        let sum: u32 = p
+            .iter()
+            .zip(w)
+            .map(|(&p, &w)| u32::from(p) * u32::from(w))
+            .sum();
+        ((sum + HALF) >> WEIGHT_BITS) as u8
+    }
+}
+
+/// Bit position of each channel's lane in [`Pixel::blend`] for RGB: 21
+/// bits hold a channel times a weight sum (255·1024 < 2²¹).
+const LANE: u32 = 21;
+
+/// An RGB pixel's channels in three lanes of a `u64`.
+#[inline(always)]
+fn lanes(p: Rgb) -> u64 {
+    u64::from(p[0]) | u64::from(p[1]) << LANE | u64::from(p[2]) << (2 * LANE)
 }
 
 impl Pixel for Rgb {
@@ -63,19 +88,19 @@ impl Pixel for Rgb {
     fn from_fn(f: impl FnMut(usize) -> u8) -> Self {
         std::array::from_fn(f)
     }
-}
-
-/// The bilinear blend of four pixels with weights summing to 1024, rounded.
-#[inline(always)]
-fn blend<P: Pixel>(p: [P; 4], w: &[u16; 4]) -> P {
-    P::from_fn(|c| {
-        let sum: u32 = p
+    /// The three channels at once (one multiply per neighbour, not three):
+    /// no lane overflows into the next, and each rounded lane is below 256.
+    #[inline(always)]
+    fn blend(p: [Rgb; 4], w: &[u16; 4]) -> Rgb {
+        let half = u64::from(HALF);
+        let round = half | half << LANE | half << (2 * LANE);
+        let sum = p
             .iter()
             .zip(w)
-            .map(|(p, &w)| u32::from(p.channel(c)) * u32::from(w))
-            .sum();
-        ((sum + (1 << (WEIGHT_BITS - 1))) >> WEIGHT_BITS) as u8
-    })
+            .fold(round, |acc, (&p, &w)| acc + lanes(p) * u64::from(w));
+        let shift = |lane: u32| (sum >> (WEIGHT_BITS + lane * LANE)) as u8;
+        [shift(0), shift(1), shift(2)]
+    }
 }
 
 /// The weights of every fraction pair `(fx, fy)` at index `fy·32 + fx`,
@@ -256,7 +281,7 @@ impl RectifyMap {
             for ((o, &i), &w) in pixels.zip(&self.offset).zip(&self.weight) {
                 let n = &s[i as usize..i as usize + reach];
                 let w = &table[usize::from(w) & (TABLE - 1)];
-                *o = blend([n[0], n[1], n[stride], n[stride + 1]], w);
+                *o = P::blend([n[0], n[1], n[stride], n[stride + 1]], w);
             }
         } else {
             out.as_mut_slice().fill(P::default());
@@ -277,7 +302,7 @@ impl RectifyMap {
                 at(e.x, e.y + 1),
                 at(e.x + 1, e.y + 1),
             ];
-            o[e.at as usize] = blend(n, &table[usize::from(e.weight)]);
+            o[e.at as usize] = P::blend(n, &table[usize::from(e.weight)]);
         }
         Ok(())
     }

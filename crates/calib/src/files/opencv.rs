@@ -108,22 +108,20 @@ fn skew(t: &Vector3<f64>) -> Matrix3<f64> {
     Matrix3::new(0.0, -t.z, t.y, t.z, 0.0, -t.x, -t.y, t.x, 0.0)
 }
 
-impl StereoRig {
-    /// The essential matrix `E = [T]×·R` (OpenCV's `stereoCalibrate`).
-    pub fn essential(&self) -> Matrix3<f64> {
-        skew(&self.translation) * self.rotation
-    }
+/// The essential matrix `E = [T]×·R`, as `stereoCalibrate` returns it.
+fn essential(rig: &StereoRig) -> Matrix3<f64> {
+    skew(&rig.translation) * rig.rotation
+}
 
-    /// The fundamental matrix `F = M2⁻ᵀ·E·M1⁻¹`, scaled so that
-    /// `F[2][2] = 1` as OpenCV returns it (unscaled when that entry is 0).
-    pub fn fundamental(&self) -> Matrix3<f64> {
-        let inv = |c: &Camera| c.matrix().try_inverse().unwrap_or_else(Matrix3::zeros);
-        let f = inv(&self.right).transpose() * self.essential() * inv(&self.left);
-        if f[(2, 2)].abs() > f64::EPSILON * f.abs().max() {
-            f / f[(2, 2)]
-        } else {
-            f
-        }
+/// The fundamental matrix `F = M2⁻ᵀ·E·M1⁻¹`, scaled so that `F[2][2] = 1`
+/// as OpenCV returns it (unscaled when that entry is 0).
+fn fundamental(rig: &StereoRig) -> Matrix3<f64> {
+    let inv = |c: &Camera| c.matrix().try_inverse().unwrap_or_else(Matrix3::zeros);
+    let f = inv(&rig.right).transpose() * essential(rig) * inv(&rig.left);
+    if f[(2, 2)].abs() > f64::EPSILON * f.abs().max() {
+        f / f[(2, 2)]
+    } else {
+        f
     }
 }
 
@@ -144,8 +142,8 @@ pub fn to_opencv_yaml(calib: &StereoCalibration) -> String {
     }
     write_matrix(&mut out, "R", 3, 3, &row_major(&rig.rotation));
     write_matrix(&mut out, "T", 3, 1, rig.translation.as_slice());
-    write_matrix(&mut out, "E", 3, 3, &row_major(&rig.essential()));
-    write_matrix(&mut out, "F", 3, 3, &row_major(&rig.fundamental()));
+    write_matrix(&mut out, "E", 3, 3, &row_major(&essential(rig)));
+    write_matrix(&mut out, "F", 3, 3, &row_major(&fundamental(rig)));
     write_matrix(&mut out, "R1", 3, 3, &row_major(&rect.r1));
     write_matrix(&mut out, "R2", 3, 3, &row_major(&rect.r2));
     write_matrix(&mut out, "P1", 3, 4, &row_major(&rect.p1));
@@ -509,16 +507,28 @@ mod tests {
     }
 
     #[test]
+    fn the_image_crates_calib_yaml_reader_takes_our_file() {
+        // `--calib-yaml stereo.yml` (depth only, no rectification).
+        let c = calibration();
+        let depth = stereolink_image::Calibration::parse_yaml(&to_opencv_yaml(&c), 1.0).unwrap();
+        let (f, b, doffs) = c.rectification.depth_geometry();
+        assert_eq!(depth.focal_px, Some(f));
+        assert!((depth.baseline_m.unwrap() - b).abs() < 1e-12);
+        assert_eq!(depth.doffs, doffs);
+        assert_ne!(doffs, 0.0, "the test rig has a doffs to carry");
+    }
+
+    #[test]
     fn essential_and_fundamental_satisfy_the_epipolar_constraint() {
         let rig = calibration().rig;
         let x_l = Vector3::new(0.3, -0.2, 2.5);
         let x_r = rig.rotation * x_l + rig.translation;
         let (n_l, n_r) = (x_l / x_l.z, x_r / x_r.z);
-        assert!((n_r.transpose() * rig.essential() * n_l)[0].abs() < 1e-12);
+        assert!((n_r.transpose() * essential(&rig) * n_l)[0].abs() < 1e-12);
         let (p_l, p_r) = (rig.left.matrix() * n_l, rig.right.matrix() * n_r);
-        let e = (p_r.transpose() * rig.fundamental() * p_l)[0];
+        let e = (p_r.transpose() * fundamental(&rig) * p_l)[0];
         assert!(e.abs() < 1e-9, "{e}");
-        assert!((rig.fundamental()[(2, 2)] - 1.0).abs() < 1e-12);
+        assert!((fundamental(&rig)[(2, 2)] - 1.0).abs() < 1e-12);
     }
 
     #[test]

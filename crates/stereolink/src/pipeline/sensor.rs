@@ -142,3 +142,79 @@ impl Sensor {
         })
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::Matrix3;
+    use stereolink_calib::synthetic::{rig_around, RectifiedGeometry};
+    use stereolink_calib::{Camera, Distortion};
+
+    fn calibration(doffs: f64, baseline: f64) -> StereoCalibration {
+        let cam = Camera {
+            fx: 500.0,
+            fy: 500.0,
+            cx: 80.0,
+            cy: 60.0,
+            distortion: Distortion::default(),
+            width: 160,
+            height: 120,
+        };
+        let geometry = RectifiedGeometry {
+            focal: 480.0,
+            cx: 80.0,
+            cy: 60.0,
+            doffs,
+            baseline,
+            size: (160, 120),
+        };
+        rig_around(
+            cam,
+            cam,
+            Matrix3::identity(),
+            Matrix3::identity(),
+            &geometry,
+        )
+    }
+
+    #[test]
+    fn a_file_is_told_by_its_content() {
+        let dir = tempfile::tempdir().unwrap();
+        let yml = dir.path().join("stereo.yml");
+        files::write_opencv(&yml, &calibration(0.0, 60.0)).unwrap();
+        let s = Sensor::from_file(&yml, 1e-3, 32).unwrap();
+        assert!(s.rectifier.is_some());
+        assert_eq!(s.depth.focal_px, Some(480.0));
+        assert!((s.depth.baseline_m.unwrap() - 0.06).abs() < 1e-12);
+        assert_eq!((s.depth.doffs, s.depth.ndisp), (0.0, 32));
+        assert!(s.range_warning().is_none());
+        let txt = dir.path().join("calib.txt");
+        std::fs::write(
+            &txt,
+            "cam0=[700 0 10; 0 700 5; 0 0 1]\nbaseline=50\ndoffs=2\nndisp=40\n",
+        )
+        .unwrap();
+        let s = Sensor::from_file(&txt, 1.0, 16).unwrap();
+        assert!(s.rectifier.is_none());
+        assert_eq!(
+            (s.depth.focal_px, s.depth.doffs, s.depth.ndisp),
+            (Some(700.0), 2.0, 16)
+        );
+        assert!(read_stereo_yaml(&txt)
+            .unwrap_err()
+            .to_string()
+            .contains("not a stereo calibration"));
+    }
+
+    #[test]
+    fn doffs_and_swapped_cameras_are_explained() {
+        let p = Path::new("stereo.yml");
+        let s = Sensor::from_stereo(&calibration(12.0, 0.06), 1.0, 32, p).unwrap();
+        // Beyond f·b/doffs = 480·0.06/12 = 2.4 m the disparity is negative.
+        assert!(s.range_warning().unwrap().contains("2.40 m"));
+        let err = Sensor::from_stereo(&calibration(0.0, -0.06), 1.0, 32, p)
+            .err()
+            .unwrap();
+        assert!(err.to_string().contains("swapped"), "{err}");
+    }
+}
