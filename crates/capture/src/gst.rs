@@ -23,6 +23,11 @@ fn bin_name(side: Side) -> String {
     format!("stereolink-{side}")
 }
 
+/// Starts GStreamer (once per process; later calls are cheap).
+pub(crate) fn init() -> Result<()> {
+    gst::init().map_err(|e| Error::Init(e.to_string()))
+}
+
 /// A running pipeline; dropping it stops it.
 pub(crate) struct Pipeline {
     pipeline: gst::Pipeline,
@@ -31,7 +36,6 @@ pub(crate) struct Pipeline {
 impl Pipeline {
     /// Builds both branches into one pipeline and sets it playing.
     pub(crate) fn start(specs: [&SourceSpec; 2], hub: Arc<Hub>) -> Result<Self> {
-        gst::init().map_err(|e| Error::Init(e.to_string()))?;
         let pipeline = gst::Pipeline::with_name("stereolink-capture");
         let this = Self { pipeline };
         let mut sinks = Vec::with_capacity(2);

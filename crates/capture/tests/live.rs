@@ -74,6 +74,28 @@ fn a_source_that_cannot_link_is_named() {
 }
 
 #[test]
+fn an_absent_device_is_named() {
+    let err = open(
+        &SourceSpec::v4l2("/dev/video99"),
+        &SourceSpec::v4l2("/dev/video0"),
+    )
+    .err()
+    .expect("/dev/video99 should not exist");
+    assert_eq!(
+        err,
+        Error::NoDevice {
+            side: Side::Left,
+            device: "/dev/video99".into()
+        }
+    );
+    assert!(
+        err.to_string()
+            .starts_with("left camera /dev/video99: no such device"),
+        "{err}"
+    );
+}
+
+#[test]
 fn an_unparsable_description_is_named() {
     let err = open(
         &test_source(""),
