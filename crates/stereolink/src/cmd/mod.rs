@@ -6,6 +6,8 @@ use clap::{Parser, Subcommand};
 pub mod bench;
 pub mod calib;
 pub mod calibrate;
+pub mod camera;
+pub mod capture;
 pub mod codec;
 pub mod demo;
 pub mod depth;
@@ -121,6 +123,8 @@ pub enum Command {
     Decode(codec::DecodeArgs),
     /// Send test messages over a link and report goodput, loss and retransmissions.
     LinkTest(link_test::Args),
+    /// Capture stereo pairs from two cameras (V4L2 or GStreamer sources) into PNG files.
+    Capture(capture::Args),
     /// Sender: segment, encode, match and send frames and depth reports.
     Send(Box<send::Args>),
     /// Receiver: rebuild, match, display and drive the axis.
@@ -148,6 +152,7 @@ impl Command {
             Command::Encode(args) => codec::run(args, out),
             Command::Decode(args) => codec::run_decode(args, out),
             Command::LinkTest(args) => link_test::run(args, out),
+            Command::Capture(args) => capture::run(args, out),
             Command::Send(args) => send::run(*args, out),
             Command::Receive(args) => receive::run(args, out),
             Command::Report(args) => report::run(args, out),
