@@ -4,14 +4,61 @@
 
 use nalgebra::Point3;
 
-/// The inner corners of a board with `cols` corners per row and `rows`
-/// rows: corner `k` is at `(k % cols, k / cols) · square`.
-pub fn board_points(cols: usize, rows: usize, square: f64) -> Vec<Point3<f64>> {
-    (0..rows)
-        .flat_map(|r| {
-            (0..cols).map(move |c| Point3::new(c as f64 * square, r as f64 * square, 0.0))
-        })
-        .collect()
+/// A chessboard's size in **inner** corners: a board of 10x7 squares is
+/// `BoardSize { cols: 9, rows: 6 }`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct BoardSize {
+    /// Inner corners per row.
+    pub cols: usize,
+    /// Rows of inner corners.
+    pub rows: usize,
+}
+
+impl BoardSize {
+    /// `cols`x`rows` inner corners.
+    pub const fn new(cols: usize, rows: usize) -> Self {
+        BoardSize { cols, rows }
+    }
+
+    /// Number of inner corners.
+    pub fn count(&self) -> usize {
+        self.cols * self.rows
+    }
+
+    /// The inner corners as board points, row by row: corner `k` is at
+    /// `(k % cols, k / cols) · square`.
+    pub fn points(&self, square: f64) -> Vec<Point3<f64>> {
+        let cols = self.cols;
+        (0..self.rows)
+            .flat_map(|r| {
+                (0..cols).map(move |c| Point3::new(c as f64 * square, r as f64 * square, 0.0))
+            })
+            .collect()
+    }
+
+    /// The same board with rows and columns exchanged.
+    pub fn transposed(&self) -> Self {
+        BoardSize::new(self.rows, self.cols)
+    }
+}
+
+impl std::fmt::Display for BoardSize {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}x{}", self.cols, self.rows)
+    }
+}
+
+impl std::str::FromStr for BoardSize {
+    type Err = String;
+
+    /// Parses `COLSxROWS`, e.g. `9x6`.
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        let bad = || format!("board size {s:?} is not COLSxROWS (inner corners, e.g. 9x6)");
+        let (c, r) = s.split_once(['x', 'X']).ok_or_else(bad)?;
+        let cols = c.trim().parse().map_err(|_| bad())?;
+        let rows = r.trim().parse().map_err(|_| bad())?;
+        Ok(BoardSize::new(cols, rows))
+    }
 }
 
 #[cfg(test)]
@@ -49,7 +96,7 @@ pub(crate) mod tests {
 
     #[test]
     fn corners_run_row_by_row() {
-        let p = board_points(9, 6, 0.5);
+        let p = BoardSize::new(9, 6).points(0.5);
         assert_eq!(p.len(), 54);
         assert_eq!(p[1], Point3::new(0.5, 0.0, 0.0));
         assert_eq!(p[9], Point3::new(0.0, 0.5, 0.0));

@@ -241,7 +241,8 @@ pub(crate) mod tests {
     use rand_chacha::ChaCha8Rng;
 
     use super::*;
-    use crate::board::{board_points, tests::spread_poses};
+    use crate::board::tests::spread_poses;
+    use crate::BoardSize;
 
     pub(crate) fn c310() -> Camera {
         Camera {
@@ -275,7 +276,7 @@ pub(crate) mod tests {
             let (u, v): (f64, f64) = (rng.gen_range(1e-12..1.0), rng.gen());
             (-2.0 * u.ln()).sqrt() * (std::f64::consts::TAU * v).cos()
         };
-        let object = board_points(9, 6, 0.025);
+        let object = BoardSize::new(9, 6).points(0.025);
         poses
             .iter()
             .map(|pose| {
@@ -305,7 +306,8 @@ pub(crate) mod tests {
         let draws = 10;
         for seed in 0..draws {
             let views = views(&truth, &poses, CORNER_SIGMA, seed);
-            let fit = calibrate_camera(&board_points(9, 6, 0.025), &views, (640, 480)).unwrap();
+            let fit =
+                calibrate_camera(&BoardSize::new(9, 6).points(0.025), &views, (640, 480)).unwrap();
             let c = fit.camera;
             f_sq += ((c.fx / truth.fx - 1.0).powi(2) + (c.fy / truth.fy - 1.0).powi(2)) / 2.0;
             pp_sq += ((c.cx - truth.cx).powi(2) + (c.cy - truth.cy).powi(2)) / 2.0;
@@ -329,7 +331,8 @@ pub(crate) mod tests {
         let mut views = views(&truth, &poses, 0.1, 5);
         // View 7's corners shifted one row: a wrong detection.
         views[7].rotate_left(9);
-        let fit = calibrate_camera(&board_points(9, 6, 0.025), &views, (640, 480)).unwrap();
+        let fit =
+            calibrate_camera(&BoardSize::new(9, 6).points(0.025), &views, (640, 480)).unwrap();
         assert_eq!(outlier_views(&fit.view_rms), vec![7], "{:?}", fit.view_rms);
     }
 
@@ -343,7 +346,7 @@ pub(crate) mod tests {
             })
             .collect();
         let views = views(&truth, &poses, 0.2, 3);
-        match calibrate_camera(&board_points(9, 6, 0.025), &views, (640, 480)) {
+        match calibrate_camera(&BoardSize::new(9, 6).points(0.025), &views, (640, 480)) {
             Ok(fit) => assert!(!fit.warnings.is_empty(), "{:?}", fit.camera),
             Err(Error::Failed(_)) => {}
             Err(e) => panic!("{e}"),
@@ -353,7 +356,8 @@ pub(crate) mod tests {
     #[test]
     fn too_few_views_say_how_many_are_needed() {
         let views = views(&c310(), &spread_poses(0.025, 2), 0.0, 1);
-        let err = calibrate_camera(&board_points(9, 6, 0.025), &views, (640, 480)).unwrap_err();
+        let err =
+            calibrate_camera(&BoardSize::new(9, 6).points(0.025), &views, (640, 480)).unwrap_err();
         assert!(err.to_string().contains("at least 3"), "{err}");
     }
 }

@@ -176,8 +176,9 @@ pub(crate) mod tests {
     use nalgebra::Rotation3;
 
     use super::*;
-    use crate::board::{board_points, tests::spread_poses};
+    use crate::board::tests::spread_poses;
     use crate::mono::tests::{c310, views, CORNER_SIGMA};
+    use crate::BoardSize;
     use crate::{Camera, Distortion};
 
     /// Two C-310-like cameras 6 cm apart, the right one turned by about 1°.
@@ -229,7 +230,7 @@ pub(crate) mod tests {
     fn recovers_the_rig_from_noisy_corners() {
         // RMS over ten draws, as for one camera.
         let truth = rig();
-        let object = board_points(9, 6, 0.025);
+        let object = BoardSize::new(9, 6).points(0.025);
         let (mut f_sq, mut pp_sq, mut b_sq) = (0.0, 0.0, 0.0);
         let draws = 10;
         for seed in 0..draws {
@@ -257,7 +258,7 @@ pub(crate) mod tests {
     #[test]
     fn swapped_cameras_are_named() {
         let truth = rig();
-        let object = board_points(9, 6, 0.025);
+        let object = BoardSize::new(9, 6).points(0.025);
         let (l, r) = pair_views(&truth, 1);
         let fit = calibrate_stereo(&object, &r, &l, (640, 480)).unwrap();
         assert!(
@@ -272,7 +273,8 @@ pub(crate) mod tests {
         let truth = rig();
         let (l, mut r) = pair_views(&truth, 1);
         r.pop();
-        let err = calibrate_stereo(&board_points(9, 6, 0.025), &l, &r, (640, 480)).unwrap_err();
+        let err =
+            calibrate_stereo(&BoardSize::new(9, 6).points(0.025), &l, &r, (640, 480)).unwrap_err();
         assert!(
             err.to_string().contains("25 left views but 24 right"),
             "{err}"

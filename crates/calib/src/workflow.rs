@@ -8,7 +8,6 @@ use nalgebra::Point2;
 use rayon::prelude::*;
 use stereolink_image::GrayImage;
 
-use crate::board::board_points;
 use crate::chessboard::{find_chessboard_with, BoardSize, ChessboardOptions, NotFound};
 use crate::mono::{outlier_views, MIN_VIEWS};
 use crate::rectify::rectified_point;
@@ -120,7 +119,7 @@ pub fn calibrate_images(
             },
         })
         .collect();
-    let object = board_points(options.board.cols, options.board.rows, options.square);
+    let object = options.board.points(options.square);
     let fit_used = |status: &[PairStatus]| -> Result<(Vec<usize>, StereoFit)> {
         let used: Vec<usize> = (0..pairs.len())
             .filter(|&i| {
@@ -274,7 +273,7 @@ mod tests {
     use super::*;
     use crate::board::tests::spread_poses;
     use crate::stereo::tests::rig;
-    use crate::synth::{render_board, RenderSpec};
+    use crate::synthetic::{render_board, RenderSpec};
     use crate::Pose;
 
     const BOARD: BoardSize = BoardSize { cols: 9, rows: 6 };

@@ -236,11 +236,11 @@ pub(crate) fn pose_from_homography(kinv: &Matrix3<f64>, h: &Matrix3<f64>) -> Opt
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::board::board_points;
+    use crate::BoardSize;
 
     #[test]
     fn homography_maps_the_points_it_was_fitted_to() {
-        let object = board_points(9, 6, 1.0);
+        let object = BoardSize::new(9, 6).points(1.0);
         let truth = Matrix3::new(50.0, 3.0, 100.0, -2.0, 48.0, 80.0, 0.001, -0.002, 1.0);
         let image: Vec<Point2<f64>> = object
             .iter()
@@ -264,7 +264,7 @@ mod tests {
             width: 640,
             height: 480,
         };
-        let object = board_points(9, 6, 0.025);
+        let object = BoardSize::new(9, 6).points(0.025);
         let poses = crate::board::tests::spread_poses(0.025, 8);
         let views: Vec<Vec<Point2<f64>>> = poses
             .iter()

@@ -7,7 +7,7 @@ mod common;
 use std::path::{Path, PathBuf};
 
 use nalgebra::{Rotation3, Vector3};
-use stereolink_calib::synth::{render_board, RenderSpec};
+use stereolink_calib::synthetic::{render_board, RenderSpec};
 use stereolink_calib::{BoardSize, Camera, Distortion, Pose};
 use stereolink_image::io;
 

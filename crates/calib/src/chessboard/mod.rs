@@ -51,53 +51,9 @@ mod subpix;
 use nalgebra::Point2;
 use stereolink_image::{GrayImage, RgbImage};
 
+pub use crate::board::BoardSize;
+
 pub use subpix::{refine_corners, SubpixOptions, MAX_HALF_WINDOW};
-
-/// A chessboard's size in **inner** corners: a board of 10x7 squares is
-/// `BoardSize { cols: 9, rows: 6 }`.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub struct BoardSize {
-    /// Inner corners per row.
-    pub cols: usize,
-    /// Rows of inner corners.
-    pub rows: usize,
-}
-
-impl BoardSize {
-    /// `cols`x`rows` inner corners.
-    pub const fn new(cols: usize, rows: usize) -> Self {
-        BoardSize { cols, rows }
-    }
-
-    /// Number of inner corners.
-    pub fn count(&self) -> usize {
-        self.cols * self.rows
-    }
-
-    /// The same board with rows and columns exchanged.
-    pub fn transposed(&self) -> Self {
-        BoardSize::new(self.rows, self.cols)
-    }
-}
-
-impl std::fmt::Display for BoardSize {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "{}x{}", self.cols, self.rows)
-    }
-}
-
-impl std::str::FromStr for BoardSize {
-    type Err = String;
-
-    /// Parses `COLSxROWS`, e.g. `9x6`.
-    fn from_str(s: &str) -> Result<Self, Self::Err> {
-        let bad = || format!("board size {s:?} is not COLSxROWS (inner corners, e.g. 9x6)");
-        let (c, r) = s.split_once(['x', 'X']).ok_or_else(bad)?;
-        let cols = c.trim().parse().map_err(|_| bad())?;
-        let rows = r.trim().parse().map_err(|_| bad())?;
-        Ok(BoardSize::new(cols, rows))
-    }
-}
 
 /// Why no board was returned.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]

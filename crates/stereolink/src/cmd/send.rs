@@ -112,6 +112,7 @@ struct Sent {
     /// Pairs the cameras delivered while the one before was prepared and sent.
     skipped: u64,
     wait_ms: f64,
+    rectify_ms: f64,
     segment_ms: f64,
     match_ms: f64,
     encode_ms: f64,
@@ -169,8 +170,6 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     while args.frames.is_none_or(|n| frame_id < n) {
         let Some(next) = pairs.next()? else { break };
         frame_id += 1;
-        // The one place for a per-pair transform of the two views (such as
-        // rectification), before segmenting, for every kind of source.
         sender.send(&next, frame_id)?;
     }
     if out.json {
@@ -321,6 +320,7 @@ impl Sender {
     /// Prepares one pair (rectified first with `--calib stereo.yml`) and
     /// sends its frame and depth report.
     fn send(&mut self, next: &Next, frame_id: u32) -> anyhow::Result<()> {
+        let start = Instant::now();
         let (left, right) = match &self.rectifier {
             Some(r) => {
                 let (a, b) = &mut self.rectified;
@@ -330,6 +330,7 @@ impl Sender {
             }
             None => (&next.left, &next.right),
         };
+        let rectify_ms = start.elapsed().as_secs_f64() * 1e3;
         let p = prepare(left, right, &self.calib, &self.cfg, frame_id)?;
         if let Some(dir) = &self.save {
             std::fs::create_dir_all(dir)
@@ -357,6 +358,7 @@ impl Sender {
             retransmissions: a.retransmissions + b.retransmissions,
             skipped: next.skipped,
             wait_ms: next.wait_ms,
+            rectify_ms,
             segment_ms,
             match_ms,
             encode_ms,
@@ -374,8 +376,8 @@ impl Sender {
                 s.distance_m
             );
             println!(
-                "  timing: capture wait {:.1} ms, segment {:.1} ms, match {:.1} ms, encode {:.1} ms, send {:.1} ms; {} pairs skipped",
-                s.wait_ms, s.segment_ms, s.match_ms, s.encode_ms, s.send_ms, s.skipped
+                "  timing: capture wait {:.1} ms, rectify {:.1} ms, segment {:.1} ms, match {:.1} ms, encode {:.1} ms, send {:.1} ms; {} pairs skipped",
+                s.wait_ms, s.rectify_ms, s.segment_ms, s.match_ms, s.encode_ms, s.send_ms, s.skipped
             );
         }
         self.sent.push(s);
