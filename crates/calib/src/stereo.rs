@@ -205,11 +205,11 @@ pub(crate) mod tests {
         }
     }
 
+    /// Each view's corners.
+    type Views = Vec<Vec<Point2<f64>>>;
+
     /// Noisy corners of the board seen by both cameras of `rig`.
-    pub(crate) fn pair_views(
-        rig: &StereoRig,
-        seed: u64,
-    ) -> (Vec<Vec<Point2<f64>>>, Vec<Vec<Point2<f64>>>) {
+    pub(crate) fn pair_views(rig: &StereoRig, seed: u64) -> (Views, Views) {
         // Boards centred between the cameras.
         let poses: Vec<Pose> = spread_poses(0.025, 25)
             .into_iter()
