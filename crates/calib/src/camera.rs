@@ -190,28 +190,11 @@ impl Pose {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn c310_like() -> Camera {
-        Camera {
-            fx: 670.0,
-            fy: 668.0,
-            cx: 322.0,
-            cy: 238.0,
-            distortion: Distortion {
-                k1: -0.3,
-                k2: 0.12,
-                p1: 0.001,
-                p2: -0.0015,
-                k3: -0.02,
-            },
-            width: 640,
-            height: 480,
-        }
-    }
+    use crate::mono::tests::c310;
 
     #[test]
     fn removing_distortion_inverts_it_over_the_image() {
-        let cam = c310_like();
+        let cam = c310();
         for v in (0..480).step_by(40) {
             for u in (0..640).step_by(40) {
                 let px = Point2::new(u as f64, v as f64);
@@ -223,7 +206,7 @@ mod tests {
 
     #[test]
     fn distortion_round_trips_through_opencv_order() {
-        let d = c310_like().distortion;
+        let d = c310().distortion;
         assert_eq!(Distortion::from_slice(&d.to_array()), Some(d));
         assert_eq!(
             Distortion::from_slice(&[0.1, 0.2, 0.0, 0.0]).unwrap().k3,

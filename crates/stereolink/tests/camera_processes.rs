@@ -164,34 +164,31 @@ mod live {
     fn a_bad_description_and_an_absent_device_are_named() {
         let dir = tempfile::tempdir().unwrap();
         let out = dir.path().join("pairs");
-        let run = spawn(&[
-            "capture",
+        // `capture` with these sources fails with exit code 1; its stderr.
+        let fails = |sources: [&str; 4]| {
+            let mut args = vec!["capture"];
+            args.extend(sources);
+            args.extend(["--out", path(&out)]);
+            let res = spawn(&args).wait_with_output().unwrap();
+            assert_eq!(res.status.code(), Some(1));
+            String::from_utf8_lossy(&res.stderr).into_owned()
+        };
+        let errors = fails([
             "--source-left",
             "videotestsrc ! nosuchelement",
             "--source-right",
             "videotestsrc",
-            "--out",
-            path(&out),
         ]);
-        let res = run.wait_with_output().unwrap();
-        let errors = String::from_utf8_lossy(&res.stderr);
-        assert_eq!(res.status.code(), Some(1));
         assert!(
             errors.contains("left source `videotestsrc ! nosuchelement`"),
             "{errors}"
         );
-        let run = spawn(&[
-            "capture",
+        let errors = fails([
             "--camera-left",
             "/dev/video98",
             "--camera-right",
             "/dev/video99",
-            "--out",
-            path(&out),
         ]);
-        let res = run.wait_with_output().unwrap();
-        let errors = String::from_utf8_lossy(&res.stderr);
-        assert_eq!(res.status.code(), Some(1));
         assert!(
             errors.contains("left camera /dev/video98: no such device"),
             "{errors}"

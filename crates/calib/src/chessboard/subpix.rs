@@ -73,36 +73,19 @@ pub fn refine_corners(image: &GrayImage, corners: &mut [Point2<f64>], options: &
         })
         .collect();
     let mut patch = vec![0f64; (side + 2) * (side + 2)];
-    if options.sigma > 0.0 {
-        let plane = smooth(image, options.sigma);
-        let pixel = |x, y| plane.pixel(x, y);
-        for corner in corners {
-            *corner = refine(
-                pixel,
-                image.dims(),
-                *corner,
-                half,
-                &weights,
-                &mut patch,
-                options,
-            );
-        }
-    } else {
-        let (w, h) = (image.width() as isize, image.height() as isize);
-        let data = image.as_slice();
-        let pixel =
-            |x: isize, y: isize| data[(y.clamp(0, h - 1) * w + x.clamp(0, w - 1)) as usize] as f64;
-        for corner in corners {
-            *corner = refine(
-                pixel,
-                image.dims(),
-                *corner,
-                half,
-                &weights,
-                &mut patch,
-                options,
-            );
-        }
+    // Smoothing of sigma 0 only converts to f32: OpenCV's raw gradients.
+    let plane = smooth(image, options.sigma);
+    let pixel = |x, y| plane.pixel(x, y);
+    for corner in corners {
+        *corner = refine(
+            pixel,
+            image.dims(),
+            *corner,
+            half,
+            &weights,
+            &mut patch,
+            options,
+        );
     }
 }
 

@@ -15,8 +15,10 @@ use super::camera::CameraArgs;
 #[derive(Debug, clap::Args)]
 #[command(after_long_help = "\
 Examples:
-  # two webcams (MJPEG 640x480 at 30 fps), 25 pairs for calibration
-  stereolink capture --camera-left /dev/video0 --camera-right /dev/video2 --out pairs/ --frames 25
+  # two webcams (MJPEG 640x480 at 30 fps): 25 chessboard pairs for
+  # `stereolink calibrate`, one every 3 s while the board is moved
+  stereolink capture --camera-left /dev/video0 --camera-right /dev/video2 \
+      --out shots/ --frames 25 --interval-s 3
 
   # a raw mode, frames at most 8 ms apart
   stereolink capture --camera-left /dev/video0 --camera-right /dev/video2 \\
@@ -40,6 +42,10 @@ pub struct Args {
     /// Pairs to write.
     #[arg(long, default_value_t = 1)]
     pub frames: u32,
+    /// Seconds between the pairs written, to move a chessboard between
+    /// shots (the newest pair is written; 0 writes every pair).
+    #[arg(long, default_value_t = 0.0)]
+    pub interval_s: f64,
 }
 
 #[derive(Serialize)]
@@ -58,12 +64,17 @@ struct Summary {
 /// Captures `--frames` pairs into `--out`.
 pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     let timeout = args.camera.frame_timeout()?;
+    let interval = Duration::try_from_secs_f64(args.interval_s)
+        .with_context(|| format!("--interval-s {} is not a duration", args.interval_s))?;
     let mut capture = args.camera.open()?;
     std::fs::create_dir_all(&args.out)
         .with_context(|| format!("cannot create {}", args.out.display()))?;
     let bar = super::progress(u64::from(args.frames), "capture");
     let start = Instant::now();
     for i in 1..=args.frames {
+        if i > 1 {
+            std::thread::sleep(interval);
+        }
         let pair = capture.next_pair(timeout)?;
         for (side, image) in [("left", &pair.left), ("right", &pair.right)] {
             io::write_rgb(args.out.join(format!("{side}_{i:04}.png")), image)?;
