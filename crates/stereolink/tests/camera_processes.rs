@@ -9,8 +9,11 @@ mod live {
     use std::path::Path;
     use std::time::Duration;
 
+    use nalgebra::{Rotation3, Vector3};
+    use stereolink_calib::{stereo_rectify, Camera, Distortion, StereoCalibration, StereoRig};
+    use stereolink_image::{io, RgbImage};
+
     use super::common::{finish, free_port, spawn};
-    use stereolink_image::io;
 
     fn test_source(pattern: &str, extra: &str) -> String {
         format!(
@@ -54,12 +57,11 @@ mod live {
         assert!(!out.join("left_0006.png").exists());
     }
 
-    /// Live send of three pairs over UDP: the receiver's views of the last
-    /// equal the sender's segmented views bit for bit.
-    #[test]
-    fn live_send_is_received_bit_for_bit() {
-        let dir = tempfile::tempdir().unwrap();
-        let (shots, saved) = (dir.path().join("screens"), dir.path().join("saved"));
+    /// Live send of three pairs over UDP from the test patterns `patterns`
+    /// with `extra` send arguments: the sender's and the receiver's views
+    /// of the last pair.
+    fn live_send(dir: &Path, patterns: [&str; 2], extra: &[&str]) -> (RgbImage, RgbImage) {
+        let (shots, saved) = (dir.join("screens"), dir.join("saved"));
         let (a, b) = (free_port(), free_port());
         let rx = spawn(&[
             "receive",
@@ -79,14 +81,16 @@ mod live {
             path(&saved),
         ]);
         std::thread::sleep(Duration::from_millis(200));
-        let tx = spawn(&[
+        let link = format!("udp:127.0.0.1:{a}?peer=127.0.0.1:{b}");
+        let (left, right) = (test_source(patterns[0], ""), test_source(patterns[1], ""));
+        let mut args = vec![
             "send",
             "--link",
-            &format!("udp:127.0.0.1:{a}?peer=127.0.0.1:{b}"),
+            &link,
             "--source-left",
-            &test_source("ball", ""),
+            &left,
             "--source-right",
-            &test_source("ball", "foreground-color=0xffff8000"),
+            &right,
             "--frames",
             "3",
             "--max-disp",
@@ -97,21 +101,79 @@ mod live {
             "4",
             "--save",
             path(&saved),
-        ]);
-        let sent = finish(tx, "send");
+        ];
+        args.extend(extra);
+        let sent = finish(spawn(&args), "send");
         finish(rx, "receive");
         for i in 1..=3 {
             assert!(sent.contains(&format!("frame {i}:")), "{sent}");
         }
         assert!(!sent.contains("frame 4:"), "{sent}");
         assert_eq!(sent.matches("timing: capture wait").count(), 3, "{sent}");
-        for side in ["left", "right"] {
-            let a = io::read_rgb(saved.join(format!("sent-{side}.png"))).unwrap();
-            let b = io::read_rgb(saved.join(format!("received-{side}.png"))).unwrap();
-            assert_eq!(a.dims(), (96, 64));
-            assert_eq!(a, b, "{side} view differs");
-        }
         assert!(shots.join("screen-00003.png").is_file());
+        let read = |name: &str| io::read_rgb(saved.join(name)).unwrap();
+        for side in ["left", "right"] {
+            let a = read(&format!("sent-{side}.png"));
+            assert_eq!(a.dims(), (96, 64));
+            assert_eq!(
+                a,
+                read(&format!("received-{side}.png")),
+                "{side} view differs"
+            );
+        }
+        (read("sent-left.png"), read("received-left.png"))
+    }
+
+    #[test]
+    fn live_send_is_received_bit_for_bit() {
+        live_send(
+            tempfile::tempdir().unwrap().path(),
+            ["ball", "ball foreground-color=0xffff8000"],
+            &[],
+        );
+    }
+
+    /// With `--calib stereo.yml` every live pair is rectified before it is
+    /// segmented: the views sent change, and still arrive bit for bit.
+    #[test]
+    fn live_send_rectifies_with_a_calibration() {
+        let dir = tempfile::tempdir().unwrap();
+        let camera = |cx: f64| Camera {
+            fx: 110.0,
+            fy: 110.0,
+            cx,
+            cy: 31.5,
+            distortion: Distortion {
+                k1: -0.25,
+                k2: 0.05,
+                ..Distortion::default()
+            },
+            width: 96,
+            height: 64,
+        };
+        let rig = StereoRig {
+            left: camera(47.0),
+            right: camera(48.5),
+            rotation: *Rotation3::from_scaled_axis(Vector3::new(0.01, -0.02, 0.015)).matrix(),
+            translation: Vector3::new(-0.06, 0.002, 0.0),
+        };
+        let calib = StereoCalibration {
+            rig,
+            rectification: stereo_rectify(&rig, 0.0).unwrap(),
+        };
+        let file = dir.path().join("stereo.yml");
+        stereolink_calib::files::write_opencv(&file, &calib).unwrap();
+        // Still patterns: the two runs see the same frames.
+        let still = ["smpte", "smpte75"];
+        let (raw, _) = live_send(&dir.path().join("raw"), still, &[]);
+        let (rectified, _) = live_send(
+            &dir.path().join("rectified"),
+            still,
+            &["--calib", path(&file)],
+        );
+        let (again, _) = live_send(&dir.path().join("again"), still, &[]);
+        assert_eq!(raw, again, "the still patterns changed between runs");
+        assert_ne!(raw, rectified, "the calibration changed nothing");
     }
 
     /// A camera whose stream ends stops the sender: non-zero exit, a message
