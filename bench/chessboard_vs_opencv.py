@@ -46,9 +46,12 @@ def opencv_corners(files, board):
     return out, 1000.0 * (time.perf_counter() - start) / len(files)
 
 
-def our_corners(files, board, root):
+def our_corners(files, board, root, sigma=None):
     cmd = ["cargo", "run", "--quiet", "--release", "-p", "stereolink-calib", "--example", "corners",
-           "--", "--board", f"{board[0]}x{board[1]}"] + files
+           "--", "--board", f"{board[0]}x{board[1]}"]
+    if sigma is not None:
+        cmd += ["--subpix-sigma", str(sigma)]
+    cmd += files
     res = subprocess.run(cmd, cwd=root, capture_output=True, text=True)
     if res.returncode != 0:
         sys.exit(f"corners example failed:\n{res.stderr}")
@@ -66,6 +69,8 @@ def main():
     ap.add_argument("--data", default=default)
     ap.add_argument("--board", default="9x6")
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--subpix-sigma", type=float, default=None,
+                    help="our refinement's gradient smoothing (default: the detector's; 0 is cornerSubPix's)")
     args = ap.parse_args()
     board = tuple(int(v) for v in args.board.lower().split("x"))
     files = sorted(glob.glob(os.path.join(args.data, "left*.jpg")) +
@@ -75,7 +80,7 @@ def main():
 
     ours_runs, cv_runs = [], []
     for _ in range(max(args.repeat, 1)):
-        ours_runs.append(our_corners(files, board, root))
+        ours_runs.append(our_corners(files, board, root, args.subpix_sigma))
         cv_runs.append(opencv_corners(files, board))
     ours, ours_ms = ours_runs[0][0], min(r[1] for r in ours_runs)
     cv, cv_ms = cv_runs[0][0], min(r[1] for r in cv_runs)
