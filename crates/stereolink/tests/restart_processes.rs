@@ -7,12 +7,15 @@
 mod common;
 
 use std::io::{BufRead, BufReader};
+use std::net::UdpSocket;
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
+use std::sync::atomic::{AtomicU8, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use common::{free_port, strings, synth, RadioLink};
+use stereolink_link::arq::Segment;
 
 /// A running `stereolink` whose stdout lines are collected as they come.
 struct Proc {
@@ -207,6 +210,113 @@ fn receiver_restart(rx_link: &str, tx_link: &str) {
     first.wait_for("report 2:");
     let mut shown = frame_ids(&first.kill());
     let second = receiver(rx_link, &dir.path().join("screens-2"));
+    let sent = sent_ids(tx, "sender");
+    assert_eq!(sent, [1, 2, 3, 4, 5, 6]);
+    let (ok, lines, err) = second.finish();
+    assert!(ok, "{err}");
+    shown.extend(frame_ids(&lines));
+    assert_eq!(shown, sent, "{lines:?}");
+}
+
+/// What [`Relay`] does with the datagrams.
+const FORWARD_FIRST_8: u8 = 0;
+const CUT: u8 = 1;
+const FORWARD_ALL: u8 = 2;
+
+/// A UDP relay between a sender (port `a`) and a receiver (port `b`) that
+/// leaves the receiver with part of message `msg_id` acknowledged: it
+/// forwards only that message's fragments 0–7, and once the receiver's ACK
+/// of those 8 has gone back it cuts the link until told to forward all.
+struct Relay {
+    port: u16,
+    mode: Arc<AtomicU8>,
+}
+
+impl Relay {
+    fn start(a: u16, b: u16, msg_id: u16) -> Relay {
+        let socket = UdpSocket::bind("127.0.0.1:0").unwrap();
+        socket
+            .set_read_timeout(Some(Duration::from_millis(50)))
+            .unwrap();
+        let port = socket.local_addr().unwrap().port();
+        let mode = Arc::new(AtomicU8::new(FORWARD_FIRST_8));
+        let m = mode.clone();
+        std::thread::spawn(move || {
+            let mut buf = [0u8; 2048];
+            loop {
+                let Ok((n, from)) = socket.recv_from(&mut buf) else {
+                    continue;
+                };
+                let to = if from.port() == a { b } else { a };
+                let forward = match (m.load(Ordering::SeqCst), Segment::parse(&buf[..n])) {
+                    (FORWARD_ALL, _) => true,
+                    (CUT, _) => false,
+                    (
+                        _,
+                        Some(Segment::Data {
+                            msg_id: id, index, ..
+                        }),
+                    ) => id != msg_id || index < 8,
+                    (
+                        _,
+                        Some(Segment::Ack {
+                            msg_id: id, next, ..
+                        }),
+                    ) if id == msg_id && next >= 8 => {
+                        m.store(CUT, Ordering::SeqCst);
+                        true
+                    }
+                    _ => true,
+                };
+                if forward {
+                    let _ = socket.send_to(&buf[..n], ("127.0.0.1", to));
+                }
+            }
+        });
+        Relay { port, mode }
+    }
+
+    /// Waits (at most 60 s) until the relay has cut the link.
+    fn wait_for_cut(&self) {
+        let until = Instant::now() + Duration::from_secs(60);
+        while self.mode.load(Ordering::SeqCst) != CUT {
+            assert!(
+                Instant::now() < until,
+                "the receiver never acknowledged 8 fragments"
+            );
+            std::thread::sleep(Duration::from_millis(1));
+        }
+    }
+}
+
+/// The receiver killed in the middle of frame 3 (message 5), after it
+/// acknowledged 8 of its fragments, and a new one started: the sender must
+/// send the new one the whole message (the old one's ACKs mean nothing to
+/// it), and every frame is shown once across the two.
+#[test]
+fn receiver_restart_mid_message_over_udp() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("scene");
+    synth(&scene);
+    let (a, b) = (free_port(), free_port());
+    let relay = Relay::start(a, b, 5);
+    let rx_link = format!("udp:127.0.0.1:{b}?peer=127.0.0.1:{}", relay.port);
+    let first = receiver(&rx_link, &dir.path().join("screens-1"));
+    std::thread::sleep(Duration::from_millis(200));
+    let tx = sender(
+        &format!("udp:127.0.0.1:{a}?peer=127.0.0.1:{}", relay.port),
+        &scene,
+        6,
+    );
+    relay.wait_for_cut();
+    let mut shown = frame_ids(&first.kill());
+    assert_eq!(
+        shown,
+        [1, 2],
+        "frame 3 was not complete at the old receiver"
+    );
+    let second = receiver(&rx_link, &dir.path().join("screens-2"));
+    relay.mode.store(FORWARD_ALL, Ordering::SeqCst);
     let sent = sent_ids(tx, "sender");
     assert_eq!(sent, [1, 2, 3, 4, 5, 6]);
     let (ok, lines, err) = second.finish();
