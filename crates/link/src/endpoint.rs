@@ -293,4 +293,45 @@ mod tests {
         }
         assert_eq!(rx.join().unwrap(), expected);
     }
+
+    #[test]
+    fn silence_is_noticed_once_and_ends_in_no_answer() {
+        use crate::transport::Udp;
+        let nobody = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+        let peer = nobody.local_addr().unwrap();
+        drop(nobody);
+        let udp = Udp::bind("127.0.0.1:0".parse().unwrap(), Some(peer), 100).unwrap();
+        let cfg = Config {
+            deadline: 1_000_000,
+            ..Config::for_mtu(100)
+        };
+        let mut e = Endpoint::with_config(Box::new(udp), cfg).unwrap();
+        let notices = std::rc::Rc::new(std::cell::Cell::new(0));
+        let n = notices.clone();
+        e.on_silence(
+            Duration::from_millis(200),
+            Box::new(move |silent| {
+                assert!(silent >= Duration::from_millis(200));
+                n.set(n.get() + 1);
+            }),
+        );
+        let err = e.send_message(&[7; 500]).unwrap_err();
+        assert!(matches!(err, LinkError::NoAnswer(_)), "{err}");
+        // A second message heard nothing either, but the notice was once.
+        assert!(matches!(
+            e.send_message(&[7; 5]),
+            Err(LinkError::NoAnswer(_))
+        ));
+        assert_eq!(notices.get(), 1);
+    }
+
+    #[test]
+    fn each_endpoint_draws_its_own_session() {
+        let (a, b) = pair(SimConfig::default(), 1.0);
+        let (a, b) = (
+            Endpoint::new(Box::new(a)).unwrap(),
+            Endpoint::new(Box::new(b)).unwrap(),
+        );
+        assert_ne!(a.session(), b.session());
+    }
 }
