@@ -3,7 +3,7 @@
 
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use std::hint::black_box;
-use stereolink_link::arq::{Config, Sender};
+use stereolink_link::arq::{Config, Sender, SessionId};
 use stereolink_link::xbee::{ApiMode, Frame, Parser};
 
 fn framing(c: &mut Criterion) {
@@ -42,10 +42,13 @@ fn framing(c: &mut Criterion) {
     g.throughput(Throughput::Bytes(msg.len() as u64));
     g.bench_function("arq_fragment_30k", |b| {
         b.iter(|| {
-            let mut s = Sender::new(Config {
-                window: usize::MAX,
-                ..Config::for_mtu(100)
-            });
+            let mut s = Sender::new(
+                Config {
+                    window: usize::MAX,
+                    ..Config::for_mtu(100)
+                },
+                SessionId(1),
+            );
             s.start(black_box(&msg), 0).unwrap();
             std::iter::from_fn(|| s.poll_transmit(0)).count()
         })

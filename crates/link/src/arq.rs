@@ -7,13 +7,23 @@
 //! segments are dropped where they arrive.
 //!
 //! ```text
-//! DATA  01 | msg id u16 | index u16 | count u16 | fragment …      | crc16
-//! ACK   02 | msg id u16 | next u16  | bitmap u32                  | crc16
-//! FAIL  03 | msg id u16                                           | crc16
+//! DATA  21 | session u32 | msg id u16 | index u16 | count u16 | fragment …  | crc16
+//! ACK   22 | session u32 | receiver u32 | msg id u16 | next u16 | bitmap u32 | crc16
+//! FAIL  23 | session u32 | msg id u16                                       | crc16
 //! ```
 //!
-//! (little-endian). An ACK says "every fragment below `next` arrived, and
-//! fragment `next + 1 + i` arrived where bit `i` is set". The sender keeps a
+//! (little-endian; the type byte's high nibble is the wire version,
+//! [`WIRE_VERSION`]). Each endpoint start has its own random [`SessionId`]:
+//! DATA carries the sender's, an ACK echoes it and adds the receiver's own,
+//! and a FAIL names the session whose message it ends. The receiver keys
+//! reassembly and duplicate suppression by (sender session, message id), so
+//! a restarted sender's first messages are never taken for the old one's;
+//! the sender trusts ACKs of one receiver session at a time and, when a new
+//! one answers (the receiver restarted), sends again what the old one had
+//! acknowledged.
+//!
+//! An ACK says "every fragment below `next` arrived, and fragment
+//! `next + 1 + i` arrived where bit `i` is set". The sender keeps a
 //! window of fragments in flight, retransmits a fragment when its timeout
 //! (Jacobson/Karels from measured round trips) expires or when a later
 //! fragment is acknowledged before it (a gap), and gives up at the message
@@ -30,32 +40,57 @@ use crate::crc::{crc16, crc32};
 /// Microseconds on the caller's clock.
 pub type Micros = u64;
 
-const DATA: u8 = 1;
-const ACK: u8 = 2;
-const FAIL: u8 = 3;
+/// The link segment format's version, the high nibble of every type byte.
+/// Version 1 (type bytes 0x01–0x03, a zero nibble) had no sessions; its
+/// segments are dropped as unknown.
+pub const WIRE_VERSION: u8 = 2;
+const DATA: u8 = WIRE_VERSION << 4 | 1;
+const ACK: u8 = WIRE_VERSION << 4 | 2;
+const FAIL: u8 = WIRE_VERSION << 4 | 3;
 /// Bytes of a DATA segment besides the fragment.
-pub const DATA_OVERHEAD: usize = 9;
+pub const DATA_OVERHEAD: usize = 13;
+/// Peer sessions a [`Receiver`] keeps state for, and receiver sessions a
+/// [`Sender`] remembers having stopped trusting: the current one and three
+/// before it.
+pub const REMEMBERED_SESSIONS: usize = 4;
+
+/// One life of an endpoint: drawn at random when it starts (from the OS
+/// RNG, by [`crate::endpoint`]), so a restarted process never continues an
+/// old one's message ids. A handshake (issue 19) may supply it instead,
+/// from its transcript; the ARQ only compares sessions for equality.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct SessionId(pub u32);
 
 /// A parsed segment.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum Segment<'a> {
-    /// A fragment of a message.
+    /// A fragment of a message of the sender's `session`.
     Data {
+        session: SessionId,
         msg_id: u16,
         index: u16,
         count: u16,
         fragment: &'a [u8],
     },
-    /// Acknowledgement state of a message.
-    Ack { msg_id: u16, next: u16, bitmap: u32 },
-    /// The sender gave up on a message.
-    Fail { msg_id: u16 },
+    /// Acknowledgement state of message `msg_id` of `session`, from the
+    /// receiver whose own session is `receiver`.
+    Ack {
+        session: SessionId,
+        receiver: SessionId,
+        msg_id: u16,
+        next: u16,
+        bitmap: u32,
+    },
+    /// Message `msg_id` of `session` is given up (by its sender, or by the
+    /// receiver when it arrived corrupt).
+    Fail { session: SessionId, msg_id: u16 },
 }
 
 impl<'a> Segment<'a> {
-    /// Parses and checks a segment; `None` for damaged or unknown bytes.
+    /// Parses and checks a segment; `None` for damaged, unknown or other
+    /// versions' bytes.
     pub fn parse(bytes: &'a [u8]) -> Option<Self> {
-        if bytes.len() < 5 {
+        if bytes.len() < 3 {
             return None;
         }
         let (body, crc) = bytes.split_at(bytes.len() - 2);
@@ -63,19 +98,27 @@ impl<'a> Segment<'a> {
             return None;
         }
         let u16_at = |i: usize| u16::from_le_bytes([body[i], body[i + 1]]);
+        let u32_at =
+            |i: usize| u32::from_le_bytes([body[i], body[i + 1], body[i + 2], body[i + 3]]);
         match (body[0], body.len()) {
-            (DATA, n) if n >= 7 => Some(Segment::Data {
-                msg_id: u16_at(1),
-                index: u16_at(3),
-                count: u16_at(5),
-                fragment: &body[7..],
+            (DATA, n) if n >= DATA_OVERHEAD - 2 => Some(Segment::Data {
+                session: SessionId(u32_at(1)),
+                msg_id: u16_at(5),
+                index: u16_at(7),
+                count: u16_at(9),
+                fragment: &body[DATA_OVERHEAD - 2..],
             }),
-            (ACK, 9) => Some(Segment::Ack {
-                msg_id: u16_at(1),
-                next: u16_at(3),
-                bitmap: u32::from_le_bytes(body[5..9].try_into().expect("4 bytes")),
+            (ACK, 17) => Some(Segment::Ack {
+                session: SessionId(u32_at(1)),
+                receiver: SessionId(u32_at(5)),
+                msg_id: u16_at(9),
+                next: u16_at(11),
+                bitmap: u32_at(13),
             }),
-            (FAIL, 3) => Some(Segment::Fail { msg_id: u16_at(1) }),
+            (FAIL, 7) => Some(Segment::Fail {
+                session: SessionId(u32_at(1)),
+                msg_id: u16_at(5),
+            }),
             _ => None,
         }
     }
@@ -85,29 +128,36 @@ impl<'a> Segment<'a> {
         let mut v = Vec::new();
         match self {
             Segment::Data {
+                session,
                 msg_id,
                 index,
                 count,
                 fragment,
             } => {
                 v.push(DATA);
+                v.extend_from_slice(&session.0.to_le_bytes());
                 for x in [msg_id, index, count] {
                     v.extend_from_slice(&x.to_le_bytes());
                 }
                 v.extend_from_slice(fragment);
             }
             Segment::Ack {
+                session,
+                receiver,
                 msg_id,
                 next,
                 bitmap,
             } => {
                 v.push(ACK);
+                v.extend_from_slice(&session.0.to_le_bytes());
+                v.extend_from_slice(&receiver.0.to_le_bytes());
                 v.extend_from_slice(&msg_id.to_le_bytes());
                 v.extend_from_slice(&next.to_le_bytes());
                 v.extend_from_slice(&bitmap.to_le_bytes());
             }
-            Segment::Fail { msg_id } => {
+            Segment::Fail { session, msg_id } => {
                 v.push(FAIL);
+                v.extend_from_slice(&session.0.to_le_bytes());
                 v.extend_from_slice(&msg_id.to_le_bytes());
             }
         }
@@ -219,10 +269,15 @@ pub struct SendCounters {
     pub message_bytes: u64,
 }
 
-/// The sending half: one message at a time.
+/// The sending half: one message at a time, of one session.
 #[derive(Debug)]
 pub struct Sender {
     cfg: Config,
+    session: SessionId,
+    /// The receiver session whose ACKs count.
+    peer: Option<SessionId>,
+    /// Receiver sessions replaced by a newer one: their late ACKs are ignored.
+    retired: VecDeque<SessionId>,
     msg_id: u16,
     data: Vec<u8>,
     count: usize,
@@ -239,10 +294,13 @@ pub struct Sender {
 }
 
 impl Sender {
-    /// An idle sender.
-    pub fn new(cfg: Config) -> Self {
+    /// An idle sender of `session`; its message ids start at 1.
+    pub fn new(cfg: Config, session: SessionId) -> Self {
         Sender {
             cfg,
+            session,
+            peer: None,
+            retired: VecDeque::new(),
             msg_id: 0,
             data: Vec::new(),
             count: 0,
@@ -308,6 +366,7 @@ impl Sender {
         let frag = self.cfg.fragment_size();
         let end = ((i + 1) * frag).min(self.data.len());
         Segment::Data {
+            session: self.session,
             msg_id: self.msg_id,
             index: i as u16,
             count: self.count as u16,
@@ -329,6 +388,7 @@ impl Sender {
             self.state = SendState::Failed(ArqError::Deadline);
             return Some(
                 Segment::Fail {
+                    session: self.session,
                     msg_id: self.msg_id,
                 }
                 .emit(),
@@ -378,24 +438,31 @@ impl Sender {
         Some(timer.map_or(self.deadline, |t| t.min(self.deadline)))
     }
 
-    /// Takes an incoming ACK or FAIL segment into account.
+    /// Takes an incoming ACK or FAIL segment into account; those of other
+    /// sessions, other messages and retired receivers are ignored.
     pub fn on_segment(&mut self, seg: &Segment, now: Micros) {
         if self.state != SendState::Sending {
             return;
         }
-        let (msg_id, next, bitmap) = match *seg {
+        let (receiver, next, bitmap) = match *seg {
             Segment::Ack {
+                session,
+                receiver,
                 msg_id,
                 next,
                 bitmap,
-            } => (msg_id, next as usize, bitmap),
-            Segment::Fail { msg_id } if msg_id == self.msg_id => {
+            } if session == self.session && msg_id == self.msg_id => {
+                (receiver, next as usize, bitmap)
+            }
+            Segment::Fail { session, msg_id }
+                if session == self.session && msg_id == self.msg_id =>
+            {
                 self.state = SendState::Failed(ArqError::Aborted);
                 return;
             }
             _ => return,
         };
-        if msg_id != self.msg_id {
+        if !self.trust(receiver) {
             return;
         }
         let mut highest = None;
@@ -432,6 +499,32 @@ impl Sender {
         }
     }
 
+    /// Whether ACKs of `receiver` count. A receiver session not heard
+    /// before replaces the current one: the receiver restarted and holds
+    /// nothing of what the old one acknowledged, so that is sent again.
+    fn trust(&mut self, receiver: SessionId) -> bool {
+        if self.peer == Some(receiver) {
+            return true;
+        }
+        if self.retired.contains(&receiver) {
+            return false;
+        }
+        if let Some(old) = self.peer.replace(receiver) {
+            if self.retired.len() == REMEMBERED_SESSIONS {
+                self.retired.pop_front();
+            }
+            self.retired.push_back(old);
+            for i in 0..self.next_new {
+                if self.acked[i] {
+                    self.acked[i] = false;
+                    self.sent_at[i] = None;
+                    self.queue.push_back(i);
+                }
+            }
+        }
+        true
+    }
+
     fn sample_rtt(&mut self, rtt: Micros) {
         let r = rtt as f64;
         let (srtt, var) = match self.srtt {
@@ -455,22 +548,45 @@ struct Pending {
 /// What the receiver hands up.
 pub type Delivery = Result<Vec<u8>, (u16, ArqError)>;
 
+/// A message of a peer session.
+type MsgKey = (SessionId, u16);
+
 /// The receiving half: reassembles several messages, acknowledges, delivers.
 pub struct Receiver {
     cfg: Config,
-    pending: BTreeMap<u16, Pending>,
-    recent: VecDeque<(u16, u16)>,
+    session: SessionId,
+    /// Peer sessions with state here, the most recently heard first.
+    peers: VecDeque<SessionId>,
+    pending: BTreeMap<MsgKey, Pending>,
+    /// The last delivered messages and their fragment counts.
+    recent: VecDeque<(MsgKey, u16)>,
     duplicates: u64,
 }
 
 impl Receiver {
-    /// An empty receiver.
-    pub fn new(cfg: Config) -> Self {
+    /// An empty receiver whose ACKs name its own `session`.
+    pub fn new(cfg: Config, session: SessionId) -> Self {
         Receiver {
             cfg,
+            session,
+            peers: VecDeque::new(),
             pending: BTreeMap::new(),
             recent: VecDeque::new(),
             duplicates: 0,
+        }
+    }
+
+    /// Notes that `peer` was heard; a peer session beyond the last
+    /// [`REMEMBERED_SESSIONS`] heard is forgotten with all its state.
+    fn hear(&mut self, peer: SessionId) {
+        if let Some(i) = self.peers.iter().position(|&p| p == peer) {
+            self.peers.remove(i);
+        }
+        self.peers.push_front(peer);
+        if self.peers.len() > REMEMBERED_SESSIONS {
+            let gone = self.peers.pop_back();
+            self.pending.retain(|(s, _), _| Some(*s) != gone);
+            self.recent.retain(|((s, _), _)| Some(*s) != gone);
         }
     }
 
@@ -479,7 +595,7 @@ impl Receiver {
         self.duplicates
     }
 
-    fn ack(msg_id: u16, p: &Pending) -> Vec<u8> {
+    fn ack(&self, (session, msg_id): MsgKey, p: &Pending) -> Vec<u8> {
         let next = p.frags.iter().position(Option::is_none).unwrap_or(p.count);
         let mut bitmap = 0u32;
         for i in 0..32 {
@@ -488,6 +604,8 @@ impl Receiver {
             }
         }
         Segment::Ack {
+            session,
+            receiver: self.session,
             msg_id,
             next: next as u16,
             bitmap,
@@ -503,34 +621,47 @@ impl Receiver {
         now: Micros,
     ) -> (Option<Vec<u8>>, Option<Delivery>) {
         match *seg {
-            Segment::Fail { msg_id } => {
-                let known = self.pending.remove(&msg_id).is_some();
+            Segment::Fail { session, msg_id } => {
+                let known = self.pending.remove(&(session, msg_id)).is_some();
                 (None, known.then_some(Err((msg_id, ArqError::Aborted))))
             }
             Segment::Data {
+                session,
                 msg_id,
                 index,
                 count,
                 fragment,
-            } => self.on_data(msg_id, index as usize, count as usize, fragment, now),
+            } => {
+                self.hear(session);
+                self.on_data(
+                    (session, msg_id),
+                    index as usize,
+                    count as usize,
+                    fragment,
+                    now,
+                )
+            }
             Segment::Ack { .. } => (None, None),
         }
     }
 
     fn on_data(
         &mut self,
-        msg_id: u16,
+        key: MsgKey,
         index: usize,
         count: usize,
         fragment: &[u8],
         now: Micros,
     ) -> (Option<Vec<u8>>, Option<Delivery>) {
-        if let Some(&(_, c)) = self.recent.iter().find(|(id, _)| *id == msg_id) {
+        let (session, msg_id) = key;
+        if let Some(&(_, c)) = self.recent.iter().find(|(k, _)| *k == key) {
             // Already delivered: the sender missed our final ACK.
             self.duplicates += 1;
             return (
                 Some(
                     Segment::Ack {
+                        session,
+                        receiver: self.session,
                         msg_id,
                         next: c,
                         bitmap: 0,
@@ -548,7 +679,7 @@ impl Receiver {
         {
             return (None, None);
         }
-        if !self.pending.contains_key(&msg_id) {
+        if !self.pending.contains_key(&key) {
             while self.pending.len() >= self.cfg.max_pending {
                 let oldest = *self
                     .pending
@@ -559,7 +690,7 @@ impl Receiver {
                 self.pending.remove(&oldest);
             }
             self.pending.insert(
-                msg_id,
+                key,
                 Pending {
                     count,
                     frags: vec![None; count],
@@ -570,16 +701,20 @@ impl Receiver {
                 },
             );
         }
-        let p = self.pending.get_mut(&msg_id).expect("inserted");
+        let p = self.pending.get_mut(&key).expect("inserted");
         if p.count != count {
             return (None, None);
         }
         p.last_seen = now;
         if p.frags[index].is_some() {
             self.duplicates += 1;
-            return (Some(Self::ack(msg_id, p)), None);
+            let p = &self.pending[&key];
+            return (Some(self.ack(key, p)), None);
         }
-        let gap = p.frags[..index].iter().any(Option::is_none);
+        // A gap: the fragment before this one is missing. (Not "any earlier
+        // one": an ACK for every fragment until a hole fills drives the
+        // sender's RTO below the every-`ack_every` cadence; see the doc.)
+        let gap = index > 0 && p.frags[index - 1].is_none();
         p.frags[index] = Some(fragment.to_vec());
         p.received += 1;
         p.bytes += fragment.len();
@@ -589,14 +724,15 @@ impl Receiver {
             if due {
                 p.since_ack = 0;
             }
-            return (due.then(|| Self::ack(msg_id, p)), None);
+            let p = &self.pending[&key];
+            return (due.then(|| self.ack(key, p)), None);
         }
-        let p = self.pending.remove(&msg_id).expect("present");
-        let ack = Self::ack(msg_id, &p);
+        let p = self.pending.remove(&key).expect("present");
+        let ack = self.ack(key, &p);
         let mut data: Vec<u8> = p.frags.into_iter().flatten().flatten().collect();
         if data.len() < 4 {
             return (
-                Some(Segment::Fail { msg_id }.emit()),
+                Some(Segment::Fail { session, msg_id }.emit()),
                 Some(Err((msg_id, ArqError::Corrupt))),
             );
         }
@@ -604,11 +740,11 @@ impl Receiver {
         data.truncate(data.len() - 4);
         if crc32(&data) != crc {
             return (
-                Some(Segment::Fail { msg_id }.emit()),
+                Some(Segment::Fail { session, msg_id }.emit()),
                 Some(Err((msg_id, ArqError::Corrupt))),
             );
         }
-        self.recent.push_back((msg_id, count as u16));
+        self.recent.push_back((key, count as u16));
         if self.recent.len() > 64 {
             self.recent.pop_front();
         }
@@ -621,9 +757,9 @@ impl Receiver {
             .pending
             .iter()
             .find(|(_, p)| now.saturating_sub(p.last_seen) > self.cfg.reassembly_timeout)
-            .map(|(&id, _)| id)?;
+            .map(|(&key, _)| key)?;
         self.pending.remove(&expired);
-        Some(Err((expired, ArqError::ReassemblyTimeout)))
+        Some(Err((expired.1, ArqError::ReassemblyTimeout)))
     }
 }
 
@@ -631,35 +767,172 @@ impl Receiver {
 mod tests {
     use super::*;
 
-    fn transfer(msg: &[u8], drop: impl Fn(usize) -> bool) -> (Vec<u8>, SendCounters) {
-        let cfg = Config {
+    const TX: SessionId = SessionId(0x5E55_0001);
+    const RX: SessionId = SessionId(0x5E55_0002);
+
+    fn cfg() -> Config {
+        Config {
             initial_rto: 1_000,
             min_rto: 1_000,
             ..Config::for_mtu(40)
-        };
-        let (mut s, mut r) = (Sender::new(cfg), Receiver::new(cfg));
-        s.start(msg, 0).unwrap();
-        let mut now = 0;
+        }
+    }
+
+    /// Runs a started sender against `r` from `now` until it finishes,
+    /// losing the `n`th segment where `drop(n)` and calling `after_ack`
+    /// after each ACK; returns what `r` delivered.
+    fn drive(
+        s: &mut Sender,
+        r: &mut Receiver,
+        now: &mut Micros,
+        drop: impl Fn(usize) -> bool,
+        mut after_ack: impl FnMut(&mut Sender),
+    ) -> Vec<Vec<u8>> {
         let mut n = 0;
-        let mut got = None;
+        let mut got = Vec::new();
         while s.state() == SendState::Sending {
-            while let Some(seg) = s.poll_transmit(now) {
+            while let Some(seg) = s.poll_transmit(*now) {
                 n += 1;
                 if drop(n) {
                     continue;
                 }
-                let (ack, d) = r.on_segment(&Segment::parse(&seg).unwrap(), now);
+                let (ack, d) = r.on_segment(&Segment::parse(&seg).unwrap(), *now);
                 if let Some(Ok(m)) = d {
-                    got = Some(m);
+                    got.push(m);
                 }
                 if let Some(a) = ack {
-                    s.on_segment(&Segment::parse(&a).unwrap(), now + 10);
+                    s.on_segment(&Segment::parse(&a).unwrap(), *now + 10);
+                    after_ack(s);
                 }
             }
-            now = s.poll_at().unwrap_or(now + 1).max(now + 1);
+            *now = s.poll_at().unwrap_or(*now + 1).max(*now + 1);
         }
+        got
+    }
+
+    fn transfer(msg: &[u8], drop: impl Fn(usize) -> bool) -> (Vec<u8>, SendCounters) {
+        let (mut s, mut r) = (Sender::new(cfg(), TX), Receiver::new(cfg(), RX));
+        s.start(msg, 0).unwrap();
+        let got = drive(&mut s, &mut r, &mut 0, drop, |_| {});
         assert_eq!(s.state(), SendState::Done);
-        (got.unwrap(), s.counters())
+        assert_eq!(got.len(), 1);
+        (got.into_iter().next().unwrap(), s.counters())
+    }
+
+    fn message(seed: u32, len: usize) -> Vec<u8> {
+        (0..len as u32).map(|i| (i * 7 + seed * 13) as u8).collect()
+    }
+
+    #[test]
+    fn restarted_senders_reusing_message_ids_are_all_delivered() {
+        let mut r = Receiver::new(cfg(), RX);
+        let mut now = 0;
+        for life in 1..=3u32 {
+            // Each sender process starts again from message id 1.
+            let mut s = Sender::new(cfg(), SessionId(life));
+            for k in 0..2 {
+                let msg = message(life * 2 + k, 300);
+                assert_eq!(s.start(&msg, now).unwrap(), k as u16 + 1);
+                let got = drive(&mut s, &mut r, &mut now, |_| false, |_| {});
+                assert_eq!(s.state(), SendState::Done);
+                assert_eq!(got, [msg], "life {life}, message {k}");
+            }
+        }
+        assert_eq!(r.duplicates(), 0);
+    }
+
+    #[test]
+    fn an_old_sessions_ack_never_acknowledges_a_new_message() {
+        let mut s = Sender::new(cfg(), SessionId(2));
+        s.start(&[9; 50], 0).unwrap();
+        let first = s.poll_transmit(0).unwrap();
+        let count = match Segment::parse(&first).unwrap() {
+            Segment::Data { count, .. } => count,
+            other => panic!("{other:?}"),
+        };
+        let ack = |session| Segment::Ack {
+            session,
+            receiver: RX,
+            msg_id: 1,
+            next: count,
+            bitmap: 0,
+        };
+        // The previous process's final ACK of its own message 1.
+        s.on_segment(&ack(SessionId(1)), 10);
+        assert_eq!(s.state(), SendState::Sending);
+        s.on_segment(&ack(SessionId(2)), 20);
+        assert_eq!(s.state(), SendState::Done);
+    }
+
+    #[test]
+    fn a_receiver_restart_mid_message_gets_the_whole_message_once() {
+        let msg = message(5, 1000);
+        let mut s = Sender::new(cfg(), TX);
+        let mut old = Receiver::new(cfg(), RX);
+        s.start(&msg, 0).unwrap();
+        let mut stale = None;
+        for _ in 0..16 {
+            let seg = s.poll_transmit(0).unwrap();
+            if let (Some(a), None) = old.on_segment(&Segment::parse(&seg).unwrap(), 0) {
+                s.on_segment(&Segment::parse(&a).unwrap(), 10);
+                stale = Some(a);
+            }
+        }
+        let stale = stale.expect("the old receiver acknowledged");
+        assert!(matches!(
+            Segment::parse(&stale),
+            Some(Segment::Ack { next: 16, .. })
+        ));
+        // The old receiver is gone; a new one hears the rest. Its first ACK
+        // is followed by a late one of the old receiver, which must not count.
+        let mut new = Receiver::new(cfg(), SessionId(0xBEEF));
+        let mut late = Some(stale);
+        let mut now = 20;
+        let got = drive(
+            &mut s,
+            &mut new,
+            &mut now,
+            |_| false,
+            |s| {
+                if let Some(a) = late.take() {
+                    s.on_segment(&Segment::parse(&a).unwrap(), 30);
+                }
+            },
+        );
+        assert!(late.is_none());
+        assert_eq!(s.state(), SendState::Done);
+        assert_eq!(got, [msg]);
+    }
+
+    #[test]
+    fn only_a_few_peer_sessions_are_remembered() {
+        let cfg = cfg();
+        let mut r = Receiver::new(cfg, RX);
+        let mut now = 0;
+        for life in 1..=10u32 {
+            let mut s = Sender::new(cfg, SessionId(life));
+            s.start(&message(life, 100), now).unwrap();
+            assert_eq!(drive(&mut s, &mut r, &mut now, |_| false, |_| {}).len(), 1);
+            // And a partial message left behind.
+            s.start(&message(life, 100), now).unwrap();
+            let seg = s.poll_transmit(now).unwrap();
+            r.on_segment(&Segment::parse(&seg).unwrap(), now);
+            assert!(r.peers.len() <= REMEMBERED_SESSIONS);
+            assert!(r.pending.len() <= cfg.max_pending);
+            let known = |s: &SessionId| r.peers.contains(s);
+            assert!(r.pending.keys().all(|(s, _)| known(s)));
+            assert!(r.recent.iter().all(|((s, _), _)| known(s)));
+        }
+        assert_eq!(r.peers.front(), Some(&SessionId(10)));
+    }
+
+    #[test]
+    fn version_1_segments_are_dropped() {
+        // A version 1 DATA segment (type 0x01, no session) with a valid CRC.
+        let mut v1 = vec![0x01, 1, 0, 0, 0, 1, 0, 0xAA, 0xBB, 0xCC, 0xDD];
+        let crc = crc16(&v1);
+        v1.extend_from_slice(&crc.to_le_bytes());
+        assert_eq!(Segment::parse(&v1), None);
     }
 
     #[test]
@@ -678,6 +951,7 @@ mod tests {
     #[test]
     fn segments_round_trip_and_damage_is_detected() {
         let s = Segment::Data {
+            session: TX,
             msg_id: 3,
             index: 1,
             count: 2,
@@ -698,7 +972,7 @@ mod tests {
             deadline: 5_000,
             ..Config::for_mtu(40)
         };
-        let (mut s, mut r) = (Sender::new(cfg), Receiver::new(cfg));
+        let (mut s, mut r) = (Sender::new(cfg, TX), Receiver::new(cfg, RX));
         s.start(&[1; 100], 0).unwrap();
         let first = s.poll_transmit(0).unwrap();
         r.on_segment(&Segment::parse(&first).unwrap(), 0);
@@ -706,5 +980,60 @@ mod tests {
         assert_eq!(s.state(), SendState::Failed(ArqError::Deadline));
         let (_, d) = r.on_segment(&Segment::parse(&fail).unwrap(), 6_000);
         assert_eq!(d, Some(Err((1, ArqError::Aborted))));
+    }
+
+    proptest::proptest! {
+        /// Any bytes, and any bytes with a forged valid CRC: parsing never
+        /// panics, and what parses emits back to the same bytes.
+        #[test]
+        fn parse_is_total_and_canonical(body in proptest::collection::vec(proptest::num::u8::ANY, 0..120)) {
+            let mut forged = body.clone();
+            forged.extend_from_slice(&crc16(&body).to_le_bytes());
+            for bytes in [&body, &forged] {
+                if let Some(seg) = Segment::parse(bytes) {
+                    proptest::prop_assert_eq!(&seg.emit(), bytes);
+                }
+            }
+        }
+
+        /// The DATA fragments of several sessions' messages, with the same
+        /// message ids, fed in any order with repeats and then once in order:
+        /// every message is delivered exactly once and intact.
+        #[test]
+        fn interleaved_sessions_deliver_each_message_once(
+            sessions in 1..=REMEMBERED_SESSIONS as u32,
+            per_session in 1..=3usize,
+            lens in proptest::collection::vec(0..300usize, 12),
+            order in proptest::collection::vec(proptest::num::usize::ANY, 0..400),
+        ) {
+            let cfg = Config { window: usize::MAX, ..cfg() };
+            let mut messages = Vec::new();
+            let mut segments = Vec::new();
+            for life in 0..sessions {
+                let session = SessionId(0xA000 + life);
+                let mut s = Sender::new(cfg, session);
+                for k in 0..per_session {
+                    let mut msg = message(life * 3 + k as u32, lens[life as usize * 3 + k]);
+                    msg.extend_from_slice(&[life as u8, k as u8]); // each message unique
+                    let msg_id = s.start(&msg, 0).unwrap();
+                    let segs: Vec<Vec<u8>> = core::iter::from_fn(|| s.poll_transmit(0)).collect();
+                    let next = segs.len() as u16;
+                    s.on_segment(&Segment::Ack { session, receiver: RX, msg_id, next, bitmap: 0 }, 0);
+                    segments.extend(segs);
+                    messages.push(msg);
+                }
+            }
+            let mut r = Receiver::new(cfg, RX);
+            let mut delivered = vec![0usize; messages.len()];
+            let feed = order.iter().map(|&i| i % segments.len()).chain(0..segments.len());
+            for (t, i) in feed.enumerate() {
+                if let (_, Some(Ok(m))) = r.on_segment(&Segment::parse(&segments[i]).unwrap(), t as u64) {
+                    let which = messages.iter().position(|x| *x == m);
+                    proptest::prop_assert!(which.is_some(), "a message nobody sent");
+                    delivered[which.unwrap()] += 1;
+                }
+            }
+            proptest::prop_assert!(delivered.iter().all(|&n| n == 1), "{:?}", delivered);
+        }
     }
 }

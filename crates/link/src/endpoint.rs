@@ -1,11 +1,16 @@
 //! A blocking message endpoint: the ARQ machines driven over a
 //! [`Transport`] with the real clock. Both directions share one endpoint,
 //! so a side can send messages and receive messages at the same time.
+//! Each endpoint is one session: its id is drawn from the OS RNG when it is
+//! made, so a restarted process is never taken for the one before.
 
 use std::collections::VecDeque;
 use std::time::{Duration, Instant};
 
-use crate::arq::{ArqError, Config, Micros, Receiver, Segment, SendState, Sender};
+use rand::rngs::OsRng;
+use rand::RngCore;
+
+use crate::arq::{ArqError, Config, Micros, Receiver, Segment, SendState, Sender, SessionId};
 use crate::transport::Transport;
 
 /// Everything that can end a send or receive.
@@ -17,6 +22,8 @@ pub enum LinkError {
     Arq(ArqError),
     /// Nothing arrived in time.
     Timeout,
+    /// Nothing at all came back from the peer before the message deadline.
+    NoAnswer(Duration),
 }
 
 impl std::fmt::Display for LinkError {
@@ -25,6 +32,11 @@ impl std::fmt::Display for LinkError {
             LinkError::Io(e) => write!(f, "link I/O error: {e}"),
             LinkError::Arq(e) => write!(f, "{e}"),
             LinkError::Timeout => write!(f, "timed out waiting for a message"),
+            LinkError::NoAnswer(d) => write!(
+                f,
+                "no answer from the peer: nothing came back in {:.0} s, the message deadline",
+                d.as_secs_f64()
+            ),
         }
     }
 }
@@ -57,36 +69,65 @@ impl SendStats {
     }
 }
 
+/// Called once, with how long the peer has been silent, when a message has
+/// waited that long with nothing heard back (see [`Endpoint::on_silence`]).
+pub type SilenceNotice = Box<dyn FnOnce(Duration)>;
+
 /// A message endpoint over a transport.
 pub struct Endpoint {
     transport: Box<dyn Transport>,
+    session: SessionId,
     sender: Sender,
     receiver: Receiver,
     epoch: Instant,
     inbox: VecDeque<Vec<u8>>,
     failures: VecDeque<ArqError>,
+    /// When a valid segment last arrived.
+    last_heard: Option<Instant>,
+    silence: Option<(Duration, SilenceNotice)>,
 }
 
 /// Longest single wait inside the loops, so timers and peers are served.
 const TICK: Duration = Duration::from_millis(20);
 
 impl Endpoint {
-    /// An endpoint with the default protocol parameters for the transport's MTU.
-    pub fn new(transport: Box<dyn Transport>) -> Self {
+    /// An endpoint with the default protocol parameters for the transport's
+    /// MTU; fails only when the OS has no randomness for the session id.
+    pub fn new(transport: Box<dyn Transport>) -> std::io::Result<Self> {
         let cfg = Config::for_mtu(transport.mtu());
         Self::with_config(transport, cfg)
     }
 
-    /// An endpoint with explicit protocol parameters.
-    pub fn with_config(transport: Box<dyn Transport>, cfg: Config) -> Self {
-        Endpoint {
+    /// An endpoint with explicit protocol parameters and a fresh session.
+    pub fn with_config(transport: Box<dyn Transport>, cfg: Config) -> std::io::Result<Self> {
+        let mut id = [0u8; 4];
+        OsRng
+            .try_fill_bytes(&mut id)
+            .map_err(std::io::Error::other)?;
+        let session = SessionId(u32::from_le_bytes(id));
+        Ok(Endpoint {
             transport,
-            sender: Sender::new(cfg),
-            receiver: Receiver::new(cfg),
+            session,
+            sender: Sender::new(cfg, session),
+            receiver: Receiver::new(cfg, session),
             epoch: Instant::now(),
             inbox: VecDeque::new(),
             failures: VecDeque::new(),
-        }
+            last_heard: None,
+            silence: None,
+        })
+    }
+
+    /// This endpoint's session.
+    pub fn session(&self) -> SessionId {
+        self.session
+    }
+
+    /// Calls `notice` once, the first time a message being sent has heard
+    /// nothing from the peer for `after` (the peer is absent or the link is
+    /// misconfigured); the send goes on retrying until its deadline.
+    pub fn on_silence(&mut self, after: Duration, notice: SilenceNotice) {
+        self.silence = Some((after, notice));
     }
 
     /// The transport's description.
@@ -103,6 +144,7 @@ impl Endpoint {
         let Some(seg) = Segment::parse(packet) else {
             return Ok(());
         };
+        self.last_heard = Some(Instant::now());
         let now = self.now();
         match seg {
             Segment::Ack { .. } => self.sender.on_segment(&seg, now),
@@ -146,7 +188,11 @@ impl Endpoint {
                 // Take in ACKs between segments, so a long send never starves them.
                 self.service(Duration::ZERO)?;
             }
+            let heard = self.last_heard.filter(|&t| t >= start);
             match self.sender.state() {
+                SendState::Failed(ArqError::Deadline) if heard.is_none() => {
+                    return Err(LinkError::NoAnswer(start.elapsed()))
+                }
                 SendState::Done => {
                     let c = self.sender.counters();
                     return Ok(SendStats {
@@ -158,6 +204,16 @@ impl Endpoint {
                 }
                 SendState::Failed(e) => return Err(LinkError::Arq(e)),
                 SendState::Idle | SendState::Sending => {}
+            }
+            let silent = heard.unwrap_or(start).elapsed();
+            if self
+                .silence
+                .as_ref()
+                .is_some_and(|(after, _)| silent >= *after)
+            {
+                if let Some((_, notice)) = self.silence.take() {
+                    notice(silent);
+                }
             }
             let wait = self
                 .sender
@@ -223,18 +279,59 @@ mod tests {
             .collect();
         let expected = msgs.clone();
         let rx = std::thread::spawn(move || {
-            let mut e = Endpoint::new(Box::new(b));
+            let mut e = Endpoint::new(Box::new(b)).unwrap();
             let got: Vec<Vec<u8>> = (0..3)
                 .map(|_| e.recv_message(Duration::from_secs(20)).unwrap())
                 .collect();
             e.linger(Duration::from_millis(300)).unwrap();
             got
         });
-        let mut e = Endpoint::new(Box::new(a));
+        let mut e = Endpoint::new(Box::new(a)).unwrap();
         for m in &msgs {
             let s = e.send_message(m).unwrap();
             assert_eq!(s.bytes as usize, m.len());
         }
         assert_eq!(rx.join().unwrap(), expected);
+    }
+
+    #[test]
+    fn silence_is_noticed_once_and_ends_in_no_answer() {
+        use crate::transport::Udp;
+        let nobody = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+        let peer = nobody.local_addr().unwrap();
+        drop(nobody);
+        let udp = Udp::bind("127.0.0.1:0".parse().unwrap(), Some(peer), 100).unwrap();
+        let cfg = Config {
+            deadline: 1_000_000,
+            ..Config::for_mtu(100)
+        };
+        let mut e = Endpoint::with_config(Box::new(udp), cfg).unwrap();
+        let notices = std::rc::Rc::new(std::cell::Cell::new(0));
+        let n = notices.clone();
+        e.on_silence(
+            Duration::from_millis(200),
+            Box::new(move |silent| {
+                assert!(silent >= Duration::from_millis(200));
+                n.set(n.get() + 1);
+            }),
+        );
+        let err = e.send_message(&[7; 500]).unwrap_err();
+        assert!(matches!(err, LinkError::NoAnswer(_)), "{err}");
+        // A second message heard nothing either, but the notice was once.
+        assert!(matches!(
+            e.send_message(&[7; 5]),
+            Err(LinkError::NoAnswer(_))
+        ));
+        assert_eq!(notices.get(), 1);
+    }
+
+    #[test]
+    fn each_endpoint_draws_its_own_session() {
+        let (a, b) = pair(SimConfig::default(), 1.0);
+        let (a, b) = (
+            Endpoint::new(Box::new(a)).unwrap(),
+            Endpoint::new(Box::new(b)).unwrap(),
+        );
+        assert_ne!(a.session(), b.session());
     }
 }

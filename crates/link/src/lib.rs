@@ -6,9 +6,12 @@
 //!
 //! 1. **Radio frame** ([`xbee`], [`slip`]): XBee API frames (modes 1 and 2) or,
 //!    in transparent mode, SLIP frames with a CRC-16.
-//! 2. **Link segment** ([`arq`]): DATA fragments (message id, index, count),
-//!    cumulative + bitmap ACKs, FAIL; a CRC-16 on each.
-//! 3. **Message**: the payload with a CRC-32 end to end.
+//! 2. **Link segment** ([`arq`], wire version 2): DATA fragments (sender
+//!    session, message id, index, count), cumulative + bitmap ACKs naming
+//!    both sessions, FAIL; a CRC-16 on each.
+//! 3. **Session and message**: a random session per endpoint start, so a
+//!    restarted peer is never mistaken for the old one; the payload with a
+//!    CRC-32 end to end.
 //!
 //! The ARQ machines do no I/O and read no clock; [`endpoint`] drives them over
 //! a [`transport::Transport`] with a real clock, and [`sim`] drives them in

@@ -349,14 +349,14 @@ mod tests {
             Duration::from_millis(100),
         );
         let rx = std::thread::spawn(move || {
-            let mut e = Endpoint::new(Box::new(peer_secondary));
+            let mut e = Endpoint::new(Box::new(peer_secondary)).unwrap();
             let got: Vec<Vec<u8>> = (0..2)
                 .map(|_| e.recv_message(Duration::from_secs(20)).unwrap())
                 .collect();
             e.linger(Duration::from_millis(300)).unwrap();
             got
         });
-        let mut ep = Endpoint::new(Box::new(fallback));
+        let mut ep = Endpoint::new(Box::new(fallback)).unwrap();
         let msgs = [vec![7u8; 3000], vec![9u8; 500]];
         for m in &msgs {
             ep.send_message(m).unwrap();

@@ -1,12 +1,14 @@
 //! Sender and receiver as two separate processes over UDP on loopback and
 //! over a pair of pseudo-terminals with a noisy emulated radio: every
-//! message must arrive byte-identical.
+//! message must arrive byte-identical. And a sender with nobody to answer
+//! it: it must say what to check and fail, never hang in silence.
 
 mod common;
 
-use std::time::Duration;
+use std::process::Command;
+use std::time::{Duration, Instant};
 
-use common::{finish, free_port, spawn, RadioLink};
+use common::{finish, free_port, spawn, synth, RadioLink};
 
 fn link_test(link: &str, role: &str, count: &str, size: &str) -> std::process::Child {
     spawn(&[
@@ -70,4 +72,62 @@ fn serial_api_mode_between_two_processes_over_noisy_ptys() {
         got.contains("2/2 messages") && got.contains("0 corrupted"),
         "{got}"
     );
+}
+
+/// `send` to a UDP port nobody listens on, with a 6 s message deadline: it
+/// says once what to check, keeps trying until the deadline, then fails
+/// naming the cause.
+#[test]
+fn send_to_nobody_says_what_to_check_and_fails_at_its_deadline() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("scene");
+    synth(&scene);
+    let (a, nobody) = (free_port(), free_port());
+    let start = Instant::now();
+    let out = Command::new(env!("CARGO_BIN_EXE_stereolink"))
+        .args([
+            "send",
+            "--link",
+            &format!("udp:127.0.0.1:{a}?peer=127.0.0.1:{nobody}"),
+        ])
+        .arg("--left")
+        .arg(scene.join("left.png"))
+        .arg("--right")
+        .arg(scene.join("right.png"))
+        .args([
+            "--max-disp",
+            "23",
+            "--method",
+            "kmeans",
+            "--deadline-s",
+            "6",
+        ])
+        .output()
+        .unwrap();
+    let elapsed = start.elapsed();
+    let (stdout, stderr) = (
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr),
+    );
+    assert!(!out.status.success(), "{stdout}");
+    assert!(!stdout.contains("sent in"), "{stdout}");
+    assert_eq!(
+        stderr
+            .matches("is the peer running `stereolink receive`")
+            .count(),
+        1,
+        "{stderr}"
+    );
+    for check in ["API mode", "baud rate", "destination", "api=0"] {
+        assert!(stderr.contains(check), "no {check:?} in {stderr}");
+    }
+    assert!(
+        stderr.contains("sending frame 1: no answer from the peer"),
+        "{stderr}"
+    );
+    assert!(
+        elapsed >= Duration::from_secs(6),
+        "gave up after {elapsed:?}"
+    );
+    assert!(elapsed < Duration::from_secs(60), "took {elapsed:?}");
 }

@@ -6,11 +6,9 @@
 
 mod common;
 
-use std::path::Path;
-use std::process::{Command, Stdio};
 use std::time::Duration;
 
-use common::{finish, free_port, spawn, RadioLink};
+use common::{finish, free_port, spawn, strings, synth, RadioLink};
 use stereolink_image::io;
 
 /// The number printed right after `word` in `text`.
@@ -20,30 +18,6 @@ fn number_after(text: &str, word: &str) -> f64 {
         .nth(1)
         .unwrap_or_else(|| panic!("no {word:?} in {text}"));
     rest.split(' ').next().unwrap().parse().unwrap()
-}
-
-fn strings(v: &[&str]) -> Vec<String> {
-    v.iter().map(|s| s.to_string()).collect()
-}
-
-fn synth(dir: &Path) {
-    let status = Command::new(env!("CARGO_BIN_EXE_stereolink"))
-        .args([
-            "synth",
-            dir.to_str().unwrap(),
-            "--width",
-            "160",
-            "--height",
-            "120",
-            "--max-disp",
-            "24",
-            "--seed",
-            "3",
-        ])
-        .stdout(Stdio::null())
-        .status()
-        .unwrap();
-    assert!(status.success());
 }
 
 fn run_pair(rx_link: String, tx_link: String) {

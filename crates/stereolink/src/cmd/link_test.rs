@@ -194,7 +194,7 @@ fn real(spec: &LinkSpec, args: &Args, out: &super::Output) -> anyhow::Result<()>
         anyhow::anyhow!("a real link needs --role send or --role receive (one process each)")
     })?;
     let transport = spec::open(spec)?;
-    let mut ep = Endpoint::new(transport);
+    let mut ep = Endpoint::new(transport)?;
     let start = Instant::now();
     let mut s = Summary::new(args, None);
     for i in 0..args.count {

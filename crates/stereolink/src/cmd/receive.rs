@@ -62,7 +62,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     let spec = super::link_spec(&args.link)?;
     let mut ep = Endpoint::new(
         spec::open(&spec).with_context(|| format!("cannot open link {}", args.link))?,
-    );
+    )?;
     let mut board = BoardReceiver::new(args.max_disp, 9, Duration::from_secs(args.watchdog_s));
     board.policy = MotionPolicy {
         standoff_mm: args.standoff_mm,

@@ -11,6 +11,7 @@ use anyhow::Context;
 use serde::Serialize;
 use stereolink_calib::StereoRectifier;
 use stereolink_image::{io, Calibration, RgbImage};
+use stereolink_link::arq::Config;
 use stereolink_link::endpoint::Endpoint;
 use stereolink_link::spec;
 use stereolink_stereo::depth::{LevelSpec, Roi};
@@ -91,6 +92,10 @@ pub struct Args {
     /// Also write the segmented views as sent (sent-left.png, sent-right.png) here.
     #[arg(long)]
     pub save: Option<PathBuf>,
+    /// Give up on a message (and stop) when it is not acknowledged within
+    /// this many seconds.
+    #[arg(long, default_value_t = 120, value_parser = clap::value_parser!(u64).range(1..))]
+    pub deadline_s: u64,
     /// Send the pair this many times (frame ids 1, 2, ...).
     #[arg(long, default_value_t = 1, conflicts_with_all = ["watch", "left_camera"])]
     pub repeat: u32,
@@ -135,10 +140,19 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         roi: args.roi,
         levels_spec: LevelSpec::default(),
     };
+    let transport = spec::open(&spec).with_context(|| format!("cannot open link {}", args.link))?;
+    let arq = Config {
+        deadline: args.deadline_s.saturating_mul(1_000_000),
+        ..Config::for_mtu(transport.mtu())
+    };
+    let mut ep = Endpoint::with_config(transport, arq)?;
+    let (link, deadline_s) = (args.link.clone(), args.deadline_s);
+    ep.on_silence(
+        SILENCE_HINT,
+        Box::new(move |silent| eprintln!("{}", silence_hint(&link, silent, deadline_s))),
+    );
     let mut sender = Sender {
-        ep: Endpoint::new(
-            spec::open(&spec).with_context(|| format!("cannot open link {}", args.link))?,
-        ),
+        ep,
         calib: sensor.depth,
         rectifier: sensor.rectifier,
         rectified: Default::default(),
@@ -176,6 +190,24 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         out.emit(&sender.sent, String::new)?;
     }
     Ok(())
+}
+
+/// How long a message waits with nothing heard back before the sender says
+/// what to check.
+const SILENCE_HINT: Duration = Duration::from_secs(3);
+
+/// What to check when the peer on `link` has been silent for `silent`.
+fn silence_hint(link: &str, silent: Duration, deadline_s: u64) -> String {
+    format!(
+        "nothing has come back from the peer on {link} for {:.0} s (still retrying, \
+         up to {deadline_s} s per message). Check:
+  - is the peer running `stereolink receive` on the other end of this link?
+  - do both ends use the same link settings: the API mode (api=, and the radios' AP) \
+and the baud rate (baud=)?
+  - does the destination (dest=, or udp peer=) match the peer's address (its MY or SH/SL)?
+  - is this a direct cable or USB link with no radios between the ends? then both need api=0",
+        silent.as_secs_f64()
+    )
 }
 
 /// The open link and what every frame is prepared with.

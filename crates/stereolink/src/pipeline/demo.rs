@@ -127,7 +127,7 @@ pub fn run(cfg: DemoConfig, progress: &dyn Fn(&str)) -> anyhow::Result<DemoRepor
     // Timers follow the radio's clock, which runs `speedup` times faster.
     let arq = radio_config(cfg.link.mtu, cfg.speedup);
     let sender = std::thread::spawn(move || -> anyhow::Result<(f64, u64, u64)> {
-        let mut ep = Endpoint::with_config(Box::new(tx_end), arq);
+        let mut ep = Endpoint::with_config(Box::new(tx_end), arq)?;
         let (mut secs, mut retx, mut segs) = (0.0, 0, 0);
         for m in &messages {
             let s = ep.send_message(m)?;
@@ -137,7 +137,7 @@ pub fn run(cfg: DemoConfig, progress: &dyn Fn(&str)) -> anyhow::Result<DemoRepor
         }
         Ok((secs, retx, segs))
     });
-    let mut ep = Endpoint::with_config(Box::new(rx_end), arq);
+    let mut ep = Endpoint::with_config(Box::new(rx_end), arq)?;
     let mut events = Vec::new();
     for _ in 0..2 {
         let msg = ep

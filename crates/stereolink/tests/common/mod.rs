@@ -34,6 +34,29 @@ pub fn finish(child: Child, what: &str) -> String {
     text
 }
 
+/// Owned copies of `v`, for argument lists.
+pub fn strings(v: &[&str]) -> Vec<String> {
+    v.iter().map(|s| s.to_string()).collect()
+}
+
+/// Writes a small synthetic scene (160x120, disparities up to 24) into `dir`.
+pub fn synth(dir: &std::path::Path) {
+    let status = Command::new(env!("CARGO_BIN_EXE_stereolink"))
+        .args([
+            "synth",
+            dir.to_str().unwrap(),
+            "--width",
+            "160",
+            "--height",
+            "120",
+        ])
+        .args(["--max-disp", "24", "--seed", "3"])
+        .stdout(Stdio::null())
+        .status()
+        .unwrap();
+    assert!(status.success());
+}
+
 /// A UDP port free at the time of the call.
 pub fn free_port() -> u16 {
     std::net::UdpSocket::bind("127.0.0.1:0")
