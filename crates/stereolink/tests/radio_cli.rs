@@ -6,7 +6,7 @@ mod common;
 
 use std::time::{Duration, Instant};
 
-use common::xbee::{Firmware, RadioLink};
+use common::xbee::{Config, Firmware, RadioLink};
 use common::{finish, spawn};
 use serialport::SerialPort;
 use stereolink_link::xbee::{ApiMode, Frame, Parser};
@@ -44,7 +44,7 @@ fn radio_prints_what_each_emulated_firmware_reports() {
         ),
     ];
     for (firmware, family, vr, hv, np, my, pan, op) in cases {
-        let link = RadioLink::single(firmware);
+        let link = RadioLink::single(Config::new(firmware, 0));
         let j = radio_json(&link.a);
         assert_eq!(j["firmware"], family, "{j}");
         assert_eq!(j["firmware_version"], vr);
@@ -98,6 +98,27 @@ fn a_radio_that_never_answers_is_a_clear_error_not_a_hang() {
             assert!(err.contains(what), "{what} missing from: {err}");
         }
     }
+}
+
+/// A radio whose NP leaves no room for a link segment (heavy encryption and
+/// source routing can shrink it): the link refuses to open, naming NP.
+#[test]
+fn an_np_smaller_than_a_segment_header_is_a_clear_error() {
+    let mut config = Config::new(Firmware::Zigbee, 0);
+    config.np = 8;
+    let link = RadioLink::single(config);
+    let out = spawn(&[
+        "link-test",
+        "--role",
+        "send",
+        "--link",
+        &format!("serial:{}?api=2", link.a),
+    ])
+    .wait_with_output()
+    .unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(err.contains("NP is 8 bytes"), "{err}");
 }
 
 fn exchange(port: &mut dyn SerialPort, frame: Frame) -> Vec<Frame> {
@@ -154,7 +175,7 @@ fn emulated_radios_take_only_their_firmwares_frames() {
             },
         ),
     ] {
-        let link = RadioLink::single(firmware);
+        let link = RadioLink::single(Config::new(firmware, 0));
         let mut port = serialport::new(&link.a, 115_200)
             .timeout(Duration::from_millis(5))
             .open()

@@ -318,11 +318,10 @@ impl RadioLink {
         }
     }
 
-    /// One radio with `firmware` and no peer in range.
-    pub fn single(firmware: Firmware) -> Self {
+    /// One radio configured as `config`, with no peer in range.
+    pub fn single(config: Config) -> Self {
         use serialport::SerialPort;
         let (host, slave) = pty();
-        let config = Config::new(firmware, 0);
         let counters = Arc::<Counters>::default();
         let stop = Arc::new(AtomicBool::new(false));
         let radio = Radio {
