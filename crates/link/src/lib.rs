@@ -5,7 +5,8 @@
 //! # Layers (sender to receiver)
 //!
 //! 1. **Radio frame** ([`xbee`], [`slip`]): XBee API frames (modes 1 and 2) or,
-//!    in transparent mode, SLIP frames with a CRC-16.
+//!    in transparent mode, SLIP frames with a CRC-16; [`radio`] asks the local
+//!    radio its firmware and payload size and picks the transmit request.
 //! 2. **Link segment** ([`arq`], wire version 2): DATA fragments (sender
 //!    session, message id, index, count), cumulative + bitmap ACKs naming
 //!    both sessions, FAIL; a CRC-16 on each.
@@ -29,6 +30,8 @@ pub mod xbee;
 
 #[cfg(feature = "std")]
 pub mod endpoint;
+#[cfg(feature = "std")]
+pub mod radio;
 #[cfg(feature = "std")]
 pub mod sim;
 #[cfg(feature = "std")]

@@ -1,7 +1,12 @@
 //! Link specifications, as users write them on the command line:
 //!
-//! * `serial:/dev/ttyUSB0?baud=115200&api=2&dest=0x0001&mtu=100` — an XBee in
-//!   API mode 1 or 2 (`api=0`: transparent mode or a USB cable, SLIP framed);
+//! * `serial:/dev/ttyUSB0?baud=115200&api=2&dest=0x0001&mtu=100&radio=auto` — an
+//!   XBee in API mode 1 or 2 (`api=0`: transparent mode or a USB cable, SLIP
+//!   framed). `dest` is the peer's 16-bit `MY` (0xFFFF, the default, is the
+//!   broadcast) or its 64-bit `SH`/`SL` (`dest=0x0013A20040522BAA`: more than
+//!   four hex digits). `radio=auto` asks the radio its firmware and `NP` when
+//!   the link opens ([`crate::radio::ask`]); `radio=802.15.4|zigbee|digimesh`
+//!   names the family and asks nothing;
 //! * `udp:127.0.0.1:9001?peer=127.0.0.1:9000` — bind locally, send to `peer`
 //!   (without `peer`, answer whoever sends first);
 //! * `sim:?loss=0.1&seed=3&baud=115200&mac_retries=0&ber=0&dup=0&reorder=0&speedup=20` —
@@ -12,18 +17,31 @@
 use std::net::SocketAddr;
 use std::time::Duration;
 
+use crate::arq::DATA_OVERHEAD;
+use crate::radio::{self, Address, Firmware, RadioInfo};
 use crate::sim::SimConfig;
 use crate::transport::{Fallback, Serial, SerialFraming, Transport, Udp};
 use crate::xbee::ApiMode;
 
+/// How a serial link speaks to an XBee in API mode.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct ApiSpec {
+    /// `api=1` or `api=2`.
+    pub mode: ApiMode,
+    /// `dest=`: the peer.
+    pub dest: Address,
+    /// `radio=`: the firmware family, or `None` (`auto`) to ask the radio.
+    pub radio: Option<Firmware>,
+}
+
 /// A parsed link specification.
 #[derive(Clone, Debug, PartialEq)]
 pub enum LinkSpec {
-    /// A serial port.
+    /// A serial port: an XBee in API mode, or (`api: None`) SLIP frames.
     Serial {
         path: String,
         baud: u32,
-        framing: SerialFraming,
+        api: Option<ApiSpec>,
         mtu: usize,
     },
     /// A UDP socket.
@@ -47,6 +65,17 @@ fn query(q: &str) -> Vec<(&str, &str)> {
         .filter(|p| !p.is_empty())
         .map(|p| p.split_once('=').unwrap_or((p, "")))
         .collect()
+}
+
+/// A `dest=` value: 64-bit when written with more than four hex digits or
+/// above 0xFFFF, 16-bit otherwise.
+fn address(v: &str) -> Result<Address, String> {
+    let n: u64 = num("dest", v)?;
+    let long_hex = v.strip_prefix("0x").is_some_and(|h| h.len() > 4);
+    Ok(match u16::try_from(n) {
+        Ok(short) if !long_hex => Address::Short(short),
+        _ => Address::Long(n),
+    })
 }
 
 fn num<T: std::str::FromStr>(key: &str, v: &str) -> Result<T, String> {
@@ -97,32 +126,33 @@ impl std::str::FromStr for LinkSpec {
                 if target.is_empty() {
                     return Err("serial: needs a device path, e.g. serial:/dev/ttyUSB0".into());
                 }
-                let (mut baud, mut api, mut dest, mut mtu) = (115_200u32, 2u8, 0xFFFFu16, 100usize);
+                let (mut baud, mut api, mut dest, mut mtu) =
+                    (115_200u32, 2u8, Address::BROADCAST, 100usize);
+                let mut radio = None;
                 for (k, v) in q {
                     match k {
                         "baud" => baud = num(k, v)?,
                         "api" => api = num(k, v)?,
-                        "dest" => dest = num(k, v)?,
+                        "dest" => dest = address(v)?,
                         "mtu" => mtu = num(k, v)?,
+                        "radio" if v == "auto" => radio = None,
+                        "radio" => radio = Some(v.parse()?),
                         _ => return Err(format!("serial: unknown option {k}")),
                     }
                 }
-                let framing = match api {
-                    0 => SerialFraming::Transparent,
-                    1 => SerialFraming::Api {
-                        mode: ApiMode::Plain,
-                        dest,
-                    },
-                    2 => SerialFraming::Api {
-                        mode: ApiMode::Escaped,
-                        dest,
-                    },
+                let mode = match api {
+                    0 => None,
+                    1 => Some(ApiMode::Plain),
+                    2 => Some(ApiMode::Escaped),
                     _ => return Err(format!("serial: api={api} must be 0, 1 or 2")),
                 };
+                if let Some(firmware) = radio {
+                    radio::check_dest(firmware, dest)?;
+                }
                 Ok(LinkSpec::Serial {
                     path: target.into(),
                     baud,
-                    framing,
+                    api: mode.map(|mode| ApiSpec { mode, dest, radio }),
                     mtu,
                 })
             }
@@ -170,15 +200,81 @@ impl std::str::FromStr for LinkSpec {
     }
 }
 
+fn open_port(path: &str, baud: u32) -> std::io::Result<Box<dyn serialport::SerialPort>> {
+    serialport::new(path, baud)
+        .timeout(Duration::from_millis(1))
+        .open()
+        .map_err(|e| {
+            std::io::Error::new(
+                std::io::ErrorKind::NotFound,
+                format!("cannot open serial port {path}: {e}"),
+            )
+        })
+}
+
+fn ask_on(
+    port: &mut Box<dyn serialport::SerialPort>,
+    path: &str,
+    baud: u32,
+    api: &ApiSpec,
+) -> std::io::Result<RadioInfo> {
+    radio::ask(port, api.mode, api.radio, radio::AT_TIMEOUT).map_err(|e| {
+        let e = std::io::Error::from(e);
+        std::io::Error::new(e.kind(), format!("{path} at {baud} baud: {e}"))
+    })
+}
+
+/// Opens the port of a `serial:` spec in API mode and asks its radio
+/// ([`radio::ask`]; `radio=` overrides the family it derives).
+pub fn ask_radio(spec: &LinkSpec) -> std::io::Result<RadioInfo> {
+    match spec {
+        LinkSpec::Serial {
+            path,
+            baud,
+            api: Some(api),
+            ..
+        } => ask_on(&mut open_port(path, *baud)?, path, *baud, api),
+        _ => Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            "only a serial: link in API mode (api=1 or 2) has a radio to ask",
+        )),
+    }
+}
+
 /// Opens a transport (not `sim:`, whose two ends live in one process: use
-/// [`crate::sim::pair`]).
+/// [`crate::sim::pair`]). A serial link in API mode with `radio=auto` asks the
+/// radio first: its firmware picks the transmit request, its `NP` caps `mtu`.
 pub fn open(spec: &LinkSpec) -> std::io::Result<Box<dyn Transport>> {
+    let invalid = |m: String| std::io::Error::new(std::io::ErrorKind::InvalidInput, m);
     Ok(match spec {
-        LinkSpec::Serial { path, baud, framing, mtu } => {
-            let port = serialport::new(path, *baud).timeout(Duration::from_millis(1)).open().map_err(|e| {
-                std::io::Error::new(std::io::ErrorKind::NotFound, format!("cannot open serial port {path}: {e}"))
-            })?;
-            Box::new(Serial::new(port, *framing, *mtu, format!("serial:{path}")))
+        LinkSpec::Serial { path, baud, api, mtu } => {
+            let name = format!("serial:{path}");
+            let Some(api) = api else {
+                return Ok(Box::new(Serial::new(open_port(path, *baud)?, SerialFraming::Transparent, *mtu, name)));
+            };
+            let mut port = open_port(path, *baud)?;
+            let (firmware, mtu) = match api.radio {
+                Some(firmware) => (firmware, *mtu),
+                None => {
+                    let info = ask_on(&mut port, path, *baud, api)?;
+                    let firmware = info.firmware.ok_or_else(|| {
+                        invalid(format!(
+                            "{path}: firmware VR {:04X} on hardware HV {:04X} is not one stereolink knows; name it with radio=802.15.4, radio=zigbee or radio=digimesh",
+                            info.firmware_version, info.hardware_version
+                        ))
+                    })?;
+                    let np = info.max_payload.map_or(*mtu, usize::from);
+                    if np <= DATA_OVERHEAD {
+                        return Err(invalid(format!(
+                            "{path}: the radio's NP is {np} bytes, no room for a link segment (header {DATA_OVERHEAD} bytes); check its encryption and source-routing settings"
+                        )));
+                    }
+                    (firmware, (*mtu).min(np))
+                }
+            };
+            radio::check_dest(firmware, api.dest).map_err(invalid)?;
+            let framing = SerialFraming::Api { mode: api.mode, firmware, dest: api.dest };
+            Box::new(Serial::new(port, framing, mtu, name))
         }
         LinkSpec::Udp { bind, peer, mtu } => Box::new(Udp::bind(*bind, *peer, *mtu)?),
         LinkSpec::Sim { .. } => {
@@ -205,13 +301,42 @@ mod tests {
             LinkSpec::Serial {
                 path: "/dev/ttyUSB0".into(),
                 baud: 57600,
-                framing: SerialFraming::Api {
+                api: Some(ApiSpec {
                     mode: ApiMode::Plain,
-                    dest: 0x1234
-                },
+                    dest: Address::Short(0x1234),
+                    radio: None
+                }),
                 mtu: 100
             }
         );
+        let z: LinkSpec = "serial:/dev/ttyUSB0?dest=0x0013A20040522BAA&radio=zigbee"
+            .parse()
+            .unwrap();
+        assert!(matches!(
+            z,
+            LinkSpec::Serial {
+                api: Some(ApiSpec {
+                    mode: ApiMode::Escaped,
+                    dest: Address::Long(0x0013_A200_4052_2BAA),
+                    radio: Some(Firmware::Zigbee)
+                }),
+                ..
+            }
+        ));
+        // Leading zeros make a 64-bit address; api=0 has no API options.
+        let z: LinkSpec = "serial:/x?dest=0x000000000000FFFF".parse().unwrap();
+        assert!(matches!(
+            z,
+            LinkSpec::Serial {
+                api: Some(ApiSpec {
+                    dest: Address::Long(0xFFFF),
+                    ..
+                }),
+                ..
+            }
+        ));
+        let t: LinkSpec = "serial:/x?api=0".parse().unwrap();
+        assert!(matches!(t, LinkSpec::Serial { api: None, .. }));
         let u: LinkSpec = "udp:127.0.0.1:9001?peer=127.0.0.1:9000".parse().unwrap();
         assert!(matches!(u, LinkSpec::Udp { peer: Some(_), .. }));
         let m: LinkSpec = "sim:?loss=0.1&seed=3".parse().unwrap();
@@ -232,6 +357,8 @@ mod tests {
             "sim:?loss=2",
             "sim:?what=1",
             "serial:/x?api=7",
+            "serial:/x?radio=lora",
+            "serial:/x?radio=digimesh&dest=0x1234",
             "fallback:udp:1.2.3.4:5",
         ] {
             assert!(bad.parse::<LinkSpec>().is_err(), "{bad}");

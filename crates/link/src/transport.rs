@@ -7,6 +7,7 @@ use std::io::{self, Read, Write};
 use std::net::{SocketAddr, UdpSocket};
 use std::time::{Duration, Instant};
 
+use crate::radio::{self, Address, Firmware};
 use crate::slip;
 use crate::xbee::{ApiMode, Frame, Parser};
 
@@ -93,8 +94,13 @@ impl Transport for Udp {
 /// How packets travel over a serial line.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum SerialFraming {
-    /// XBee API frames: packets go out as TX16 requests to `dest` and come in as RX frames.
-    Api { mode: ApiMode, dest: u16 },
+    /// XBee API frames: packets go out as the transmit request `firmware`
+    /// takes ([`radio::transmit_request`]) to `dest`, and come in as RX frames.
+    Api {
+        mode: ApiMode,
+        firmware: Firmware,
+        dest: Address,
+    },
     /// Transparent (AT) mode or a plain USB cable: SLIP frames with a CRC-16.
     Transparent,
 }
@@ -110,6 +116,9 @@ pub struct Serial<P> {
     name: String,
     /// Frames or packets dropped as damaged (for link statistics).
     pub damaged: u64,
+    /// Transmit status frames (0x89 / 0x8B) reporting a failed delivery.
+    pub tx_failed: u64,
+    next_frame_id: u8,
 }
 
 impl<P: Read + Write + Send> Serial<P> {
@@ -129,6 +138,8 @@ impl<P: Read + Write + Send> Serial<P> {
             mtu,
             name: name.into(),
             damaged: 0,
+            tx_failed: 0,
+            next_frame_id: 1,
         }
     }
 
@@ -136,6 +147,10 @@ impl<P: Read + Write + Send> Serial<P> {
         for &b in bytes {
             match self.framing {
                 SerialFraming::Api { .. } => match self.parser.push(b) {
+                    Some(Ok(Frame::TxStatus { status, .. }))
+                    | Some(Ok(Frame::ZbTxStatus {
+                        delivery: status, ..
+                    })) => self.tx_failed += u64::from(status != 0),
                     Some(Ok(frame)) => {
                         if let (Some(p), false) = (
                             frame.payload(),
@@ -163,13 +178,16 @@ impl<P: Read + Write + Send> Serial<P> {
 impl<P: Read + Write + Send> Transport for Serial<P> {
     fn send(&mut self, packet: &[u8]) -> io::Result<()> {
         let bytes = match self.framing {
-            SerialFraming::Api { mode, dest } => Frame::Tx16 {
-                frame_id: 0,
+            SerialFraming::Api {
+                mode,
+                firmware,
                 dest,
-                options: 0,
-                data: packet.to_vec(),
+            } => {
+                // Frame ids 1..=255: the radio answers each with a status.
+                let id = self.next_frame_id;
+                self.next_frame_id = id.checked_add(1).unwrap_or(1);
+                radio::transmit_request(firmware, dest, id, packet).encode(mode)
             }
-            .encode(mode),
             SerialFraming::Transparent => slip::encode(packet),
         };
         self.port.write_all(&bytes)?;

@@ -8,7 +8,8 @@ mod common;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use common::{finish, free_port, spawn, synth, RadioLink};
+use common::xbee::{Firmware, RadioLink};
+use common::{finish, free_port, spawn, synth};
 
 fn link_test(link: &str, role: &str, count: &str, size: &str) -> std::process::Child {
     spawn(&[
@@ -52,7 +53,7 @@ fn udp_between_two_processes() {
 /// One delivered byte in 3001 is flipped by the emulated radios.
 #[test]
 fn serial_api_mode_between_two_processes_over_noisy_ptys() {
-    let radio = RadioLink::new(Some(3001));
+    let radio = RadioLink::new(Firmware::Ieee802154, Some(3001));
     let rx = link_test(
         &format!("serial:{}?baud=115200&api=2", radio.b),
         "receive",

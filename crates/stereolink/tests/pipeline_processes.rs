@@ -8,7 +8,8 @@ mod common;
 
 use std::time::Duration;
 
-use common::{finish, free_port, spawn, strings, synth, RadioLink};
+use common::xbee::{Firmware, RadioLink};
+use common::{finish, free_port, spawn, strings, synth};
 use stereolink_image::io;
 
 /// The number printed right after `word` in `text`.
@@ -103,13 +104,40 @@ fn send_and_receive_over_udp() {
     );
 }
 
+/// Over two emulated 802.15.4 radios (TX16 to the broadcast address).
 #[test]
 fn send_and_receive_over_a_pty_pair() {
-    let radio = RadioLink::new(None);
+    let radio = RadioLink::new(Firmware::Ieee802154, None);
     run_pair(
         format!("serial:{}?baud=115200&api=2", radio.b),
         format!("serial:{}?baud=115200&api=2", radio.a),
     );
+}
+
+/// Over two emulated Zigbee radios, each end addressed by the other's
+/// 64-bit serial number: both ask their radio, send 0x10 requests with
+/// fragments of at most the radios' NP (84 bytes), and the pair arrives bit
+/// for bit; the radios were given no frame they ignore.
+#[test]
+fn send_and_receive_over_two_emulated_zigbee_radios() {
+    let radio = RadioLink::new(Firmware::Zigbee, None);
+    let (a, b) = (radio.configs[0].serial, radio.configs[1].serial);
+    run_pair(
+        format!("serial:{}?baud=115200&api=2&dest=0x{a:016X}", radio.b),
+        format!("serial:{}?baud=115200&api=2&dest=0x{b:016X}", radio.a),
+    );
+    let count = |i: usize, c: fn(&common::xbee::Counters) -> &std::sync::atomic::AtomicU64| {
+        c(&radio.counters[i]).load(std::sync::atomic::Ordering::Relaxed)
+    };
+    // Radio 0 serves the sender: the frame's fragments, full to NP.
+    assert!(
+        count(0, |c| &c.delivered) > 10,
+        "{}",
+        count(0, |c| &c.delivered)
+    );
+    assert_eq!(count(0, |c| &c.largest), 84);
+    assert!(count(1, |c| &c.delivered) > 0 && count(1, |c| &c.largest) <= 84);
+    assert_eq!((count(0, |c| &c.ignored), count(1, |c| &c.ignored)), (0, 0));
 }
 
 #[test]

@@ -14,7 +14,8 @@ use std::sync::atomic::{AtomicU8, Ordering};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
-use common::{free_port, strings, synth, RadioLink};
+use common::xbee::{Firmware, RadioLink};
+use common::{free_port, strings, synth};
 use stereolink_link::arq::Segment;
 
 /// A running `stereolink` whose stdout lines are collected as they come.
@@ -333,7 +334,7 @@ fn sender_restart_over_udp() {
 
 #[test]
 fn sender_restart_over_a_pty_pair() {
-    let radio = RadioLink::new(None);
+    let radio = RadioLink::new(Firmware::Ieee802154, None);
     sender_restart(
         &format!("serial:{}?baud=115200&api=2", radio.b),
         &format!("serial:{}?baud=115200&api=2", radio.a),
@@ -348,7 +349,7 @@ fn receiver_restart_over_udp() {
 
 #[test]
 fn receiver_restart_over_a_pty_pair() {
-    let radio = RadioLink::new(None);
+    let radio = RadioLink::new(Firmware::Ieee802154, None);
     receiver_restart(
         &format!("serial:{}?baud=115200&api=2", radio.b),
         &format!("serial:{}?baud=115200&api=2", radio.a),

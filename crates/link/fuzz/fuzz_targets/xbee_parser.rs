@@ -1,9 +1,11 @@
 //! The streaming XBee parser on arbitrary bytes, in both API modes: no
 //! panic, and every frame it yields re-encodes to bytes it parses again.
+//! The same bytes as frame data: whatever [`Frame::parse`] accepts re-emits
+//! as a prefix of them that parses to the same frame.
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
-use stereolink_link::xbee::{ApiMode, Parser};
+use stereolink_link::xbee::{ApiMode, Frame, Parser};
 
 fuzz_target!(|data: &[u8]| {
     for mode in [ApiMode::Plain, ApiMode::Escaped] {
@@ -15,5 +17,10 @@ fuzz_target!(|data: &[u8]| {
                 assert_eq!(again, vec![Ok(frame)]);
             }
         }
+    }
+    if let Ok(frame) = Frame::parse(data) {
+        let emitted = frame.frame_data();
+        assert!(data.starts_with(&emitted));
+        assert_eq!(Frame::parse(&emitted), Ok(frame));
     }
 });

@@ -10,13 +10,15 @@ import os
 
 from digi.xbee.models.address import XBee16BitAddress, XBee64BitAddress
 from digi.xbee.models.mode import OperatingMode
-from digi.xbee.models.status import ATCommandStatus, DiscoveryStatus, TransmitStatus
-from digi.xbee.packets.common import (ATCommPacket, ATCommResponsePacket, ReceivePacket, TransmitPacket,
-                                      TransmitStatusPacket)
+from digi.xbee.models.status import ATCommandStatus, DiscoveryStatus, ModemStatus, TransmitStatus
+from digi.xbee.packets.common import (ATCommPacket, ATCommResponsePacket, ModemStatusPacket, ReceivePacket,
+                                      TransmitPacket, TransmitStatusPacket)
 from digi.xbee.packets.raw import RX16Packet, RX64Packet, TX16Packet, TX64Packet, TXStatusPacket
 
 A64 = XBee64BitAddress.from_hex_string("0013A20040A1B2C3")
 A16 = XBee16BitAddress.from_hex_string("7D11")  # needs escaping in mode 2
+Z16 = XBee16BitAddress.from_hex_string("FFFE")  # 16-bit address unknown
+M16 = XBee16BitAddress.from_hex_string("7D84")
 DATA = bytes([0x7E, 0x00, 0x11, 0x13, 0x7D]) + b"stereolink"
 
 
@@ -33,6 +35,25 @@ def packets(mode):
         ("zb_rx", ReceivePacket(A64, A16, 1, DATA, op_mode=mode)),
         ("at_np", ATCommPacket(0x52, "NP", op_mode=mode)),
         ("at_np_response", ATCommResponsePacket(0x52, "NP", ATCommandStatus.OK, bytes([0x00, 0x64]), op_mode=mode)),
+        # The fields of the worked examples in Digi's Zigbee RF module manual.
+        ("manual_zb_tx", TransmitPacket(0x01, XBee64BitAddress.from_hex_string("0013A200400A0127"), Z16, 0, 0,
+                                        b"TxData0A", op_mode=mode)),
+        ("manual_zb_tx_status", TransmitStatusPacket(0x01, M16, 0, TransmitStatus.SUCCESS,
+                                                     DiscoveryStatus.ADDRESS_DISCOVERY, op_mode=mode)),
+        ("manual_zb_rx", ReceivePacket(XBee64BitAddress.from_hex_string("0013A20040522BAA"), M16, 1, b"RxData",
+                                       op_mode=mode)),
+        ("manual_at_nj", ATCommPacket(0x52, "NJ", op_mode=mode)),
+        ("manual_at_bd_response", ATCommResponsePacket(0x01, "BD", ATCommandStatus.OK, op_mode=mode)),
+        ("manual_modem_status", ModemStatusPacket(ModemStatus.COORDINATOR_STARTED, op_mode=mode)),
+        # What a radio answers when asked (values of an XBee S2C in Zigbee router API firmware).
+        ("at_vr_response", ATCommResponsePacket(0x02, "VR", ATCommandStatus.OK, bytes([0x40, 0x5F]), op_mode=mode)),
+        ("at_sh_response", ATCommResponsePacket(0x03, "SH", ATCommandStatus.OK, bytes.fromhex("0013A200"),
+                                                op_mode=mode)),
+        ("at_op_invalid", ATCommResponsePacket(0x04, "OP", ATCommandStatus.INVALID_COMMAND, op_mode=mode)),
+        ("zb_tx_status_address_not_found", TransmitStatusPacket(0x05, Z16, 0, TransmitStatus.ADDRESS_NOT_FOUND,
+                                                                DiscoveryStatus.ADDRESS_DISCOVERY, op_mode=mode)),
+        ("tx_status_no_ack", TXStatusPacket(0x06, TransmitStatus.NO_ACK, op_mode=mode)),
+        ("modem_status_reset", ModemStatusPacket(ModemStatus.HARDWARE_RESET, op_mode=mode)),
     ]
 
 

@@ -15,6 +15,7 @@ pub mod eval;
 pub mod info;
 pub mod link_test;
 pub mod matching;
+pub mod radio;
 pub mod receive;
 pub mod rectify;
 pub mod report;
@@ -123,6 +124,8 @@ pub enum Command {
     Decode(codec::DecodeArgs),
     /// Send test messages over a link and report goodput, loss and retransmissions.
     LinkTest(link_test::Args),
+    /// Ask the local XBee radio what it is: firmware, hardware, API mode, NP, addresses, channel, PAN.
+    Radio(radio::Args),
     /// Capture stereo pairs from two cameras (V4L2 or GStreamer sources) into PNG files.
     Capture(capture::Args),
     /// Sender: segment, encode, match and send frames and depth reports.
@@ -152,6 +155,7 @@ impl Command {
             Command::Encode(args) => codec::run(args, out),
             Command::Decode(args) => codec::run_decode(args, out),
             Command::LinkTest(args) => link_test::run(args, out),
+            Command::Radio(args) => radio::run(args, out),
             Command::Capture(args) => capture::run(args, out),
             Command::Send(args) => send::run(*args, out),
             Command::Receive(args) => receive::run(args, out),
