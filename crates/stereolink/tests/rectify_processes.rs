@@ -2,6 +2,10 @@
 //! rig is rectified back by `rectify`, and `match --calib stereo.yml`
 //! rectifies it itself and takes its depth from P1/P2.
 
+mod common;
+
+use common::run_ok;
+
 use std::path::Path;
 use std::process::Command;
 
@@ -16,19 +20,6 @@ const H: usize = 240;
 /// The rectified geometry the test imposes (not the synthetic scene's own).
 const FOCAL: f64 = 300.0;
 const BASELINE: f64 = 0.08;
-
-fn run(args: &[&str]) -> String {
-    let out = Command::new(env!("CARGO_BIN_EXE_stereolink"))
-        .args(args)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    String::from_utf8(out.stdout).unwrap()
-}
 
 /// A distorted, turned rig and the synthetic scene as its rectified views.
 fn rig_and_scene() -> (StereoCalibration, Scene) {
@@ -112,7 +103,7 @@ fn a_raw_pair_is_rectified_back_and_matched_with_depth_from_p1_p2() {
         p("out"),
     );
 
-    run(&[
+    run_ok(&[
         "rectify", &raw_l, &raw_r, "--calib", &yml, "-o", &out, "--guides",
     ]);
     let out_dir = d.join("out");
@@ -140,7 +131,7 @@ fn a_raw_pair_is_rectified_back_and_matched_with_depth_from_p1_p2() {
     assert_eq!(rectified.calib.focal_px, Some(FOCAL));
     assert!((rectified.calib.baseline_m.unwrap() - BASELINE).abs() < 1e-9);
 
-    let json = run(&[
+    let json = run_ok(&[
         "--json",
         "match",
         &raw_l,

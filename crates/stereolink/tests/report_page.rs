@@ -2,6 +2,10 @@
 //! headless Chromium with every image loaded and the tables present, and one
 //! scene's numbers agree with the library functions.
 
+mod common;
+
+use common::run_ok;
+
 use std::path::Path;
 use std::process::Command;
 
@@ -9,25 +13,13 @@ use stereolink_image::metrics::psnr_rgb;
 use stereolink_image::Scene;
 use stereolink_segment::segment;
 
-fn stereolink(args: &[&str]) {
-    let out = Command::new(env!("CARGO_BIN_EXE_stereolink"))
-        .args(args)
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{args:?}: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-}
-
 #[test]
 fn report_on_synthetic_scenes_opens_in_chromium() {
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("data");
     for seed in ["1", "2"] {
         let s = data.join(format!("synth{seed}"));
-        stereolink(&[
+        run_ok(&[
             "synth",
             s.to_str().unwrap(),
             "--width",
@@ -41,7 +33,7 @@ fn report_on_synthetic_scenes_opens_in_chromium() {
         ]);
     }
     let out = dir.path().join("report");
-    stereolink(&[
+    run_ok(&[
         "report",
         "--data",
         data.to_str().unwrap(),

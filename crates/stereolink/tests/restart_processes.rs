@@ -332,13 +332,19 @@ fn sender_restart_over_udp() {
     sender_restart(&rx, &tx);
 }
 
+/// The receiver's and the sender's links over two emulated 802.15.4
+/// radios; the radios run while the returned `RadioLink` lives.
+fn pty_links() -> (RadioLink, String, String) {
+    let radio = RadioLink::new(Firmware::Ieee802154, None);
+    let link = |dev: &str| format!("serial:{dev}?baud=115200&api=2");
+    let (rx, tx) = (link(&radio.b), link(&radio.a));
+    (radio, rx, tx)
+}
+
 #[test]
 fn sender_restart_over_a_pty_pair() {
-    let radio = RadioLink::new(Firmware::Ieee802154, None);
-    sender_restart(
-        &format!("serial:{}?baud=115200&api=2", radio.b),
-        &format!("serial:{}?baud=115200&api=2", radio.a),
-    );
+    let (_radio, rx, tx) = pty_links();
+    sender_restart(&rx, &tx);
 }
 
 #[test]
@@ -349,9 +355,6 @@ fn receiver_restart_over_udp() {
 
 #[test]
 fn receiver_restart_over_a_pty_pair() {
-    let radio = RadioLink::new(Firmware::Ieee802154, None);
-    receiver_restart(
-        &format!("serial:{}?baud=115200&api=2", radio.b),
-        &format!("serial:{}?baud=115200&api=2", radio.a),
-    );
+    let (_radio, rx, tx) = pty_links();
+    receiver_restart(&rx, &tx);
 }

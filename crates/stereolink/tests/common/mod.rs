@@ -18,6 +18,20 @@ pub fn spawn<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> Child {
         .unwrap()
 }
 
+/// Runs the binary to its end, asserts success, returns its stdout.
+pub fn run_ok(args: &[&str]) -> String {
+    let out = Command::new(env!("CARGO_BIN_EXE_stereolink"))
+        .args(args)
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    String::from_utf8(out.stdout).unwrap()
+}
+
 /// Waits for a process, asserts success, returns its stdout.
 pub fn finish(child: Child, what: &str) -> String {
     let out = child.wait_with_output().unwrap();
