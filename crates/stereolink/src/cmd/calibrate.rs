@@ -27,7 +27,7 @@ const GUIDE_ROWS: usize = 32;
 Examples:
   stereolink calibrate --board 9x6 --square 0.025 \\
       --left 'shots/left*.jpg' --right 'shots/right*.jpg' -o stereo.yml
-  stereolink capture --camera-left /dev/video0 --camera-right /dev/video2 --out shots --frames 25
+  stereolink capture --camera-left /dev/video0 --camera-right /dev/video2 --out shots --frames 25 --interval-s 3
   stereolink rectify L.png R.png --calib stereo.yml -o rectified/ --guides
 
 Take 15-30 pairs with the whole board in both views, tilted 20-45° in
