@@ -26,7 +26,7 @@ const GUIDE_ROWS: usize = 32;
 #[command(after_long_help = "\
 Examples:
   stereolink calibrate --board 9x6 --square 0.025 \\
-      --left 'shots/left*.jpg' --right 'shots/right*.jpg' -o stereo.yml
+      --left 'shots/left_*.png' --right 'shots/right_*.png' -o stereo.yml
   stereolink capture --camera-left /dev/video0 --camera-right /dev/video2 --out shots --frames 25 --interval-s 3
   stereolink rectify L.png R.png --calib stereo.yml -o rectified/ --guides
 
