@@ -84,8 +84,9 @@ impl Distortion {
             let dradial = self.k1 + r2 * (2.0 * self.k2 + 3.0 * r2 * self.k3);
             let f = self.apply(p) - distorted;
             let j00 = radial + 2.0 * x * x * dradial + 2.0 * self.p1 * y + 6.0 * self.p2 * x;
+            // The Jacobian is symmetric: ∂x'/∂y = ∂y'/∂x.
             let j01 = 2.0 * x * y * dradial + 2.0 * self.p1 * x + 2.0 * self.p2 * y;
-            let j10 = 2.0 * x * y * dradial + 2.0 * self.p1 * x + 2.0 * self.p2 * y;
+            let j10 = j01;
             let j11 = radial + 2.0 * y * y * dradial + 6.0 * self.p1 * y + 2.0 * self.p2 * x;
             let det = j00 * j11 - j01 * j10;
             if det.abs() < 1e-12 {

@@ -252,16 +252,7 @@ impl<P: Read + Write> AtQueries<'_, P> {
         while Instant::now() < until {
             let n = match self.port.read(&mut buf) {
                 Ok(n) => n,
-                Err(e)
-                    if matches!(
-                        e.kind(),
-                        io::ErrorKind::WouldBlock
-                            | io::ErrorKind::TimedOut
-                            | io::ErrorKind::Interrupted
-                    ) =>
-                {
-                    0
-                }
+                Err(e) if crate::transport::no_data_yet(&e) => 0,
                 Err(e) => return Err(RadioError::Io(e)),
             };
             for &b in &buf[..n] {

@@ -8,6 +8,15 @@ use std::net::{SocketAddr, UdpSocket};
 use std::time::{Duration, Instant};
 
 use crate::radio::{self, Address, Firmware};
+
+/// Whether a serial read failed only because no byte came in time (or a
+/// signal interrupted it): the caller waits on, it is not an error.
+pub(crate) fn no_data_yet(e: &io::Error) -> bool {
+    matches!(
+        e.kind(),
+        io::ErrorKind::WouldBlock | io::ErrorKind::TimedOut | io::ErrorKind::Interrupted
+    )
+}
 use crate::slip;
 use crate::xbee::{ApiMode, Frame, Parser};
 
@@ -207,13 +216,7 @@ impl<P: Read + Write + Send> Transport for Serial<P> {
                     self.feed(&buf[..n]);
                     continue;
                 }
-                Err(e)
-                    if matches!(
-                        e.kind(),
-                        io::ErrorKind::WouldBlock
-                            | io::ErrorKind::TimedOut
-                            | io::ErrorKind::Interrupted
-                    ) => {}
+                Err(e) if no_data_yet(&e) => {}
                 Err(e) => return Err(e),
             }
             if Instant::now() >= until {

@@ -80,10 +80,10 @@ impl CalibArgs {
             doffs: self.doffs,
             ndisp,
         };
-        let mut rectifier = None;
+        let mut stereo = None;
         if let Some(p) = &self.calib {
             let sensor = Sensor::from_file(p, metres_per_unit(&self.calib_units), ndisp)?;
-            rectifier = sensor.rectifier;
+            stereo = sensor.stereo;
             c = sensor.depth;
         }
         if let Some(p) = &self.calib_toml {
@@ -104,9 +104,6 @@ impl CalibArgs {
         }
         c.focal_px = self.focal_px.or(c.focal_px);
         c.baseline_m = self.baseline_m.or(c.baseline_m);
-        Ok(Sensor {
-            rectifier,
-            depth: c,
-        })
+        Ok(Sensor { stereo, depth: c })
     }
 }

@@ -83,7 +83,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         let sensor =
             Sensor::from_file(path, metres_per_unit(&args.calib_units), scene.calib.ndisp)?;
         anyhow::ensure!(
-            sensor.rectifier.is_some(),
+            sensor.stereo.is_some(),
             "{}: not a stereo calibration YAML; a scene's own calib.txt is read without --calib",
             path.display()
         );

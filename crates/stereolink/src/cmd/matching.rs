@@ -235,7 +235,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         height: left.height(),
         time_ms,
         valid_fraction: valid,
-        rectified: sensor.rectifier.is_some(),
+        rectified: sensor.stereo.is_some(),
         focal_px: c.focal_px,
         baseline_m: c.baseline_m,
         doffs: c.doffs,

@@ -154,7 +154,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     let mut sender = Sender {
         ep,
         calib: sensor.depth,
-        rectifier: sensor.rectifier,
+        rectifier: sensor.rectifier()?,
         rectified: Default::default(),
         cfg,
         save: args.save.clone(),
