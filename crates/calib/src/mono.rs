@@ -94,10 +94,19 @@ pub(crate) fn push_residuals(
     }
 }
 
-/// The RMS of residual pairs: `sqrt(Σ(dx² + dy²) / pairs)`.
-pub(crate) fn rms(residuals: &[f64]) -> f64 {
-    let pairs = (residuals.len() / 2).max(1) as f64;
-    (residuals.iter().map(|r| r * r).sum::<f64>() / pairs).sqrt()
+/// Each block's RMS error, `sqrt(Σ(dx² + dy²) / pairs)`, and the RMS over
+/// all blocks (each block has the same number of corners: one board).
+pub(crate) fn block_rms(problem: &impl BlockProblem, x: &[f64]) -> (Vec<f64>, f64) {
+    let mut residuals = Vec::new();
+    let each: Vec<f64> = (0..problem.blocks())
+        .map(|b| {
+            problem.residuals(b, x, &mut residuals);
+            let pairs = (residuals.len() / 2).max(1) as f64;
+            (residuals.iter().map(|r| r * r).sum::<f64>() / pairs).sqrt()
+        })
+        .collect();
+    let all = (each.iter().map(|r| r * r).sum::<f64>() / each.len().max(1) as f64).sqrt();
+    (each, all)
 }
 
 struct Mono<'a> {
@@ -173,14 +182,7 @@ pub fn calibrate_camera(
     let poses: Vec<Pose> = (0..views.len())
         .map(|i| pose_from(&fit.x[INTRINSICS + 6 * i..]))
         .collect();
-    let mut residuals = Vec::new();
-    let view_rms: Vec<f64> = (0..views.len())
-        .map(|b| {
-            problem.residuals(b, &fit.x, &mut residuals);
-            rms(&residuals)
-        })
-        .collect();
-    let all = (view_rms.iter().map(|r| r * r).sum::<f64>() / view_rms.len() as f64).sqrt();
+    let (view_rms, all) = block_rms(&problem, &fit.x);
     let sd = fit.std_devs();
     let std_devs: [f64; INTRINSICS] = std::array::from_fn(|i| sd[i]);
     let warnings = focal_warnings(&camera, &std_devs);

@@ -12,8 +12,8 @@ use nalgebra::{Point2, Point3, Vector3};
 
 use crate::lm::{minimise, BlockProblem, LmOptions};
 use crate::mono::{
-    calibrate_camera, camera_from, camera_params, check_views, focal_warnings, pose_from,
-    pose_params, push_residuals, rms, INTRINSICS,
+    block_rms, calibrate_camera, camera_from, camera_params, check_views, focal_warnings,
+    pose_from, pose_params, push_residuals, INTRINSICS,
 };
 use crate::{Error, MonoCalibration, Pose, Result, StereoRig};
 
@@ -138,14 +138,7 @@ pub fn calibrate_stereo(
         rotation: between.matrix(),
         translation: between.translation,
     };
-    let mut residuals = Vec::new();
-    let pair_rms: Vec<f64> = (0..left.len())
-        .map(|b| {
-            problem.residuals(b, &fit.x, &mut residuals);
-            rms(&residuals)
-        })
-        .collect();
-    let all = (pair_rms.iter().map(|r| r * r).sum::<f64>() / pair_rms.len() as f64).sqrt();
+    let (pair_rms, all) = block_rms(&problem, &fit.x);
     let sd = fit.std_devs();
     let mut warnings = focal_warnings(&rig.left, &std::array::from_fn(|i| sd[i]));
     warnings.extend(focal_warnings(
