@@ -352,6 +352,11 @@ impl Sender {
         self.state
     }
 
+    /// Fragments of the current message acknowledged, and how many it has.
+    pub fn progress(&self) -> (usize, usize) {
+        (self.acked.iter().filter(|&&a| a).count(), self.count)
+    }
+
     /// Counters of the current (or last) message.
     pub fn counters(&self) -> SendCounters {
         self.counters

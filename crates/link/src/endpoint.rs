@@ -11,7 +11,7 @@ use rand::rngs::OsRng;
 use rand::RngCore;
 
 use crate::arq::{ArqError, Config, Micros, Receiver, Segment, SendState, Sender, SessionId};
-use crate::transport::Transport;
+use crate::transport::{LinkStats, Notice, Transport};
 
 /// Everything that can end a send or receive.
 #[derive(Debug)]
@@ -73,6 +73,32 @@ impl SendStats {
 /// waited that long with nothing heard back (see [`Endpoint::on_silence`]).
 pub type SilenceNotice = Box<dyn FnOnce(Duration)>;
 
+/// Where a message being sent stands (see [`Endpoint::on_progress`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Progress {
+    /// Fragments acknowledged so far.
+    pub acked: usize,
+    /// Fragments of the message.
+    pub fragments: usize,
+    /// Message bytes.
+    pub bytes: u64,
+    /// Retransmitted segments so far.
+    pub retransmissions: u64,
+    /// Time since the send began.
+    pub elapsed: Duration,
+}
+
+impl Progress {
+    /// Acknowledged message bits per second so far.
+    pub fn goodput_bps(&self) -> f64 {
+        let done = self.bytes as f64 * self.acked as f64 / self.fragments.max(1) as f64;
+        done * 8.0 / self.elapsed.as_secs_f64().max(1e-9)
+    }
+}
+
+/// How often [`Endpoint::on_progress`]'s callback is called during a send.
+pub const PROGRESS_EVERY: Duration = Duration::from_millis(200);
+
 /// A message endpoint over a transport.
 pub struct Endpoint {
     transport: Box<dyn Transport>,
@@ -85,6 +111,8 @@ pub struct Endpoint {
     /// When a valid segment last arrived.
     last_heard: Option<Instant>,
     silence: Option<(Duration, SilenceNotice)>,
+    progress: Option<Box<dyn FnMut(&Progress)>>,
+    notices: Option<Box<dyn FnMut(Notice)>>,
 }
 
 /// Longest single wait inside the loops, so timers and peers are served.
@@ -115,6 +143,8 @@ impl Endpoint {
             failures: VecDeque::new(),
             last_heard: None,
             silence: None,
+            progress: None,
+            notices: None,
         })
     }
 
@@ -128,6 +158,23 @@ impl Endpoint {
     /// misconfigured); the send goes on retrying until its deadline.
     pub fn on_silence(&mut self, after: Duration, notice: SilenceNotice) {
         self.silence = Some((after, notice));
+    }
+
+    /// Calls `report` every [`PROGRESS_EVERY`] while a message is sent, and
+    /// once when it is done.
+    pub fn on_progress(&mut self, report: Box<dyn FnMut(&Progress)>) {
+        self.progress = Some(report);
+    }
+
+    /// Passes on what the transport has to say about the link ([`Notice`]);
+    /// without a callback the notices are dropped.
+    pub fn on_notice(&mut self, notice: Box<dyn FnMut(Notice)>) {
+        self.notices = Some(notice);
+    }
+
+    /// What the transport measured (damaged frames, the radio's statuses).
+    pub fn link_stats(&self) -> LinkStats {
+        self.transport.stats()
     }
 
     /// The transport's description.
@@ -173,7 +220,25 @@ impl Endpoint {
         if let Some(Err((_, e))) = self.receiver.poll(self.now()) {
             self.failures.push_back(e);
         }
+        let notices = self.transport.take_notices();
+        if let Some(say) = self.notices.as_mut() {
+            notices.into_iter().for_each(say);
+        }
         Ok(())
+    }
+
+    fn report_progress(&mut self, start: Instant) {
+        if let Some(report) = self.progress.as_mut() {
+            let (acked, fragments) = self.sender.progress();
+            let c = self.sender.counters();
+            report(&Progress {
+                acked,
+                fragments,
+                bytes: c.message_bytes,
+                retransmissions: c.retransmissions,
+                elapsed: start.elapsed(),
+            });
+        }
     }
 
     /// Sends one message and waits until every fragment is acknowledged.
@@ -182,7 +247,12 @@ impl Endpoint {
         self.sender
             .start(message, self.now())
             .map_err(LinkError::Arq)?;
+        let mut reported = start;
         loop {
+            if reported.elapsed() >= PROGRESS_EVERY {
+                reported = Instant::now();
+                self.report_progress(start);
+            }
             while let Some(seg) = self.sender.poll_transmit(self.now()) {
                 self.transport.send(&seg)?;
                 // Take in ACKs between segments, so a long send never starves them.
@@ -194,6 +264,7 @@ impl Endpoint {
                     return Err(LinkError::NoAnswer(start.elapsed()))
                 }
                 SendState::Done => {
+                    self.report_progress(start);
                     let c = self.sender.counters();
                     return Ok(SendStats {
                         bytes: c.message_bytes,

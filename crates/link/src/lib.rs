@@ -6,7 +6,8 @@
 //!
 //! 1. **Radio frame** ([`xbee`], [`slip`]): XBee API frames (modes 1 and 2) or,
 //!    in transparent mode, SLIP frames with a CRC-16; [`radio`] asks the local
-//!    radio its firmware and payload size and picks the transmit request.
+//!    radio its firmware and payload size and picks the transmit request;
+//!    [`pacing`] keeps a few requests at the radio, paced by their status.
 //! 2. **Link segment** ([`arq`], wire version 2): DATA fragments (sender
 //!    session, message id, index, count), cumulative + bitmap ACKs naming
 //!    both sessions, FAIL; a CRC-16 on each.
@@ -25,6 +26,7 @@ extern crate alloc;
 
 pub mod arq;
 pub mod crc;
+pub mod pacing;
 pub mod slip;
 pub mod xbee;
 
@@ -32,6 +34,8 @@ pub mod xbee;
 pub mod endpoint;
 #[cfg(feature = "std")]
 pub mod radio;
+#[cfg(feature = "std")]
+pub mod serial;
 #[cfg(feature = "std")]
 pub mod sim;
 #[cfg(feature = "std")]

@@ -6,7 +6,8 @@
 //!   broadcast) or its 64-bit `SH`/`SL` (`dest=0x0013A20040522BAA`: more than
 //!   four hex digits). `radio=auto` asks the radio its firmware and `NP` when
 //!   the link opens ([`crate::radio::ask`]); `radio=802.15.4|zigbee|digimesh`
-//!   names the family and asks nothing;
+//!   names the family and asks nothing; `flow=rtscts` turns on RTS/CTS
+//!   hardware flow control (set D6=1 and D7=1 on the radio);
 //! * `udp:127.0.0.1:9001?peer=127.0.0.1:9000` — bind locally, send to `peer`
 //!   (without `peer`, answer whoever sends first);
 //! * `sim:?loss=0.1&seed=3&baud=115200&mac_retries=0&ber=0&dup=0&reorder=0&speedup=20` —
@@ -43,6 +44,8 @@ pub enum LinkSpec {
         baud: u32,
         api: Option<ApiSpec>,
         mtu: usize,
+        /// `flow=rtscts`: RTS/CTS hardware flow control (the radio's D6/D7).
+        rtscts: bool,
     },
     /// A UDP socket.
     Udp {
@@ -128,7 +131,7 @@ impl std::str::FromStr for LinkSpec {
                 }
                 let (mut baud, mut api, mut dest, mut mtu) =
                     (115_200u32, 2u8, Address::BROADCAST, 100usize);
-                let mut radio = None;
+                let (mut radio, mut rtscts) = (None, false);
                 for (k, v) in q {
                     match k {
                         "baud" => baud = num(k, v)?,
@@ -137,6 +140,13 @@ impl std::str::FromStr for LinkSpec {
                         "mtu" => mtu = num(k, v)?,
                         "radio" if v == "auto" => radio = None,
                         "radio" => radio = Some(v.parse()?),
+                        "flow" => {
+                            rtscts = match v {
+                                "rtscts" => true,
+                                "none" => false,
+                                _ => return Err(format!("flow={v}: expected rtscts or none")),
+                            }
+                        }
                         _ => return Err(format!("serial: unknown option {k}")),
                     }
                 }
@@ -154,6 +164,7 @@ impl std::str::FromStr for LinkSpec {
                     baud,
                     api: mode.map(|mode| ApiSpec { mode, dest, radio }),
                     mtu,
+                    rtscts,
                 })
             }
             "udp" => {
@@ -200,8 +211,17 @@ impl std::str::FromStr for LinkSpec {
     }
 }
 
-fn open_port(path: &str, baud: u32) -> std::io::Result<Box<dyn serialport::SerialPort>> {
+fn open_port(
+    path: &str,
+    baud: u32,
+    rtscts: bool,
+) -> std::io::Result<Box<dyn serialport::SerialPort>> {
+    let flow = match rtscts {
+        true => serialport::FlowControl::Hardware,
+        false => serialport::FlowControl::None,
+    };
     serialport::new(path, baud)
+        .flow_control(flow)
         .timeout(Duration::from_millis(1))
         .open()
         .map_err(|e| {
@@ -232,8 +252,9 @@ pub fn ask_radio(spec: &LinkSpec) -> std::io::Result<RadioInfo> {
             path,
             baud,
             api: Some(api),
+            rtscts,
             ..
-        } => ask_on(&mut open_port(path, *baud)?, path, *baud, api),
+        } => ask_on(&mut open_port(path, *baud, *rtscts)?, path, *baud, api),
         _ => Err(std::io::Error::new(
             std::io::ErrorKind::InvalidInput,
             "only a serial: link in API mode (api=1 or 2) has a radio to ask",
@@ -247,12 +268,12 @@ pub fn ask_radio(spec: &LinkSpec) -> std::io::Result<RadioInfo> {
 pub fn open(spec: &LinkSpec) -> std::io::Result<Box<dyn Transport>> {
     let invalid = |m: String| std::io::Error::new(std::io::ErrorKind::InvalidInput, m);
     Ok(match spec {
-        LinkSpec::Serial { path, baud, api, mtu } => {
+        LinkSpec::Serial { path, baud, api, mtu, rtscts } => {
             let name = format!("serial:{path}");
             let Some(api) = api else {
-                return Ok(Box::new(Serial::new(open_port(path, *baud)?, SerialFraming::Transparent, *mtu, name)));
+                return Ok(Box::new(Serial::new(open_port(path, *baud, *rtscts)?, SerialFraming::Transparent, *mtu, name)));
             };
-            let mut port = open_port(path, *baud)?;
+            let mut port = open_port(path, *baud, *rtscts)?;
             let (firmware, mtu) = match api.radio {
                 Some(firmware) => (firmware, *mtu),
                 None => {
@@ -293,7 +314,7 @@ mod tests {
 
     #[test]
     fn parses_every_kind() {
-        let s: LinkSpec = "serial:/dev/ttyUSB0?baud=57600&api=1&dest=0x1234"
+        let s: LinkSpec = "serial:/dev/ttyUSB0?baud=57600&api=1&dest=0x1234&flow=rtscts"
             .parse()
             .unwrap();
         assert_eq!(
@@ -306,7 +327,8 @@ mod tests {
                     dest: Address::Short(0x1234),
                     radio: None
                 }),
-                mtu: 100
+                mtu: 100,
+                rtscts: true,
             }
         );
         let z: LinkSpec = "serial:/dev/ttyUSB0?dest=0x0013A20040522BAA&radio=zigbee"
@@ -359,6 +381,7 @@ mod tests {
             "serial:/x?api=7",
             "serial:/x?radio=lora",
             "serial:/x?radio=digimesh&dest=0x1234",
+            "serial:/x?flow=xonxoff",
             "fallback:udp:1.2.3.4:5",
         ] {
             assert!(bad.parse::<LinkSpec>().is_err(), "{bad}");

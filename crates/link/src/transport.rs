@@ -1,24 +1,28 @@
 //! Transports carry link segments (one packet each, at most `mtu` bytes):
-//! a serial port to an XBee radio (API mode 1/2 or transparent mode), a UDP
-//! socket (the IP fallback), and [`Fallback`], which switches between two.
+//! a serial port to an XBee radio ([`crate::serial`]), a UDP socket (the IP
+//! fallback), and [`Fallback`], which switches between two. Below the ARQ a
+//! transport may measure the link ([`LinkStats`]) and have something to say
+//! about it once ([`Notice`]): a radio that reset, a delivery failure, a
+//! peer wired with no radio between.
 
-use std::collections::VecDeque;
-use std::io::{self, Read, Write};
+use std::fmt;
+use std::io;
 use std::net::{SocketAddr, UdpSocket};
 use std::time::{Duration, Instant};
 
-use crate::radio::{self, Address, Firmware};
+use crate::pacing::PacingCounters;
+use crate::xbee::{delivery_status_text, modem_status_text};
 
-/// Whether a serial read failed only because no byte came in time (or a
-/// signal interrupted it): the caller waits on, it is not an error.
+pub use crate::serial::{Serial, SerialFraming};
+
+/// Whether a read failed only because no byte came in time (or a signal
+/// interrupted it): the caller waits on, it is not an error.
 pub(crate) fn no_data_yet(e: &io::Error) -> bool {
     matches!(
         e.kind(),
         io::ErrorKind::WouldBlock | io::ErrorKind::TimedOut | io::ErrorKind::Interrupted
     )
 }
-use crate::slip;
-use crate::xbee::{ApiMode, Frame, Parser};
 
 /// A packet transport.
 pub trait Transport: Send {
@@ -30,6 +34,112 @@ pub trait Transport: Send {
     fn mtu(&self) -> usize;
     /// A short description for logs and reports.
     fn describe(&self) -> String;
+    /// What the transport measured so far.
+    fn stats(&self) -> LinkStats {
+        LinkStats::default()
+    }
+    /// What the transport has to say since it was last asked (each kind of
+    /// trouble once).
+    fn take_notices(&mut self) -> Vec<Notice> {
+        Vec::new()
+    }
+}
+
+/// What a transport measured below the ARQ.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct LinkStats {
+    /// Frames or packets dropped as damaged.
+    pub damaged: u64,
+    /// The radio's transmit statuses (serial links in API mode).
+    pub radio: Option<PacingCounters>,
+    /// XBee transmit requests heard from the other end: it is wired directly.
+    pub foreign_requests: u64,
+    /// Signal strength of the last received frame, in dBm (802.15.4 RX
+    /// frames carry it).
+    pub rssi_dbm: Option<i16>,
+}
+
+impl fmt::Display for LinkStats {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        write!(f, "{} damaged", self.damaged)?;
+        if let Some(r) = &self.radio {
+            write!(f, "; radio: {} delivered", r.delivered)?;
+            for (code, n) in &r.failures {
+                write!(f, ", {n} x 0x{code:02X} {}", delivery_status_text(*code))?;
+            }
+            for (n, what) in [
+                (r.resent, "resent"),
+                (r.gave_up, "left to the ARQ"),
+                (r.status_lost, "without status"),
+                (r.stray_status, "stray statuses"),
+                (r.resets, "resets"),
+            ] {
+                if n > 0 {
+                    write!(f, ", {n} {what}")?;
+                }
+            }
+        }
+        if self.foreign_requests > 0 {
+            write!(f, "; {} transmit requests heard", self.foreign_requests)?;
+        }
+        if let Some(rssi) = self.rssi_dbm {
+            write!(f, "; RSSI {rssi} dBm")?;
+        }
+        Ok(())
+    }
+}
+
+/// Something a transport says once about the link.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum Notice {
+    /// The radio reset (modem status 0x8A) and `resent` fragments it held
+    /// were sent again.
+    RadioReset { status: u8, resent: usize },
+    /// Another modem status (joined, disassociated, ...).
+    ModemStatus { status: u8 },
+    /// The first delivery failure with this status code.
+    DeliveryFailed { status: u8 },
+    /// The first transmit status for a frame id with nothing outstanding.
+    StrayStatus { frame_id: u8 },
+    /// The first transmit request whose status never came.
+    NoStatus { timeout: Duration },
+    /// XBee transmit requests arrived: the other end writes API frames
+    /// meant for its radio, so there is no radio between the two.
+    ForeignRequests,
+}
+
+impl fmt::Display for Notice {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Notice::RadioReset { status, resent } => write!(
+                f,
+                "the radio reset mid-stream ({}); {resent} fragments it held were sent again",
+                modem_status_text(*status)
+            ),
+            Notice::ModemStatus { status } => {
+                write!(f, "the radio reports: {}", modem_status_text(*status))
+            }
+            Notice::DeliveryFailed { status } => write!(
+                f,
+                "the radio could not deliver a fragment: 0x{status:02X} {} (sent again; see the link statistics)",
+                delivery_status_text(*status)
+            ),
+            Notice::StrayStatus { frame_id } => write!(
+                f,
+                "the radio sent a transmit status for frame id {frame_id}, which nothing awaits (ignored)"
+            ),
+            Notice::NoStatus { timeout } => write!(
+                f,
+                "the radio gave no transmit status within {:.0} s: is an XBee in API mode on this port, \
+                 at this baud rate? A direct cable between two computers needs api=0",
+                timeout.as_secs_f64()
+            ),
+            Notice::ForeignRequests => f.write_str(
+                "heard XBee transmit requests on this line: the other end is wired directly, \
+                 with no radio between; use api=0 on both ends, or put the radios between them",
+            ),
+        }
+    }
 }
 
 /// UDP on any address; the peer is fixed, or learnt from the first datagram.
@@ -97,140 +207,6 @@ impl Transport for Udp {
                 .local_addr()
                 .map_or("?".into(), |a| a.to_string())
         )
-    }
-}
-
-/// How packets travel over a serial line.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum SerialFraming {
-    /// XBee API frames: packets go out as the transmit request `firmware`
-    /// takes ([`radio::transmit_request`]) to `dest`, and come in as RX frames.
-    Api {
-        mode: ApiMode,
-        firmware: Firmware,
-        dest: Address,
-    },
-    /// Transparent (AT) mode or a plain USB cable: SLIP frames with a CRC-16.
-    Transparent,
-}
-
-/// A serial port to an XBee radio or a USB cable.
-pub struct Serial<P> {
-    port: P,
-    framing: SerialFraming,
-    parser: Parser,
-    deframer: slip::Deframer,
-    ready: VecDeque<Vec<u8>>,
-    mtu: usize,
-    name: String,
-    /// Frames or packets dropped as damaged (for link statistics).
-    pub damaged: u64,
-    /// Transmit status frames (0x89 / 0x8B) reporting a failed delivery.
-    pub tx_failed: u64,
-    next_frame_id: u8,
-}
-
-impl<P: Read + Write + Send> Serial<P> {
-    /// Wraps an open port (its read timeout should be short, e.g. 1 ms: a
-    /// zero-timeout receive costs one read).
-    pub fn new(port: P, framing: SerialFraming, mtu: usize, name: impl Into<String>) -> Self {
-        let mode = match framing {
-            SerialFraming::Api { mode, .. } => mode,
-            SerialFraming::Transparent => ApiMode::Plain,
-        };
-        Serial {
-            port,
-            framing,
-            parser: Parser::new(mode),
-            deframer: slip::Deframer::new(mtu.max(1) + 16),
-            ready: VecDeque::new(),
-            mtu,
-            name: name.into(),
-            damaged: 0,
-            tx_failed: 0,
-            next_frame_id: 1,
-        }
-    }
-
-    fn feed(&mut self, bytes: &[u8]) {
-        for &b in bytes {
-            match self.framing {
-                SerialFraming::Api { .. } => match self.parser.push(b) {
-                    Some(Ok(Frame::TxStatus { status, .. }))
-                    | Some(Ok(Frame::ZbTxStatus {
-                        delivery: status, ..
-                    })) => self.tx_failed += u64::from(status != 0),
-                    Some(Ok(frame)) => {
-                        if let (Some(p), false) = (
-                            frame.payload(),
-                            matches!(
-                                frame,
-                                Frame::Tx16 { .. } | Frame::Tx64 { .. } | Frame::ZbTx { .. }
-                            ),
-                        ) {
-                            self.ready.push_back(p.to_vec());
-                        }
-                    }
-                    Some(Err(_)) => self.damaged += 1,
-                    None => {}
-                },
-                SerialFraming::Transparent => match self.deframer.push(b) {
-                    Some(Ok(p)) => self.ready.push_back(p),
-                    Some(Err(_)) => self.damaged += 1,
-                    None => {}
-                },
-            }
-        }
-    }
-}
-
-impl<P: Read + Write + Send> Transport for Serial<P> {
-    fn send(&mut self, packet: &[u8]) -> io::Result<()> {
-        let bytes = match self.framing {
-            SerialFraming::Api {
-                mode,
-                firmware,
-                dest,
-            } => {
-                // Frame ids 1..=255: the radio answers each with a status.
-                let id = self.next_frame_id;
-                self.next_frame_id = id.checked_add(1).unwrap_or(1);
-                radio::transmit_request(firmware, dest, id, packet).encode(mode)
-            }
-            SerialFraming::Transparent => slip::encode(packet),
-        };
-        self.port.write_all(&bytes)?;
-        self.port.flush()
-    }
-
-    fn recv(&mut self, timeout: Duration) -> io::Result<Option<Vec<u8>>> {
-        let until = Instant::now() + timeout;
-        let mut buf = [0u8; 512];
-        loop {
-            if let Some(p) = self.ready.pop_front() {
-                return Ok(Some(p));
-            }
-            match self.port.read(&mut buf) {
-                Ok(0) => {}
-                Ok(n) => {
-                    self.feed(&buf[..n]);
-                    continue;
-                }
-                Err(e) if no_data_yet(&e) => {}
-                Err(e) => return Err(e),
-            }
-            if Instant::now() >= until {
-                return Ok(None);
-            }
-        }
-    }
-
-    fn mtu(&self) -> usize {
-        self.mtu
-    }
-
-    fn describe(&self) -> String {
-        self.name.clone()
     }
 }
 
@@ -339,6 +315,17 @@ impl Transport for Fallback {
             self.links[0].describe(),
             self.links[1].describe()
         )
+    }
+
+    /// The primary's statistics (the radio, usually).
+    fn stats(&self) -> LinkStats {
+        self.links[0].stats()
+    }
+
+    fn take_notices(&mut self) -> Vec<Notice> {
+        let mut notices = self.links[0].take_notices();
+        notices.extend(self.links[1].take_notices());
+        notices
     }
 }
 

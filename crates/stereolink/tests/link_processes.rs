@@ -8,7 +8,7 @@ mod common;
 use std::process::Command;
 use std::time::{Duration, Instant};
 
-use common::xbee::{Firmware, RadioLink};
+use common::xbee::{Cable, Firmware, RadioLink};
 use common::{finish, free_port, spawn, synth};
 
 fn link_test(link: &str, role: &str, count: &str, size: &str) -> std::process::Child {
@@ -131,4 +131,53 @@ fn send_to_nobody_says_what_to_check_and_fails_at_its_deadline() {
         "gave up after {elapsed:?}"
     );
     assert!(elapsed < Duration::from_secs(60), "took {elapsed:?}");
+}
+
+/// Both ends in API mode joined by a plain cable, with no radio between (a
+/// common wiring mistake): the sender says that no transmit status comes
+/// back and what to check, the receiver says once that it hears transmit
+/// requests meant for a radio; neither hangs.
+#[test]
+fn api_mode_over_a_direct_cable_says_what_is_wrong_on_both_ends() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("scene");
+    synth(&scene);
+    let cable = Cable::new();
+    let link = |path: &str| format!("serial:{path}?api=2&radio=802.15.4&dest=0x0002");
+    let rx = spawn(&["receive", "--link", &link(&cable.b), "--timeout-s", "8"]);
+    let start = Instant::now();
+    let tx = spawn(&[
+        "send",
+        "--link",
+        &link(&cable.a),
+        "--left",
+        scene.join("left.png").to_str().unwrap(),
+        "--right",
+        scene.join("right.png").to_str().unwrap(),
+        "--max-disp",
+        "23",
+        "--method",
+        "kmeans",
+        "--deadline-s",
+        "6",
+    ])
+    .wait_with_output()
+    .unwrap();
+    assert!(
+        start.elapsed() < Duration::from_secs(20),
+        "{:?}",
+        start.elapsed()
+    );
+    let sent = String::from_utf8_lossy(&tx.stderr);
+    assert!(!tx.status.success());
+    assert!(sent.contains("no transmit status"), "{sent}");
+    assert!(sent.contains("api=0"), "{sent}");
+    let got = rx.wait_with_output().unwrap();
+    let heard = String::from_utf8_lossy(&got.stderr);
+    assert_eq!(
+        heard.matches("heard XBee transmit requests").count(),
+        1,
+        "{heard}"
+    );
+    assert!(heard.contains("wired directly"), "{heard}");
 }

@@ -63,6 +63,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     let mut ep = Endpoint::new(
         spec::open(&spec).with_context(|| format!("cannot open link {}", args.link))?,
     )?;
+    ep.on_notice(Box::new(|notice| eprintln!("link: {notice}")));
     let mut board = BoardReceiver::new(args.max_disp, 9, Duration::from_secs(args.watchdog_s));
     board.policy = MotionPolicy {
         standoff_mm: args.standoff_mm,
@@ -136,6 +137,9 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         if !out.json {
             println!("axis at {pos:.3} mm");
         }
+    }
+    if !out.json {
+        println!("link: {}", ep.link_stats());
     }
     if out.json {
         out.emit(&events, String::new)?;

@@ -4,6 +4,7 @@
 //! All three feed one loop ([`Pairs`]): take a pair, prepare it, send it.
 
 use std::collections::VecDeque;
+use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
@@ -12,7 +13,7 @@ use serde::Serialize;
 use stereolink_calib::StereoRectifier;
 use stereolink_image::{io, Calibration, RgbImage};
 use stereolink_link::arq::Config;
-use stereolink_link::endpoint::Endpoint;
+use stereolink_link::endpoint::{Endpoint, Progress};
 use stereolink_link::spec;
 use stereolink_stereo::depth::{LevelSpec, Roi};
 
@@ -122,6 +123,8 @@ struct Sent {
     match_ms: f64,
     encode_ms: f64,
     send_ms: f64,
+    /// What the link measured so far (damaged frames, the radio's statuses).
+    link: String,
 }
 
 /// Prepares and sends the pair, or each pair of the watched folder.
@@ -151,6 +154,10 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         SILENCE_HINT,
         Box::new(move |silent| eprintln!("{}", silence_hint(&link, silent, deadline_s))),
     );
+    ep.on_notice(Box::new(|notice| eprintln!("link: {notice}")));
+    if std::io::stderr().is_terminal() {
+        ep.on_progress(progress_bar());
+    }
     let mut sender = Sender {
         ep,
         calib: sensor.depth,
@@ -208,6 +215,26 @@ and the baud rate (baud=)?
   - is this a direct cable or USB link with no radios between the ends? then both need api=0",
         silent.as_secs_f64()
     )
+}
+
+/// A terminal progress bar for each message: fragments acknowledged, the
+/// goodput so far and the retransmissions; cleared when the message is done.
+fn progress_bar() -> Box<dyn FnMut(&Progress)> {
+    let mut bar: Option<indicatif::ProgressBar> = None;
+    Box::new(move |p: &Progress| {
+        let b = bar.get_or_insert_with(|| super::progress(p.fragments as u64, "sending"));
+        b.set_position(p.acked as u64);
+        b.set_message(format!(
+            "fragments, {:.1} kb/s, {} retransmissions",
+            p.goodput_bps() / 1e3,
+            p.retransmissions
+        ));
+        if p.acked == p.fragments {
+            if let Some(b) = bar.take() {
+                b.finish_and_clear();
+            }
+        }
+    })
 }
 
 /// The open link and what every frame is prepared with.
@@ -395,6 +422,7 @@ impl Sender {
             match_ms,
             encode_ms,
             send_ms: seconds * 1e3,
+            link: self.ep.link_stats().to_string(),
         };
         if !self.json {
             println!(
@@ -411,6 +439,7 @@ impl Sender {
                 "  timing: capture wait {:.1} ms, rectify {:.1} ms, segment {:.1} ms, match {:.1} ms, encode {:.1} ms, send {:.1} ms; {} pairs skipped",
                 s.wait_ms, s.rectify_ms, s.segment_ms, s.match_ms, s.encode_ms, s.send_ms, s.skipped
             );
+            println!("  link: {}", s.link);
         }
         self.sent.push(s);
         Ok(())

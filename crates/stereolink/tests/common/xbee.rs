@@ -355,3 +355,54 @@ impl Drop for RadioLink {
         }
     }
 }
+
+/// Two pty pairs joined by a plain cable with no radio between (a common
+/// wiring mistake): what one host writes, the other reads, byte for byte.
+pub struct Cable {
+    /// Device path of the first end.
+    pub a: String,
+    /// Device path of the second end.
+    pub b: String,
+    stop: Arc<AtomicBool>,
+    threads: Vec<JoinHandle<()>>,
+    _slaves: Vec<TTYPort>,
+}
+
+impl Cable {
+    pub fn new() -> Self {
+        use serialport::SerialPort;
+        let ((m1, s1), (m2, s2)) = (pty(), pty());
+        let stop = Arc::new(AtomicBool::new(false));
+        let copy = |mut from: TTYPort, mut to: TTYPort, stop: Arc<AtomicBool>| {
+            std::thread::spawn(move || {
+                let mut buf = [0u8; 256];
+                while !stop.load(Ordering::Relaxed) {
+                    if let Ok(n) = from.read(&mut buf) {
+                        let _ = to.write_all(&buf[..n]);
+                    }
+                }
+            })
+        };
+        let (r1, r2) = (
+            m1.try_clone_native().unwrap(),
+            m2.try_clone_native().unwrap(),
+        );
+        let threads = vec![copy(m1, r2, stop.clone()), copy(m2, r1, stop.clone())];
+        Cable {
+            a: s1.name().unwrap(),
+            b: s2.name().unwrap(),
+            stop,
+            threads,
+            _slaves: vec![s1, s2],
+        }
+    }
+}
+
+impl Drop for Cable {
+    fn drop(&mut self) {
+        self.stop.store(true, Ordering::Relaxed);
+        for t in self.threads.drain(..) {
+            let _ = t.join();
+        }
+    }
+}
