@@ -96,6 +96,12 @@ impl Progress {
     }
 }
 
+/// Called with the progress of a message being sent ([`Endpoint::on_progress`]).
+pub type ProgressReport = Box<dyn FnMut(&Progress)>;
+
+/// Called with each notice of the transport ([`Endpoint::on_notice`]).
+pub type NoticeReport = Box<dyn FnMut(Notice)>;
+
 /// How often [`Endpoint::on_progress`]'s callback is called during a send.
 pub const PROGRESS_EVERY: Duration = Duration::from_millis(200);
 
@@ -111,8 +117,8 @@ pub struct Endpoint {
     /// When a valid segment last arrived.
     last_heard: Option<Instant>,
     silence: Option<(Duration, SilenceNotice)>,
-    progress: Option<Box<dyn FnMut(&Progress)>>,
-    notices: Option<Box<dyn FnMut(Notice)>>,
+    progress: Option<ProgressReport>,
+    notices: Option<NoticeReport>,
 }
 
 /// Longest single wait inside the loops, so timers and peers are served.
@@ -162,13 +168,13 @@ impl Endpoint {
 
     /// Calls `report` every [`PROGRESS_EVERY`] while a message is sent, and
     /// once when it is done.
-    pub fn on_progress(&mut self, report: Box<dyn FnMut(&Progress)>) {
+    pub fn on_progress(&mut self, report: ProgressReport) {
         self.progress = Some(report);
     }
 
     /// Passes on what the transport has to say about the link ([`Notice`]);
     /// without a callback the notices are dropped.
-    pub fn on_notice(&mut self, notice: Box<dyn FnMut(Notice)>) {
+    pub fn on_notice(&mut self, notice: NoticeReport) {
         self.notices = Some(notice);
     }
 

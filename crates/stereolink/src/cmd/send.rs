@@ -13,7 +13,7 @@ use serde::Serialize;
 use stereolink_calib::StereoRectifier;
 use stereolink_image::{io, Calibration, RgbImage};
 use stereolink_link::arq::Config;
-use stereolink_link::endpoint::{Endpoint, Progress};
+use stereolink_link::endpoint::{Endpoint, Progress, ProgressReport};
 use stereolink_link::spec;
 use stereolink_stereo::depth::{LevelSpec, Roi};
 
@@ -219,7 +219,7 @@ and the baud rate (baud=)?
 
 /// A terminal progress bar for each message: fragments acknowledged, the
 /// goodput so far and the retransmissions; cleared when the message is done.
-fn progress_bar() -> Box<dyn FnMut(&Progress)> {
+fn progress_bar() -> ProgressReport {
     let mut bar: Option<indicatif::ProgressBar> = None;
     Box::new(move |p: &Progress| {
         let b = bar.get_or_insert_with(|| super::progress(p.fragments as u64, "sending"));
