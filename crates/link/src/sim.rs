@@ -1,9 +1,12 @@
-//! A simulated XBee 802.15.4 link, seeded and deterministic.
+//! A simulated XBee link, 802.15.4 or ZigBee firmware, seeded and
+//! deterministic.
 //!
 //! Each packet crosses the sender's UART (10 bits a byte at `baud`, wrapped
-//! in a TX16 API frame: 9 bytes of overhead), the air (250 kb/s plus
-//! 802.15.4 PHY/MAC overhead, MAC acknowledgement and turnaround; the air is
-//! shared by both directions), then the receiver's UART. A transmission
+//! in the firmware's transmit request: TX16 0x01 adds 9 bytes, ZigBee 0x10
+//! adds 18), the air (250 kb/s plus the PHY/MAC overhead, and on ZigBee the
+//! network and APS headers, MAC acknowledgement, APS acknowledgement and
+//! turnaround; the air is shared by both directions), then the receiver's
+//! UART (RX16 0x81 adds 9 bytes, ZigBee 0x90 adds 16). A transmission
 //! attempt is lost with probability `loss`; the MAC retries `mac_retries`
 //! times. Delivered packets may get a flipped bit (`bit_error`), be
 //! duplicated (`duplicate`) or delayed past their successors (`reorder`).
@@ -21,6 +24,7 @@ use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 
 use crate::arq::{ArqError, Config, Micros, Receiver, Segment, SendState, Sender, SessionId};
+use crate::radio::Firmware;
 use crate::transport::Transport;
 
 /// Channel model parameters.
@@ -44,6 +48,8 @@ pub struct SimConfig {
     pub reorder: f64,
     /// Seed of every random choice.
     pub seed: u64,
+    /// The radios' firmware: their frame and air overheads.
+    pub radio: Firmware,
 }
 
 impl Default for SimConfig {
@@ -58,30 +64,64 @@ impl Default for SimConfig {
             duplicate: 0.0,
             reorder: 0.0,
             seed: 1,
+            radio: Firmware::Ieee802154,
         }
     }
 }
 
 /// Bytes an XBee TX16 API frame adds around a payload on the UART.
 pub const API_OVERHEAD: usize = 9;
-/// 802.15.4 PHY (6) and MAC (short addressing, 11) bytes around a payload.
-const AIR_OVERHEAD: usize = 17;
-/// MAC ACK frame, turnaround and average backoff, µs.
-const AIR_FIXED_US: f64 = 1_100.0;
+
+/// What a firmware adds around a payload, on the UART and on the air.
+struct Overheads {
+    /// Transmit request (host to radio).
+    uart_tx: usize,
+    /// Receive frame (radio to host).
+    uart_rx: usize,
+    /// PHY, MAC (short addressing) and, on ZigBee, NWK and APS headers.
+    air: usize,
+    /// Acknowledgements, turnaround and average backoff, µs.
+    air_fixed_us: f64,
+}
+
+fn overheads(radio: Firmware) -> Overheads {
+    match radio {
+        // TX16 / RX16; PHY 6 + MAC 11; MAC ACK, turnaround and backoff.
+        Firmware::Ieee802154 => Overheads {
+            uart_tx: API_OVERHEAD,
+            uart_rx: API_OVERHEAD,
+            air: 17,
+            air_fixed_us: 1_100.0,
+        },
+        // 0x10 / 0x90; PHY 6 + MAC 11 + NWK 8 + APS 8; the MAC ACK as on
+        // 802.15.4, plus the APS acknowledgement frame (33 bytes) with its
+        // own MAC ACK and backoff.
+        Firmware::Zigbee | Firmware::DigiMesh => Overheads {
+            uart_tx: 18,
+            uart_rx: 16,
+            air: 33,
+            air_fixed_us: 1_100.0 + 33.0 * 32.0 + 1_100.0,
+        },
+    }
+}
 
 impl SimConfig {
-    fn uart_us(&self, payload: usize) -> f64 {
-        (payload + API_OVERHEAD) as f64 * 10.0 * 1e6 / self.baud as f64
+    fn uart_us(&self, payload: usize, overhead: usize) -> f64 {
+        (payload + overhead) as f64 * 10.0 * 1e6 / self.baud as f64
     }
 
     fn air_us(&self, payload: usize) -> f64 {
-        (payload + AIR_OVERHEAD) as f64 * 8.0 * 1e6 / self.air_bps as f64 + AIR_FIXED_US
+        let o = overheads(self.radio);
+        (payload + o.air) as f64 * 8.0 * 1e6 / self.air_bps as f64 + o.air_fixed_us
     }
 
-    /// The goodput bound set by the UART and API frame overhead, in bit/s:
-    /// `baud / 10 · mtu / (mtu + 9) · 8` (84.5 kb/s at 115200 baud, 100 bytes).
+    /// The goodput bound set by the UART and the transmit request's
+    /// overhead, in bit/s: `baud / 10 · mtu / (mtu + overhead) · 8` (84.6
+    /// kb/s at 115200 baud with 100-byte 802.15.4 payloads, 75.9 kb/s with
+    /// 84-byte ZigBee ones).
     pub fn bound_bps(&self) -> f64 {
-        self.baud as f64 / 10.0 * self.mtu as f64 / (self.mtu + API_OVERHEAD) as f64 * 8.0
+        let overhead = overheads(self.radio).uart_tx;
+        self.baud as f64 / 10.0 * self.mtu as f64 / (self.mtu + overhead) as f64 * 8.0
     }
 }
 
@@ -112,7 +152,8 @@ impl Channel {
     fn send(&mut self, from: usize, now: f64, packet: &[u8]) -> (Vec<(f64, Vec<u8>)>, f64) {
         let to = 1 - from;
         let cfg = self.cfg;
-        let uart_done = now.max(self.uart_tx[from]) + cfg.uart_us(packet.len());
+        let o = overheads(cfg.radio);
+        let uart_done = now.max(self.uart_tx[from]) + cfg.uart_us(packet.len(), o.uart_tx);
         self.uart_tx[from] = uart_done;
         let mut t = uart_done.max(self.air);
         let mut delivered = false;
@@ -132,14 +173,14 @@ impl Channel {
             let bit = self.rng.gen_range(0..bytes.len() * 8);
             bytes[bit / 8] ^= 1 << (bit % 8);
         }
-        let mut arrive = t.max(self.uart_rx[to]) + cfg.uart_us(packet.len());
+        let mut arrive = t.max(self.uart_rx[to]) + cfg.uart_us(packet.len(), o.uart_rx);
         self.uart_rx[to] = arrive;
         if self.rng.gen_bool(cfg.reorder.clamp(0.0, 1.0)) {
-            arrive += cfg.uart_us(cfg.mtu) * self.rng.gen_range(2.0..6.0);
+            arrive += cfg.uart_us(cfg.mtu, o.uart_rx) * self.rng.gen_range(2.0..6.0);
         }
         let mut out = vec![(arrive, bytes.clone())];
         if self.rng.gen_bool(cfg.duplicate.clamp(0.0, 1.0)) {
-            out.push((arrive + cfg.uart_us(packet.len()), bytes));
+            out.push((arrive + cfg.uart_us(packet.len(), o.uart_rx), bytes));
         }
         (out, uart_done)
     }
@@ -398,38 +439,46 @@ mod tests {
         (0..n).map(|_| r.gen()).collect()
     }
 
+    /// On both firmwares' models, against the bound for message bytes (each
+    /// segment carries DATA_OVERHEAD bytes of header and CRC).
     #[test]
     fn goodput_targets_at_zero_and_ten_percent_loss() {
-        let sim = SimConfig::default();
-        let raw = sim.bound_bps();
-        assert!((raw - 84_550.0).abs() < 100.0, "{raw}");
-        // The bound for message bytes: each 100-byte segment carries
-        // DATA_OVERHEAD bytes of header and CRC.
-        let cfg = Config::for_mtu(100);
-        let bound = raw * cfg.fragment_size() as f64 / cfg.mtu as f64;
+        let zigbee = SimConfig {
+            radio: Firmware::Zigbee,
+            mtu: 84,
+            ..SimConfig::default()
+        };
+        assert!((SimConfig::default().bound_bps() - 84_550.0).abs() < 100.0);
+        assert!((zigbee.bound_bps() - 75_900.0).abs() < 100.0);
         let msg = message(30_000, 1);
-        let clean = transfer(sim, Config::for_mtu(100), &msg);
-        assert!(clean.delivered && clean.retransmissions == 0, "{clean:?}");
-        assert!(
-            clean.goodput_bps >= 0.96 * bound,
-            "0 %: {:.0} of {bound:.0}",
-            clean.goodput_bps
-        );
-        let lossy = transfer(
-            SimConfig {
-                loss: 0.1,
-                seed: 2,
-                ..sim
-            },
-            Config::for_mtu(100),
-            &msg,
-        );
-        assert!(lossy.delivered, "{lossy:?}");
-        assert!(
-            lossy.goodput_bps >= 0.76 * bound,
-            "10 %: {:.0} of {bound:.0}",
-            lossy.goodput_bps
-        );
+        for sim in [SimConfig::default(), zigbee] {
+            let cfg = Config::for_mtu(sim.mtu);
+            let bound = sim.bound_bps() * cfg.fragment_size() as f64 / cfg.mtu as f64;
+            let clean = transfer(sim, cfg, &msg);
+            assert!(clean.delivered && clean.retransmissions == 0, "{clean:?}");
+            assert!(
+                clean.goodput_bps >= 0.96 * bound,
+                "{} 0 %: {:.0} of {bound:.0}",
+                sim.radio,
+                clean.goodput_bps
+            );
+            let lossy = transfer(
+                SimConfig {
+                    loss: 0.1,
+                    seed: 2,
+                    ..sim
+                },
+                cfg,
+                &msg,
+            );
+            assert!(lossy.delivered, "{lossy:?}");
+            assert!(
+                lossy.goodput_bps >= 0.76 * bound,
+                "{} 10 %: {:.0} of {bound:.0}",
+                sim.radio,
+                lossy.goodput_bps
+            );
+        }
     }
 
     /// Thousands of randomized transfers: every delivered message is exact,

@@ -11,7 +11,8 @@
 //! * `udp:127.0.0.1:9001?peer=127.0.0.1:9000` — bind locally, send to `peer`
 //!   (without `peer`, answer whoever sends first);
 //! * `sim:?loss=0.1&seed=3&baud=115200&mac_retries=0&ber=0&dup=0&reorder=0&speedup=20` —
-//!   the simulated 802.15.4 channel (inside one process);
+//!   the simulated XBee channel (inside one process); `radio=zigbee` models
+//!   ZigBee firmware (its frames and overheads, and `mtu` 84 by default);
 //! * `fallback:PRIMARY,SECONDARY?silence_ms=2000` (the query after the last
 //!   spec applies to the fallback).
 
@@ -184,13 +185,14 @@ impl std::str::FromStr for LinkSpec {
                 Ok(LinkSpec::Udp { bind, peer, mtu })
             }
             "sim" => {
-                let (mut c, mut speedup) = (SimConfig::default(), 1.0);
+                let (mut c, mut speedup, mut mtu) = (SimConfig::default(), 1.0, None);
                 for (k, v) in q {
                     match k {
+                        "radio" => c.radio = v.parse()?,
                         "loss" => c.loss = num(k, v)?,
                         "seed" => c.seed = num(k, v)?,
                         "baud" => c.baud = num(k, v)?,
-                        "mtu" => c.mtu = num(k, v)?,
+                        "mtu" => mtu = Some(num(k, v)?),
                         "mac_retries" => c.mac_retries = num(k, v)?,
                         "ber" => c.bit_error = num(k, v)?,
                         "dup" => c.duplicate = num(k, v)?,
@@ -199,6 +201,11 @@ impl std::str::FromStr for LinkSpec {
                         _ => return Err(format!("sim: unknown option {k}")),
                     }
                 }
+                // ZigBee's NP is 84 bytes; 802.15.4 takes 100.
+                c.mtu = mtu.unwrap_or(match c.radio {
+                    Firmware::Ieee802154 => 100,
+                    Firmware::Zigbee | Firmware::DigiMesh => 84,
+                });
                 if !(0.0..=1.0).contains(&c.loss) || c.baud == 0 || c.mtu < 16 {
                     return Err("sim: loss must be in 0..1, baud > 0, mtu >= 16".into());
                 }
@@ -363,8 +370,20 @@ mod tests {
         assert!(matches!(u, LinkSpec::Udp { peer: Some(_), .. }));
         let m: LinkSpec = "sim:?loss=0.1&seed=3".parse().unwrap();
         assert!(
-            matches!(m, LinkSpec::Sim { config: SimConfig { loss, seed: 3, .. }, .. } if loss == 0.1)
+            matches!(m, LinkSpec::Sim { config: SimConfig { loss, seed: 3, mtu: 100, .. }, .. } if loss == 0.1)
         );
+        let z: LinkSpec = "sim:?radio=zigbee".parse().unwrap();
+        assert!(matches!(
+            z,
+            LinkSpec::Sim {
+                config: SimConfig {
+                    radio: Firmware::Zigbee,
+                    mtu: 84,
+                    ..
+                },
+                ..
+            }
+        ));
         let f: LinkSpec = "fallback:udp:127.0.0.1:1,udp:127.0.0.1:2?silence_ms=500"
             .parse()
             .unwrap();
