@@ -279,6 +279,9 @@ pub struct Sender {
     /// Receiver sessions replaced by a newer one: their late ACKs are ignored.
     retired: VecDeque<SessionId>,
     msg_id: u16,
+    /// Message ids go up by this much: lanes of one session share the id
+    /// space, each with its own residue.
+    id_step: u16,
     data: Vec<u8>,
     count: usize,
     acked: Vec<bool>,
@@ -296,12 +299,23 @@ pub struct Sender {
 impl Sender {
     /// An idle sender of `session`; its message ids start at 1.
     pub fn new(cfg: Config, session: SessionId) -> Self {
+        Self::lane(cfg, session, 0, 1)
+    }
+
+    /// Sender `lane` of `lanes` sharing `session`: its message ids are
+    /// `lane + k·lanes` (k ≥ 1), so no two lanes ever use the same id and
+    /// the receiver needs nothing new to keep their messages apart. `lanes`
+    /// is rounded up to a power of two, so ids keep their lane when they
+    /// wrap.
+    pub fn lane(cfg: Config, session: SessionId, lane: u16, lanes: u16) -> Self {
+        let lanes = lanes.max(1).next_power_of_two();
         Sender {
             cfg,
             session,
             peer: None,
             retired: VecDeque::new(),
-            msg_id: 0,
+            msg_id: lane % lanes,
+            id_step: lanes,
             data: Vec::new(),
             count: 0,
             acked: Vec::new(),
@@ -328,7 +342,7 @@ impl Sender {
         if count > u16::MAX as usize || message.len() > self.cfg.max_message {
             return Err(ArqError::TooLarge);
         }
-        self.msg_id = self.msg_id.wrapping_add(1);
+        self.msg_id = self.msg_id.wrapping_add(self.id_step);
         self.data.clear();
         self.data.extend_from_slice(message);
         self.data.extend_from_slice(&crc32(message).to_le_bytes());

@@ -3,6 +3,11 @@
 //! so a side can send messages and receive messages at the same time.
 //! Each endpoint is one session: its id is drawn from the OS RNG when it is
 //! made, so a restarted process is never taken for the one before.
+//!
+//! Outgoing messages take one of two [`Lane`]s, each its own ARQ sender in
+//! the one session: a depth report on the urgent lane goes ahead of the
+//! fragments of a frame still queued on the bulk lane, so it never waits
+//! for a 30 kB frame.
 
 use std::collections::VecDeque;
 use std::time::{Duration, Instant};
@@ -105,11 +110,37 @@ pub type NoticeReport = Box<dyn FnMut(Notice)>;
 /// How often [`Endpoint::on_progress`]'s callback is called during a send.
 pub const PROGRESS_EVERY: Duration = Duration::from_millis(200);
 
+/// Which of an endpoint's senders carries a message.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Lane {
+    /// Large messages (frames), one at a time.
+    Bulk,
+    /// Small, urgent messages (depth reports): their segments go first.
+    Urgent,
+}
+
+impl Lane {
+    const ALL: [Lane; 2] = [Lane::Bulk, Lane::Urgent];
+
+    fn index(self) -> usize {
+        self as usize
+    }
+}
+
+/// How a send on a lane ended.
+pub type SendOutcome = (Lane, Result<SendStats, LinkError>);
+
 /// A message endpoint over a transport.
 pub struct Endpoint {
     transport: Box<dyn Transport>,
     session: SessionId,
-    sender: Sender,
+    /// One sender per [`Lane`], in `Lane::ALL` order.
+    senders: [Sender; 2],
+    /// When the message on each lane began, while one is being sent.
+    started: [Option<Instant>; 2],
+    /// Sends that ended and were not yet taken.
+    ended: VecDeque<SendOutcome>,
+    last_progress: Instant,
     receiver: Receiver,
     epoch: Instant,
     inbox: VecDeque<Vec<u8>>,
@@ -142,7 +173,10 @@ impl Endpoint {
         Ok(Endpoint {
             transport,
             session,
-            sender: Sender::new(cfg, session),
+            senders: [0, 1].map(|lane| Sender::lane(cfg, session, lane, 2)),
+            started: [None; 2],
+            ended: VecDeque::new(),
+            last_progress: Instant::now(),
             receiver: Receiver::new(cfg, session),
             epoch: Instant::now(),
             inbox: VecDeque::new(),
@@ -200,9 +234,14 @@ impl Endpoint {
         self.last_heard = Some(Instant::now());
         let now = self.now();
         match seg {
-            Segment::Ack { .. } => self.sender.on_segment(&seg, now),
+            Segment::Ack { .. } => self
+                .senders
+                .iter_mut()
+                .for_each(|s| s.on_segment(&seg, now)),
             Segment::Data { .. } | Segment::Fail { .. } => {
-                self.sender.on_segment(&seg, now);
+                self.senders
+                    .iter_mut()
+                    .for_each(|s| s.on_segment(&seg, now));
                 let (ack, delivery) = self.receiver.on_segment(&seg, now);
                 if let Some(a) = ack {
                     self.transport.send(&a)?;
@@ -235,8 +274,9 @@ impl Endpoint {
 
     fn report_progress(&mut self, start: Instant) {
         if let Some(report) = self.progress.as_mut() {
-            let (acked, fragments) = self.sender.progress();
-            let c = self.sender.counters();
+            let bulk = &self.senders[Lane::Bulk.index()];
+            let (acked, fragments) = bulk.progress();
+            let c = bulk.counters();
             report(&Progress {
                 acked,
                 fragments,
@@ -247,60 +287,128 @@ impl Endpoint {
         }
     }
 
-    /// Sends one message and waits until every fragment is acknowledged.
-    pub fn send_message(&mut self, message: &[u8]) -> Result<SendStats, LinkError> {
-        let start = Instant::now();
-        self.sender
-            .start(message, self.now())
+    /// Starts sending `message` on `lane`; [`Endpoint::poll_sends`] drives
+    /// it. A lane carries one message at a time ([`ArqError::Busy`]).
+    pub fn submit(&mut self, lane: Lane, message: &[u8]) -> Result<(), LinkError> {
+        let now = self.now();
+        self.senders[lane.index()]
+            .start(message, now)
             .map_err(LinkError::Arq)?;
-        let mut reported = start;
+        self.started[lane.index()] = Some(Instant::now());
+        self.last_progress = Instant::now();
+        Ok(())
+    }
+
+    /// Whether `lane` has no message in flight.
+    pub fn is_idle(&self, lane: Lane) -> bool {
+        self.started[lane.index()].is_none()
+    }
+
+    /// Drives both lanes (the urgent one first) and the receiver for about
+    /// `wait`; returns the sends that ended since the last call.
+    pub fn poll_sends(&mut self, wait: Duration) -> Result<Vec<SendOutcome>, LinkError> {
+        self.drive(wait)?;
+        Ok(self.ended.drain(..).collect())
+    }
+
+    /// Sends one message on the bulk lane and waits until every fragment is
+    /// acknowledged (urgent sends that end meanwhile stay for
+    /// [`Endpoint::poll_sends`]).
+    pub fn send_message(&mut self, message: &[u8]) -> Result<SendStats, LinkError> {
+        self.submit(Lane::Bulk, message)?;
         loop {
-            if reported.elapsed() >= PROGRESS_EVERY {
-                reported = Instant::now();
-                self.report_progress(start);
-            }
-            while let Some(seg) = self.sender.poll_transmit(self.now()) {
-                self.transport.send(&seg)?;
-                // Take in ACKs between segments, so a long send never starves them.
-                self.service(Duration::ZERO)?;
-            }
-            let heard = self.last_heard.filter(|&t| t >= start);
-            match self.sender.state() {
-                SendState::Failed(ArqError::Deadline) if heard.is_none() => {
-                    return Err(LinkError::NoAnswer(start.elapsed()))
-                }
-                SendState::Done => {
-                    self.report_progress(start);
-                    let c = self.sender.counters();
-                    return Ok(SendStats {
-                        bytes: c.message_bytes,
-                        segments: c.segments,
-                        retransmissions: c.retransmissions,
-                        elapsed: start.elapsed(),
-                    });
-                }
-                SendState::Failed(e) => return Err(LinkError::Arq(e)),
-                SendState::Idle | SendState::Sending => {}
-            }
-            let silent = heard.unwrap_or(start).elapsed();
-            if self
-                .silence
-                .as_ref()
-                .is_some_and(|(after, _)| silent >= *after)
-            {
-                if let Some((_, notice)) = self.silence.take() {
-                    notice(silent);
+            self.drive(TICK)?;
+            if let Some(i) = self.ended.iter().position(|(l, _)| *l == Lane::Bulk) {
+                if let Some((_, result)) = self.ended.remove(i) {
+                    return result;
                 }
             }
-            let wait = self
-                .sender
-                .poll_at()
-                .map_or(TICK, |t| {
-                    Duration::from_micros(t.saturating_sub(self.now()))
-                })
-                .min(TICK);
-            self.service(wait)?;
         }
+    }
+
+    /// One round: transmit what the lanes have (urgent first), settle the
+    /// sends that ended, say what needs saying, then wait for the next timer.
+    fn drive(&mut self, wait: Duration) -> Result<(), LinkError> {
+        // A paced radio takes a segment every few ms: hand back control
+        // after a tick, so an urgent message can be submitted.
+        let round = Instant::now();
+        while round.elapsed() < TICK {
+            let now = self.now();
+            let [bulk, urgent] = &mut self.senders;
+            let Some(seg) = urgent
+                .poll_transmit(now)
+                .or_else(|| bulk.poll_transmit(now))
+            else {
+                break;
+            };
+            self.transport.send(&seg)?;
+            // Take in ACKs between segments, so a long send never starves them.
+            self.service(Duration::ZERO)?;
+        }
+        for lane in Lane::ALL {
+            self.settle(lane);
+        }
+        let Some(start) = self.started.iter().flatten().min().copied() else {
+            return self.service(wait);
+        };
+        if let Some(bulk_start) = self.started[Lane::Bulk.index()] {
+            if self.last_progress.elapsed() >= PROGRESS_EVERY {
+                self.last_progress = Instant::now();
+                self.report_progress(bulk_start);
+            }
+        }
+        let silent = self
+            .last_heard
+            .filter(|&t| t >= start)
+            .unwrap_or(start)
+            .elapsed();
+        if self
+            .silence
+            .as_ref()
+            .is_some_and(|(after, _)| silent >= *after)
+        {
+            if let Some((_, notice)) = self.silence.take() {
+                notice(silent);
+            }
+        }
+        let now = self.now();
+        let next = self
+            .senders
+            .iter()
+            .filter_map(Sender::poll_at)
+            .min()
+            .map_or(TICK, |t| Duration::from_micros(t.saturating_sub(now)));
+        self.service(next.min(TICK).min(wait))
+    }
+
+    /// Records the end of the send on `lane`, if it ended.
+    fn settle(&mut self, lane: Lane) {
+        let Some(start) = self.started[lane.index()] else {
+            return;
+        };
+        let heard = self.last_heard.is_some_and(|t| t >= start);
+        let sender = &self.senders[lane.index()];
+        let result = match sender.state() {
+            SendState::Failed(ArqError::Deadline) if !heard => {
+                Err(LinkError::NoAnswer(start.elapsed()))
+            }
+            SendState::Failed(e) => Err(LinkError::Arq(e)),
+            SendState::Done => {
+                let c = sender.counters();
+                Ok(SendStats {
+                    bytes: c.message_bytes,
+                    segments: c.segments,
+                    retransmissions: c.retransmissions,
+                    elapsed: start.elapsed(),
+                })
+            }
+            SendState::Idle | SendState::Sending => return,
+        };
+        if lane == Lane::Bulk && result.is_ok() {
+            self.report_progress(start);
+        }
+        self.started[lane.index()] = None;
+        self.ended.push_back((lane, result));
     }
 
     /// Waits up to `timeout` for the next complete message.
@@ -410,5 +518,43 @@ mod tests {
             Endpoint::new(Box::new(b)).unwrap(),
         );
         assert_ne!(a.session(), b.session());
+    }
+
+    /// A report submitted on the urgent lane while a frame is in flight on
+    /// the bulk lane is delivered before the frame, both intact, and each
+    /// lane reports its own outcome.
+    #[test]
+    fn an_urgent_message_overtakes_a_frame_in_flight() {
+        let (a, b) = pair(SimConfig::default(), 10.0);
+        let frame: Vec<u8> = (0..20_000).map(|i| (i * 7) as u8).collect();
+        let report = vec![0x5A; 300];
+        let rx = std::thread::spawn(move || {
+            let mut e = Endpoint::new(Box::new(b)).unwrap();
+            let got: Vec<Vec<u8>> = (0..2)
+                .map(|_| e.recv_message(Duration::from_secs(20)).unwrap())
+                .collect();
+            e.linger(Duration::from_millis(300)).unwrap();
+            got
+        });
+        let mut e = Endpoint::new(Box::new(a)).unwrap();
+        e.submit(Lane::Bulk, &frame).unwrap();
+        let mut outcomes = Vec::new();
+        // A few rounds into the frame, the report.
+        for _ in 0..5 {
+            outcomes.extend(e.poll_sends(TICK).unwrap());
+        }
+        assert!(!e.is_idle(Lane::Bulk), "the frame must still be in flight");
+        e.submit(Lane::Urgent, &report).unwrap();
+        assert!(matches!(
+            e.submit(Lane::Bulk, b"another"),
+            Err(LinkError::Arq(ArqError::Busy))
+        ));
+        while outcomes.len() < 2 {
+            outcomes.extend(e.poll_sends(TICK).unwrap());
+        }
+        let order: Vec<Lane> = outcomes.iter().map(|(l, _)| *l).collect();
+        assert_eq!(order, vec![Lane::Urgent, Lane::Bulk]);
+        assert!(outcomes.iter().all(|(_, r)| r.is_ok()));
+        assert_eq!(rx.join().unwrap(), vec![report, frame]);
     }
 }
