@@ -290,7 +290,8 @@ impl Relay {
     }
 }
 
-/// The receiver killed in the middle of frame 3 (message 5), after it
+/// The receiver killed in the middle of frame 3 (message 6: frames take the
+/// bulk lane's even message ids, reports the urgent lane's odd ones), after it
 /// acknowledged 8 of its fragments, and a new one started: the sender must
 /// send the new one the whole message (the old one's ACKs mean nothing to
 /// it), and every frame is shown once across the two.
@@ -300,7 +301,7 @@ fn receiver_restart_mid_message_over_udp() {
     let scene = dir.path().join("scene");
     synth(&scene);
     let (a, b) = (free_port(), free_port());
-    let relay = Relay::start(a, b, 5);
+    let relay = Relay::start(a, b, 6);
     let rx_link = format!("udp:127.0.0.1:{b}?peer=127.0.0.1:{}", relay.port);
     let first = receiver(&rx_link, &dir.path().join("screens-1"));
     std::thread::sleep(Duration::from_millis(200));

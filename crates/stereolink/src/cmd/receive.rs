@@ -32,7 +32,8 @@ pub struct Args {
     /// Also write each received pair (received-left.png, received-right.png) here.
     #[arg(long)]
     pub save: Option<std::path::PathBuf>,
-    /// Stop after this many frames (0: run until the link is silent for --timeout-s).
+    /// Stop after this many frames, each with its depth report (0: run until
+    /// the link is silent for --timeout-s).
     #[arg(long, default_value_t = 0)]
     pub frames: u32,
     /// Give up after this many seconds without a message.
@@ -78,6 +79,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         board.axis = Some(open_axis(r).with_context(|| format!("cannot open axis {r}"))?);
     }
     let mut frames = 0;
+    let mut halves = std::collections::BTreeSet::new();
     let mut events = Vec::new();
     while args.frames == 0 || frames < args.frames {
         let msg = match ep.recv_message(Duration::from_secs(args.timeout_s)) {
@@ -120,8 +122,19 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
                 Event::Rejected(why) => eprintln!("{why}"),
             }
         }
+        if let Event::Frame { frame_id, .. } | Event::Report { frame_id, .. } = &event {
+            // A frame counts once both its views and its report arrived
+            // (the report usually first: it overtakes the frame).
+            if !halves.remove(frame_id) {
+                halves.insert(*frame_id);
+                if halves.len() > 16 {
+                    halves.pop_first();
+                }
+            } else {
+                frames += 1;
+            }
+        }
         if matches!(event, Event::Report { .. }) {
-            frames += 1;
             if let Some(axis) = board.axis.as_mut() {
                 board.status.axis_mm = axis.position().ok();
             }

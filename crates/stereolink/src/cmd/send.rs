@@ -3,7 +3,7 @@
 //! (`--watch`), or live from two cameras (`--camera-left`/`--source-left`).
 //! All three feed one loop ([`Pairs`]): take a pair, prepare it, send it.
 
-use std::collections::VecDeque;
+use std::collections::{BTreeMap, VecDeque};
 use std::io::IsTerminal;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -13,7 +13,7 @@ use serde::Serialize;
 use stereolink_calib::StereoRectifier;
 use stereolink_image::{io, Calibration, RgbImage};
 use stereolink_link::arq::Config;
-use stereolink_link::endpoint::{Endpoint, Progress, ProgressReport};
+use stereolink_link::endpoint::{Endpoint, Progress, ProgressReport, SendStats};
 use stereolink_link::spec;
 use stereolink_stereo::depth::{LevelSpec, Roi};
 
@@ -24,6 +24,7 @@ use super::camera::CameraArgs;
 use super::matching::MatcherArgs;
 use super::segment::SegmentArgs;
 use crate::pipeline::sender::{prepare, SenderConfig};
+use crate::pipeline::uplink::{Kind, Outcome, Uplink};
 use crate::pipeline::watch::{Pair, Watcher};
 
 /// Arguments of `stereolink send`.
@@ -112,7 +113,10 @@ struct Sent {
     frame_bytes: usize,
     report_bytes: usize,
     distance_m: f32,
+    /// From handing the frame to the link until its last fragment was acknowledged.
     seconds: f64,
+    /// From handing the depth report to the link until it was acknowledged.
+    report_seconds: f64,
     goodput_bps: f64,
     retransmissions: u64,
     /// Pairs the cameras delivered while the one before was prepared and sent.
@@ -148,24 +152,28 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         deadline: args.deadline_s.saturating_mul(1_000_000),
         ..Config::for_mtu(transport.mtu())
     };
-    let mut ep = Endpoint::with_config(transport, arq)?;
     let (link, deadline_s) = (args.link.clone(), args.deadline_s);
-    ep.on_silence(
-        SILENCE_HINT,
-        Box::new(move |silent| eprintln!("{}", silence_hint(&link, silent, deadline_s))),
-    );
-    ep.on_notice(Box::new(|notice| eprintln!("link: {notice}")));
-    if std::io::stderr().is_terminal() {
-        ep.on_progress(progress_bar());
-    }
+    let uplink = Uplink::start(move || {
+        let mut ep = Endpoint::with_config(transport, arq)?;
+        ep.on_silence(
+            SILENCE_HINT,
+            Box::new(move |silent| eprintln!("{}", silence_hint(&link, silent, deadline_s))),
+        );
+        ep.on_notice(Box::new(|notice| eprintln!("link: {notice}")));
+        if std::io::stderr().is_terminal() {
+            ep.on_progress(progress_bar());
+        }
+        Ok(ep)
+    });
     let mut sender = Sender {
-        ep,
+        uplink,
         calib: sensor.depth,
         rectifier: sensor.rectifier()?,
         rectified: Default::default(),
         cfg,
         save: args.save.clone(),
         json: out.json,
+        waiting: BTreeMap::new(),
         sent: Vec::new(),
     };
     let mut pairs = match (&args.watch, &args.left, &args.right) {
@@ -193,6 +201,8 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         frame_id += 1;
         sender.send(&next, frame_id)?;
     }
+    let rest = sender.uplink.finish()?;
+    sender.collect(rest)?;
     if out.json {
         out.emit(&sender.sent, String::new)?;
     }
@@ -237,9 +247,9 @@ fn progress_bar() -> ProgressReport {
     })
 }
 
-/// The open link and what every frame is prepared with.
+/// The link thread and what every frame is prepared with.
 struct Sender {
-    ep: Endpoint,
+    uplink: Uplink,
     calib: Calibration,
     /// The maps of a raw pair (`--calib stereo.yml`).
     rectifier: Option<StereoRectifier>,
@@ -248,7 +258,17 @@ struct Sender {
     cfg: SenderConfig,
     save: Option<PathBuf>,
     json: bool,
+    /// Frames handed to the link whose frame or report has not ended yet.
+    waiting: BTreeMap<u32, Waiting>,
     sent: Vec<Sent>,
+}
+
+/// A frame on its way: what was measured preparing it, and how its two
+/// messages ended so far.
+struct Waiting {
+    sent: Sent,
+    frame: Option<SendStats>,
+    report: Option<SendStats>,
 }
 
 /// A pair to send, and what getting it cost.
@@ -397,42 +417,80 @@ impl Sender {
             io::write_rgb(dir.join("sent-left.png"), &p.sent.0)?;
             io::write_rgb(dir.join("sent-right.png"), &p.sent.1)?;
         }
-        let a = self
-            .ep
-            .send_message(&p.frame_bytes)
-            .with_context(|| format!("sending frame {frame_id}"))?;
-        let b = self
-            .ep
-            .send_message(&p.report_bytes)
-            .with_context(|| format!("sending depth report {frame_id}"))?;
-        let seconds = (a.elapsed + b.elapsed).as_secs_f64();
+        // The report first: it goes ahead of the frame still in flight.
+        self.uplink.report(frame_id, p.report_bytes.clone())?;
+        self.uplink.frame(frame_id, p.frame_bytes.clone())?;
         let (segment_ms, encode_ms, match_ms) = p.times_ms;
-        let s = Sent {
+        let sent = Sent {
             frame_id,
             frame_bytes: p.frame_bytes.len(),
             report_bytes: p.report_bytes.len(),
             distance_m: p.report.target_distance_m,
-            seconds,
-            goodput_bps: (a.bytes + b.bytes) as f64 * 8.0 / seconds.max(1e-9),
-            retransmissions: a.retransmissions + b.retransmissions,
+            seconds: 0.0,
+            report_seconds: 0.0,
+            goodput_bps: 0.0,
+            retransmissions: 0,
             skipped: next.skipped,
             wait_ms: next.wait_ms,
             rectify_ms,
             segment_ms,
             match_ms,
             encode_ms,
-            send_ms: seconds * 1e3,
-            link: self.ep.link_stats().to_string(),
+            send_ms: 0.0,
+            link: String::new(),
         };
+        let waiting = Waiting {
+            sent,
+            frame: None,
+            report: None,
+        };
+        self.waiting.insert(frame_id, waiting);
+        let outcomes = self.uplink.outcomes();
+        self.collect(outcomes)
+    }
+
+    /// Takes the ends of sends: a failure stops the sender, naming the
+    /// message; a frame whose two messages both arrived is printed.
+    fn collect(&mut self, outcomes: Vec<Outcome>) -> anyhow::Result<()> {
+        for o in outcomes {
+            let what = match o.kind {
+                Kind::Frame => format!("sending frame {}", o.frame_id),
+                Kind::Report => format!("sending the depth report of frame {}", o.frame_id),
+            };
+            let stats = o.result.context(what)?;
+            let Some(w) = self.waiting.get_mut(&o.frame_id) else {
+                continue;
+            };
+            match o.kind {
+                Kind::Frame => w.frame = Some(stats),
+                Kind::Report => w.report = Some(stats),
+            }
+            w.sent.link = o.link.to_string();
+            if let (Some(f), Some(r)) = (w.frame, w.report) {
+                if let Some(w) = self.waiting.remove(&o.frame_id) {
+                    self.print(w.sent, f, r);
+                }
+            }
+        }
+        Ok(())
+    }
+
+    fn print(&mut self, mut s: Sent, frame: SendStats, report: SendStats) {
+        s.seconds = frame.elapsed.as_secs_f64();
+        s.report_seconds = report.elapsed.as_secs_f64();
+        s.goodput_bps = frame.goodput_bps();
+        s.retransmissions = frame.retransmissions + report.retransmissions;
+        s.send_ms = s.seconds * 1e3;
         if !self.json {
             println!(
-                "frame {}: {} B + {} B report sent in {:.2} s ({:.1} kb/s, {} retransmissions), distance {:.3} m",
+                "frame {}: {} B sent in {:.2} s ({:.1} kb/s, {} retransmissions); its {} B depth report delivered in {:.2} s, distance {:.3} m",
                 s.frame_id,
                 s.frame_bytes,
-                s.report_bytes,
                 s.seconds,
                 s.goodput_bps / 1e3,
                 s.retransmissions,
+                s.report_bytes,
+                s.report_seconds,
                 s.distance_m
             );
             println!(
@@ -442,6 +500,5 @@ impl Sender {
             println!("  link: {}", s.link);
         }
         self.sent.push(s);
-        Ok(())
     }
 }

@@ -1,0 +1,200 @@
+//! The sender's link in a thread of its own, so that preparing the next
+//! pair never stops the link: frames go on the bulk lane one at a time, and
+//! each depth report on the urgent lane, ahead of the fragments of the frame
+//! still in flight. The robot's reports then wait for no 30 kB frame, and
+//! the link stays busy while the next pair is segmented and matched.
+
+use std::collections::VecDeque;
+use std::sync::mpsc::{self, Receiver, RecvTimeoutError, SyncSender};
+use std::thread::JoinHandle;
+use std::time::Duration;
+
+use anyhow::Context;
+use stereolink_link::endpoint::{Endpoint, Lane, LinkError, SendStats};
+use stereolink_link::transport::LinkStats;
+
+/// What a message carries.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Kind {
+    /// A StereoFrame, on the bulk lane.
+    Frame,
+    /// A DepthReport, on the urgent lane.
+    Report,
+}
+
+/// How one message's send ended.
+#[derive(Debug)]
+pub struct Outcome {
+    pub kind: Kind,
+    pub frame_id: u32,
+    pub result: Result<SendStats, LinkError>,
+    /// The link's statistics when it ended.
+    pub link: LinkStats,
+}
+
+struct Job {
+    kind: Kind,
+    frame_id: u32,
+    bytes: Vec<u8>,
+}
+
+/// The link thread and its queues.
+pub struct Uplink {
+    jobs: Option<SyncSender<Job>>,
+    outcomes: Receiver<Outcome>,
+    thread: Option<JoinHandle<anyhow::Result<()>>>,
+    /// Frames handed over whose outcome has not come back.
+    frames_in_flight: usize,
+    /// Outcomes taken while waiting, not yet handed out.
+    taken: VecDeque<Outcome>,
+}
+
+/// How long the link thread answers the peer's late retransmissions after
+/// the last message.
+const LINGER: Duration = Duration::from_millis(300);
+const TICK: Duration = Duration::from_millis(20);
+
+impl Uplink {
+    /// Starts the link thread; `make` builds the endpoint there (an endpoint
+    /// with callbacks does not move between threads).
+    pub fn start(make: impl FnOnce() -> anyhow::Result<Endpoint> + Send + 'static) -> Self {
+        let (jobs, job_rx) = mpsc::sync_channel::<Job>(8);
+        let (done_tx, outcomes) = mpsc::channel();
+        let thread = std::thread::spawn(move || run(make()?, job_rx, done_tx));
+        Uplink {
+            jobs: Some(jobs),
+            outcomes,
+            thread: Some(thread),
+            frames_in_flight: 0,
+            taken: VecDeque::new(),
+        }
+    }
+
+    fn hand_over(&mut self, kind: Kind, frame_id: u32, bytes: Vec<u8>) -> anyhow::Result<()> {
+        let sent = self.jobs.as_ref().is_some_and(|j| {
+            j.send(Job {
+                kind,
+                frame_id,
+                bytes,
+            })
+            .is_ok()
+        });
+        if sent {
+            return Ok(());
+        }
+        // The thread ended: its error says why.
+        self.finish()?;
+        anyhow::bail!("the link thread stopped")
+    }
+
+    /// Sends a depth report at once, on the urgent lane.
+    pub fn report(&mut self, frame_id: u32, bytes: Vec<u8>) -> anyhow::Result<()> {
+        self.hand_over(Kind::Report, frame_id, bytes)
+    }
+
+    /// Sends a frame on the bulk lane once the previous frame has ended
+    /// (waiting for it here, so at most one frame is queued behind the one
+    /// in flight).
+    pub fn frame(&mut self, frame_id: u32, bytes: Vec<u8>) -> anyhow::Result<()> {
+        while self.frames_in_flight > 0 {
+            let Ok(o) = self.outcomes.recv() else {
+                self.finish()?;
+                anyhow::bail!("the link thread stopped");
+            };
+            self.take(o);
+        }
+        self.frames_in_flight += 1;
+        self.hand_over(Kind::Frame, frame_id, bytes)
+    }
+
+    fn take(&mut self, o: Outcome) {
+        if o.kind == Kind::Frame {
+            self.frames_in_flight -= 1;
+        }
+        self.taken.push_back(o);
+    }
+
+    /// The outcomes that came back so far.
+    pub fn outcomes(&mut self) -> Vec<Outcome> {
+        while let Ok(o) = self.outcomes.try_recv() {
+            self.take(o);
+        }
+        self.taken.drain(..).collect()
+    }
+
+    /// Waits until every message handed over has ended; returns the
+    /// outcomes not yet taken, or the link thread's error.
+    pub fn finish(&mut self) -> anyhow::Result<Vec<Outcome>> {
+        self.jobs = None;
+        if let Some(t) = self.thread.take() {
+            t.join()
+                .map_err(|_| anyhow::anyhow!("the link thread panicked"))??;
+        }
+        Ok(self.outcomes())
+    }
+}
+
+impl Drop for Uplink {
+    fn drop(&mut self) {
+        let _ = self.finish();
+    }
+}
+
+/// The link thread: takes jobs, keeps each lane busy, hands back outcomes.
+fn run(mut ep: Endpoint, jobs: Receiver<Job>, done: mpsc::Sender<Outcome>) -> anyhow::Result<()> {
+    let mut queued: [VecDeque<Job>; 2] = Default::default();
+    let mut current: [Option<(Kind, u32)>; 2] = [None, None];
+    let mut open = true;
+    loop {
+        let idle = current.iter().all(Option::is_none) && queued.iter().all(VecDeque::is_empty);
+        if idle && !open {
+            break;
+        }
+        // Wait for work only when there is nothing to drive.
+        let next = match idle {
+            true => jobs.recv_timeout(TICK),
+            false => jobs.try_recv().map_err(|e| match e {
+                mpsc::TryRecvError::Empty => RecvTimeoutError::Timeout,
+                mpsc::TryRecvError::Disconnected => RecvTimeoutError::Disconnected,
+            }),
+        };
+        match next {
+            Ok(job) => queued[lane_of(job.kind) as usize].push_back(job),
+            Err(RecvTimeoutError::Disconnected) => open = false,
+            Err(RecvTimeoutError::Timeout) => {}
+        }
+        for lane in [Lane::Urgent, Lane::Bulk] {
+            let i = lane as usize;
+            if current[i].is_none() && ep.is_idle(lane) {
+                if let Some(job) = queued[i].pop_front() {
+                    ep.submit(lane, &job.bytes)
+                        .with_context(|| format!("sending {:?} {}", job.kind, job.frame_id))?;
+                    current[i] = Some((job.kind, job.frame_id));
+                }
+            }
+        }
+        if current.iter().all(Option::is_none) {
+            continue;
+        }
+        for (lane, result) in ep.poll_sends(TICK).context("link")? {
+            if let Some((kind, frame_id)) = current[lane as usize].take() {
+                let link = ep.link_stats();
+                let _ = done.send(Outcome {
+                    kind,
+                    frame_id,
+                    result,
+                    link,
+                });
+            }
+        }
+    }
+    ep.linger(LINGER).context("link")?;
+    Ok(())
+}
+
+fn lane_of(kind: Kind) -> Lane {
+    match kind {
+        Kind::Frame => Lane::Bulk,
+        Kind::Report => Lane::Urgent,
+    }
+}
