@@ -147,6 +147,7 @@ pub struct Udp {
     socket: UdpSocket,
     peer: Option<SocketAddr>,
     mtu: usize,
+    nonblocking: bool,
 }
 
 impl Udp {
@@ -156,6 +157,7 @@ impl Udp {
             socket: UdpSocket::bind(local)?,
             peer,
             mtu,
+            nonblocking: false,
         })
     }
 
@@ -173,9 +175,18 @@ impl Transport for Udp {
         }
     }
 
+    /// A zero timeout reads without blocking: the socket's read timeout
+    /// counts in scheduler ticks (4 ms and more), far too long to take in
+    /// ACKs between segments.
     fn recv(&mut self, timeout: Duration) -> io::Result<Option<Vec<u8>>> {
-        self.socket
-            .set_read_timeout(Some(timeout.max(Duration::from_micros(100))))?;
+        let nonblocking = timeout.is_zero();
+        if nonblocking != self.nonblocking {
+            self.socket.set_nonblocking(nonblocking)?;
+            self.nonblocking = nonblocking;
+        }
+        if !nonblocking {
+            self.socket.set_read_timeout(Some(timeout))?;
+        }
         let mut buf = [0u8; 2048];
         match self.socket.recv_from(&mut buf) {
             Ok((n, from)) => {
