@@ -39,8 +39,13 @@ pub struct Args {
     #[arg(long, default_value_t = 7)]
     pub seed: u64,
     /// On a sim link: print the loss sweep (0, 1, 5, 10, 20, 30 %) instead.
-    #[arg(long)]
+    #[arg(long, conflicts_with = "report_latency")]
     pub sweep: bool,
+    /// On a sim link, in real time: send one frame of --size bytes and,
+    /// while it is in flight, a depth report every 400 ms; print how long
+    /// the reports took to arrive.
+    #[arg(long)]
+    pub report_latency: bool,
     /// On a real link: this process sends or receives.
     #[arg(long, value_enum)]
     pub role: Option<Role>,
@@ -102,6 +107,9 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     let spec = super::link_spec(&args.link)?;
     match spec {
         LinkSpec::Sim { config, .. } if args.sweep => sweep(config, &args, out),
+        LinkSpec::Sim { config, .. } if args.report_latency => {
+            super::link_latency::run(config, &args.link, args.size, out)
+        }
         LinkSpec::Sim { config, .. } => simulate(config, &args, out),
         other => real(&other, &args, out),
     }

@@ -13,6 +13,7 @@ pub mod demo;
 pub mod depth;
 pub mod eval;
 pub mod info;
+pub mod link_latency;
 pub mod link_test;
 pub mod matching;
 pub mod radio;
