@@ -13,12 +13,20 @@
 //! * a transmit request with frame id ≠ 0 is answered with its status: 0x89
 //!   (0 success, 1 no ACK) or 0x8B (0 success, 0x24 address not found);
 //!   the peer receives RX16 0x81 / RX64 0x80 or receive packet 0x90 with the
-//!   sender's addresses. A broadcast always succeeds.
+//!   sender's addresses. A broadcast always succeeds;
+//! * with [`Timing`] ([`RadioLink::timed`]), the host's bytes come in at the
+//!   UART's rate into a bounded serial receive buffer, and each transmit
+//!   request leaves it only when the one before has had its air time: a host
+//!   that writes faster than the air carries overruns the buffer, and, as
+//!   the manuals say happens with CTS ignored, the bytes that do not fit are
+//!   lost (the frame they belong to fails its checksum and is discarded).
 
+use std::collections::VecDeque;
 use std::io::{Read, Write};
 use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
+use std::time::{Duration, Instant};
 
 use serialport::TTYPort;
 use stereolink_link::xbee::{ApiMode, Frame, Parser};
@@ -103,6 +111,32 @@ pub struct Counters {
     pub delivered: AtomicU64,
     /// The largest payload handed to the peer.
     pub largest: AtomicU64,
+    /// Host bytes lost because the serial receive buffer was full.
+    pub overrun: AtomicU64,
+}
+
+/// The rates and buffer of a timed radio.
+#[derive(Clone, Copy, Debug)]
+pub struct Timing {
+    /// The UART's baud rate (10 bits a byte).
+    pub baud: u32,
+    /// The serial receive buffer, bytes.
+    pub buffer: usize,
+    /// Air time of one transmit request, acknowledgements included.
+    pub air: Duration,
+}
+
+impl Timing {
+    /// ZigBee at 115200 baud: Digi's measured ZigBee unicast throughput is
+    /// about 35 kb/s, so an 84-byte payload takes 19 ms on the air, more
+    /// than the 8.9 ms its 102-byte request takes on the UART; a buffer of
+    /// 256 bytes (an assumption: the manuals give the CTS thresholds, not
+    /// the size).
+    pub const ZIGBEE_115200: Timing = Timing {
+        baud: 115_200,
+        buffer: 256,
+        air: Duration::from_millis(19),
+    };
 }
 
 /// One radio: reads its host's frames from `host`, answers on `answer`,
@@ -113,6 +147,7 @@ struct Radio {
     corrupt_one_in: Option<u32>,
     salt: u32,
     counters: Arc<Counters>,
+    timing: Option<Timing>,
 }
 
 impl Radio {
@@ -233,7 +268,70 @@ impl Radio {
         (frame_id != 0).then_some(status)
     }
 
-    fn run(mut self, mut host: TTYPort, stop: Arc<AtomicBool>) {
+    fn run(self, host: TTYPort, stop: Arc<AtomicBool>) {
+        match self.timing {
+            Some(t) => self.run_timed(host, stop, t),
+            None => self.run_instant(host, stop),
+        }
+    }
+
+    /// The host's bytes at the UART's rate into the bounded buffer; one
+    /// transmit request on the air at a time; AT commands answered at once.
+    fn run_timed(mut self, mut host: TTYPort, stop: Arc<AtomicBool>, t: Timing) {
+        let mut answer = host.try_clone_native().unwrap();
+        let mut parser = Parser::new(ApiMode::Escaped);
+        let byte_time = Duration::from_secs_f64(10.0 / t.baud as f64);
+        let mut uart_clock = Instant::now();
+        let (mut partial, mut waiting) = (0usize, VecDeque::<(Frame, usize)>::new());
+        let mut on_air: Option<(Frame, Instant)> = None;
+        let mut count = 0u32;
+        let mut buf = [0u8; 64];
+        while !stop.load(Ordering::Relaxed) {
+            let now = Instant::now();
+            if let Some((frame, _)) = on_air.take_if(|(_, end)| *end <= now) {
+                if let Some(reply) = self.handle(frame, &mut count) {
+                    let _ = answer.write_all(&reply.encode(ApiMode::Escaped));
+                }
+            }
+            if on_air.is_none() {
+                if let Some((frame, _)) = waiting.pop_front() {
+                    on_air = Some((frame, now + t.air));
+                }
+            }
+            // The UART delivers no faster than its baud rate.
+            if uart_clock < now {
+                uart_clock = now;
+            }
+            let ahead = uart_clock.saturating_duration_since(now);
+            if ahead > Duration::from_millis(2) {
+                std::thread::sleep(Duration::from_micros(500));
+                continue;
+            }
+            let Ok(n) = host.read(&mut buf) else { continue };
+            uart_clock += byte_time * n as u32;
+            for &b in &buf[..n] {
+                let held = partial + waiting.iter().map(|(_, len)| len).sum::<usize>();
+                if held >= t.buffer {
+                    self.counters.overrun.fetch_add(1, Ordering::Relaxed);
+                    continue;
+                }
+                partial += 1;
+                match parser.push(b) {
+                    Some(Ok(frame @ Frame::AtCommand { .. })) => {
+                        partial = 0;
+                        if let Some(reply) = self.handle(frame, &mut count) {
+                            let _ = answer.write_all(&reply.encode(ApiMode::Escaped));
+                        }
+                    }
+                    Some(Ok(frame)) => waiting.push_back((frame, std::mem::take(&mut partial))),
+                    Some(Err(_)) => partial = 0,
+                    None => {}
+                }
+            }
+        }
+    }
+
+    fn run_instant(mut self, mut host: TTYPort, stop: Arc<AtomicBool>) {
         let mut answer = host.try_clone_native().unwrap();
         let mut parser = Parser::new(ApiMode::Escaped);
         let mut buf = [0u8; 256];
@@ -282,6 +380,15 @@ impl RadioLink {
     /// Two radios with `firmware`; with `corrupt_one_in = Some(n)`, about one
     /// delivered byte in n is flipped, so the link's CRCs must catch it.
     pub fn new(firmware: Firmware, corrupt_one_in: Option<u32>) -> Self {
+        Self::build(firmware, corrupt_one_in, None)
+    }
+
+    /// Two radios with `firmware` and the rates and buffer of `timing`.
+    pub fn timed(firmware: Firmware, timing: Timing) -> Self {
+        Self::build(firmware, None, Some(timing))
+    }
+
+    fn build(firmware: Firmware, corrupt_one_in: Option<u32>, timing: Option<Timing>) -> Self {
         use serialport::SerialPort;
         let ((m1, s1), (m2, s2)) = (pty(), pty());
         let configs = vec![Config::new(firmware, 0), Config::new(firmware, 1)];
@@ -302,6 +409,7 @@ impl RadioLink {
                     corrupt_one_in,
                     salt: i as u32 + 1,
                     counters: Arc::clone(&counters[i]),
+                    timing,
                 };
                 let stop = stop.clone();
                 std::thread::spawn(move || radio.run(host, stop))
@@ -330,6 +438,7 @@ impl RadioLink {
             corrupt_one_in: None,
             salt: 0,
             counters: Arc::clone(&counters),
+            timing: None,
         };
         let thread = {
             let stop = stop.clone();
