@@ -181,3 +181,64 @@ fn api_mode_over_a_direct_cable_says_what_is_wrong_on_both_ends() {
     );
     assert!(heard.contains("wired directly"), "{heard}");
 }
+
+/// The paper's two links: frames on one UDP pair, depth reports on another.
+/// Both arrive; and with nobody on the report link, the reports (only
+/// they) fail there.
+#[test]
+fn reports_take_their_own_link_with_report_link() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("scene");
+    synth(&scene);
+    let ports: Vec<u16> = (0..4).map(|_| free_port()).collect();
+    let link = |me: u16, peer: u16| format!("udp:127.0.0.1:{me}?peer=127.0.0.1:{peer}");
+    let send = |report_link: String| {
+        spawn(&[
+            "send",
+            "--link",
+            &link(ports[0], ports[1]),
+            "--report-link",
+            &report_link,
+            "--left",
+            scene.join("left.png").to_str().unwrap(),
+            "--right",
+            scene.join("right.png").to_str().unwrap(),
+            "--max-disp",
+            "23",
+            "--method",
+            "kmeans",
+            "--repeat",
+            "2",
+            "--deadline-s",
+            "3",
+        ])
+    };
+    let rx = spawn(&[
+        "receive",
+        "--link",
+        &link(ports[1], ports[0]),
+        "--report-link",
+        &link(ports[3], ports[2]),
+        "--frames",
+        "2",
+        "--timeout-s",
+        "20",
+    ]);
+    std::thread::sleep(Duration::from_millis(200));
+    let sent = finish(send(link(ports[2], ports[3])), "sender");
+    let got = finish(rx, "receiver");
+    for line in ["frame 1:", "frame 2:", "report 1:", "report 2:"] {
+        assert!(got.contains(line), "{line} missing: {got}");
+    }
+    assert_eq!(sent.matches("depth report delivered").count(), 2, "{sent}");
+    // Nobody on the report link: the frames still go (nothing receives
+    // them here either), the reports fail on their own link.
+    let nobody = free_port();
+    let out = send(link(ports[2], nobody)).wait_with_output().unwrap();
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        err.contains("depth report of frame 1: no answer from the peer"),
+        "{err}"
+    );
+}

@@ -1,6 +1,6 @@
 //! `stereolink receive`: the board's receiver on a real link.
 
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use stereolink_display::open_sink;
@@ -17,6 +17,10 @@ pub struct Args {
     /// Link: serial:/dev/ttyUSB0?baud=115200&api=2, udp:BIND?peer=ADDR, fallback:A,B.
     #[arg(long)]
     pub link: String,
+    /// A second link on which the depth reports arrive (`send
+    /// --report-link`); messages are taken from both.
+    #[arg(long, value_name = "SPEC")]
+    pub report_link: Option<String>,
     /// Display: fb:/dev/fb0, png:DIR or web:127.0.0.1:8080.
     #[arg(long)]
     pub display: Option<String>,
@@ -60,11 +64,15 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         "the board matches with wta only (got {})",
         args.matcher
     );
-    let spec = super::link_spec(&args.link)?;
-    let mut ep = Endpoint::new(
-        spec::open(&spec).with_context(|| format!("cannot open link {}", args.link))?,
-    )?;
-    ep.on_notice(Box::new(|notice| eprintln!("link: {notice}")));
+    let mut eps = Vec::new();
+    for link in std::iter::once(&args.link).chain(&args.report_link) {
+        let spec = super::link_spec(link)?;
+        let mut ep =
+            Endpoint::new(spec::open(&spec).with_context(|| format!("cannot open link {link}"))?)?;
+        let name = link.clone();
+        ep.on_notice(Box::new(move |notice| eprintln!("link {name}: {notice}")));
+        eps.push(ep);
+    }
     let mut board = BoardReceiver::new(args.max_disp, 9, Duration::from_secs(args.watchdog_s));
     board.policy = MotionPolicy {
         standoff_mm: args.standoff_mm,
@@ -82,7 +90,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     let mut halves = std::collections::BTreeSet::new();
     let mut events = Vec::new();
     while args.frames == 0 || frames < args.frames {
-        let msg = match ep.recv_message(Duration::from_secs(args.timeout_s)) {
+        let msg = match next_message(&mut eps, Duration::from_secs(args.timeout_s)) {
             Ok(m) => m,
             Err(LinkError::Timeout) if args.frames == 0 => break,
             Err(e) => return Err(e).context("receiving"),
@@ -143,7 +151,10 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         events.push(event);
     }
     // Answer late retransmissions, and let the axis finish its move.
-    ep.linger(Duration::from_millis(500))?;
+    let share = Duration::from_millis(500) / eps.len() as u32;
+    for ep in eps.iter_mut() {
+        ep.linger(share)?;
+    }
     if let Some(axis) = board.axis.as_mut() {
         let pos = stereolink_robot::wait_until_idle(axis.as_mut(), 6000)?
             .context("the axis is still moving")?;
@@ -152,10 +163,32 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         }
     }
     if !out.json {
-        println!("link: {}", ep.link_stats());
+        for (ep, link) in eps
+            .iter()
+            .zip(std::iter::once(&args.link).chain(&args.report_link))
+        {
+            println!("link {link}: {}", ep.link_stats());
+        }
     }
     if out.json {
         out.emit(&events, String::new)?;
     }
     Ok(())
+}
+
+/// The next message from any of the links, waiting up to `timeout`.
+fn next_message(eps: &mut [Endpoint], timeout: Duration) -> Result<Vec<u8>, LinkError> {
+    let until = Instant::now() + timeout;
+    let slice = Duration::from_millis(20) / eps.len().max(1) as u32;
+    loop {
+        for ep in eps.iter_mut() {
+            match ep.recv_message(slice) {
+                Err(LinkError::Timeout) => {}
+                other => return other,
+            }
+        }
+        if Instant::now() >= until {
+            return Err(LinkError::Timeout);
+        }
+    }
 }

@@ -15,6 +15,7 @@ use stereolink_image::{io, Calibration, RgbImage};
 use stereolink_link::arq::Config;
 use stereolink_link::endpoint::{Endpoint, Progress, ProgressReport, SendStats};
 use stereolink_link::spec;
+use stereolink_link::transport::Transport;
 use stereolink_stereo::depth::{LevelSpec, Roi};
 
 use stereolink_capture::StereoCapture;
@@ -41,6 +42,10 @@ Examples:
   stereolink send --link 'serial:/dev/ttyUSB0?api=2' --camera-left /dev/video0 \\
       --camera-right /dev/video2 --method kmeans --max-disp 32 --focal-px 670 --baseline-m 0.06
 
+  # the paper's two radio pairs: frames on one, depth reports on the other
+  stereolink send --link 'serial:/dev/ttyUSB0?api=2' --report-link 'serial:/dev/ttyUSB1?api=2' \\
+      --left L.png --right R.png
+
   # live from GStreamer test sources over UDP
   stereolink send --link 'udp:127.0.0.1:9001?peer=127.0.0.1:9000' \\
       --source-left 'videotestsrc is-live=true pattern=ball' \\
@@ -56,6 +61,11 @@ pub struct Args {
     /// Link: serial:/dev/ttyUSB0?baud=115200&api=2, udp:BIND?peer=ADDR, fallback:A,B.
     #[arg(long)]
     pub link: String,
+    /// A second link for the depth reports (the paper's second radio pair),
+    /// so that a report never shares the air with a frame; without it,
+    /// reports go ahead of the frame's fragments on --link.
+    #[arg(long, value_name = "SPEC")]
+    pub report_link: Option<String>,
     /// Left image.
     #[arg(
         long,
@@ -148,22 +158,39 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         levels_spec: LevelSpec::default(),
     };
     let transport = spec::open(&spec).with_context(|| format!("cannot open link {}", args.link))?;
-    let arq = Config {
-        deadline: args.deadline_s.saturating_mul(1_000_000),
-        ..Config::for_mtu(transport.mtu())
+    let report_transport = match &args.report_link {
+        Some(text) => Some(
+            spec::open(&super::link_spec(text)?)
+                .with_context(|| format!("cannot open report link {text}"))?,
+        ),
+        None => None,
     };
-    let (link, deadline_s) = (args.link.clone(), args.deadline_s);
-    let uplink = Uplink::start(move || {
+    let deadline_s = args.deadline_s;
+    let endpoint = move |transport: Box<dyn Transport>, link: String| {
+        let arq = Config {
+            deadline: deadline_s.saturating_mul(1_000_000),
+            ..Config::for_mtu(transport.mtu())
+        };
         let mut ep = Endpoint::with_config(transport, arq)?;
+        let hint = link.clone();
         ep.on_silence(
             SILENCE_HINT,
-            Box::new(move |silent| eprintln!("{}", silence_hint(&link, silent, deadline_s))),
+            Box::new(move |silent| eprintln!("{}", silence_hint(&hint, silent, deadline_s))),
         );
-        ep.on_notice(Box::new(|notice| eprintln!("link: {notice}")));
+        ep.on_notice(Box::new(move |notice| eprintln!("link {link}: {notice}")));
+        anyhow::Ok(ep)
+    };
+    let (link, report_link) = (args.link.clone(), args.report_link.clone());
+    let uplink = Uplink::start(move || {
+        let mut frames = endpoint(transport, link)?;
         if std::io::stderr().is_terminal() {
-            ep.on_progress(progress_bar());
+            frames.on_progress(progress_bar());
         }
-        Ok(ep)
+        let reports = match (report_transport, report_link) {
+            (Some(t), Some(l)) => Some(endpoint(t, l)?),
+            _ => None,
+        };
+        Ok((frames, reports))
     });
     let mut sender = Sender {
         uplink,

@@ -2,7 +2,9 @@
 //! pair never stops the link: frames go on the bulk lane one at a time, and
 //! each depth report on the urgent lane, ahead of the fragments of the frame
 //! still in flight. The robot's reports then wait for no 30 kB frame, and
-//! the link stays busy while the next pair is segmented and matched.
+//! the link stays busy while the next pair is segmented and matched. With a
+//! second link (the paper's two radio pairs, `send --report-link`) the
+//! reports go over that one instead.
 
 use std::collections::VecDeque;
 use std::sync::mpsc::{self, Receiver, RecvTimeoutError, SyncSender};
@@ -55,12 +57,18 @@ const LINGER: Duration = Duration::from_millis(300);
 const TICK: Duration = Duration::from_millis(20);
 
 impl Uplink {
-    /// Starts the link thread; `make` builds the endpoint there (an endpoint
-    /// with callbacks does not move between threads).
-    pub fn start(make: impl FnOnce() -> anyhow::Result<Endpoint> + Send + 'static) -> Self {
+    /// Starts the link thread; `make` builds the endpoints there (an
+    /// endpoint with callbacks does not move between threads): the one for
+    /// frames and, if any, a second one for the reports.
+    pub fn start(
+        make: impl FnOnce() -> anyhow::Result<(Endpoint, Option<Endpoint>)> + Send + 'static,
+    ) -> Self {
         let (jobs, job_rx) = mpsc::sync_channel::<Job>(8);
         let (done_tx, outcomes) = mpsc::channel();
-        let thread = std::thread::spawn(move || run(make()?, job_rx, done_tx));
+        let thread = std::thread::spawn(move || {
+            let (frames, reports) = make()?;
+            run(frames, reports, job_rx, done_tx)
+        });
         Uplink {
             jobs: Some(jobs),
             outcomes,
@@ -141,7 +149,20 @@ impl Drop for Uplink {
 }
 
 /// The link thread: takes jobs, keeps each lane busy, hands back outcomes.
-fn run(mut ep: Endpoint, jobs: Receiver<Job>, done: mpsc::Sender<Outcome>) -> anyhow::Result<()> {
+fn run(
+    frames: Endpoint,
+    reports: Option<Endpoint>,
+    jobs: Receiver<Job>,
+    done: mpsc::Sender<Outcome>,
+) -> anyhow::Result<()> {
+    // Reports take the urgent lane of the frames' link, or the second link.
+    let mut eps = vec![frames];
+    eps.extend(reports);
+    let ep_of = |lane: Lane| match lane {
+        Lane::Urgent => eps.len() - 1,
+        Lane::Bulk => 0,
+    };
+    let (bulk_ep, urgent_ep) = (ep_of(Lane::Bulk), ep_of(Lane::Urgent));
     let mut queued: [VecDeque<Job>; 2] = Default::default();
     let mut current: [Option<(Kind, u32)>; 2] = [None, None];
     let mut open = true;
@@ -163,11 +184,12 @@ fn run(mut ep: Endpoint, jobs: Receiver<Job>, done: mpsc::Sender<Outcome>) -> an
             Err(RecvTimeoutError::Disconnected) => open = false,
             Err(RecvTimeoutError::Timeout) => {}
         }
-        for lane in [Lane::Urgent, Lane::Bulk] {
+        for (lane, e) in [(Lane::Urgent, urgent_ep), (Lane::Bulk, bulk_ep)] {
             let i = lane as usize;
-            if current[i].is_none() && ep.is_idle(lane) {
+            if current[i].is_none() && eps[e].is_idle(lane) {
                 if let Some(job) = queued[i].pop_front() {
-                    ep.submit(lane, &job.bytes)
+                    eps[e]
+                        .submit(lane, &job.bytes)
                         .with_context(|| format!("sending {:?} {}", job.kind, job.frame_id))?;
                     current[i] = Some((job.kind, job.frame_id));
                 }
@@ -176,19 +198,24 @@ fn run(mut ep: Endpoint, jobs: Receiver<Job>, done: mpsc::Sender<Outcome>) -> an
         if current.iter().all(Option::is_none) {
             continue;
         }
-        for (lane, result) in ep.poll_sends(TICK).context("link")? {
-            if let Some((kind, frame_id)) = current[lane as usize].take() {
-                let link = ep.link_stats();
-                let _ = done.send(Outcome {
-                    kind,
-                    frame_id,
-                    result,
-                    link,
-                });
+        let wait = TICK / eps.len() as u32;
+        for ep in eps.iter_mut() {
+            for (lane, result) in ep.poll_sends(wait).context("link")? {
+                if let Some((kind, frame_id)) = current[lane as usize].take() {
+                    let link = ep.link_stats();
+                    let _ = done.send(Outcome {
+                        kind,
+                        frame_id,
+                        result,
+                        link,
+                    });
+                }
             }
         }
     }
-    ep.linger(LINGER).context("link")?;
+    for ep in eps.iter_mut() {
+        ep.linger(LINGER / 2).context("link")?;
+    }
     Ok(())
 }
 
