@@ -12,7 +12,9 @@
 //! the data term `D` sums each pixel's census Hamming cost at the plane's
 //! subpixel disparity (interpolated between whole disparities), truncated
 //! at `truncation`, which is also the cost of a match outside the right
-//! view, so that occluded pixels cost a bounded amount whatever the plane;
+//! view, so that occluded pixels cost a bounded amount whatever the plane,
+//! plus `agreement` per px of disagreement (capped at `agreement_cap`)
+//! with the initial disparity where that passed the LR check;
 //! the smoothness term charges `λ` per unit of boundary between two
 //! segments that take different planes. Chosen: greedy moves (iterated
 //! conditional modes over segments, Gauss–Seidel in id order). Each move
@@ -31,38 +33,56 @@ use super::fit::{refit, samples, Sample};
 use super::graph::SegmentGraph;
 use super::{DisparityPlane, PlanesParams};
 
-/// The per-pixel matching cost: census Hamming distances (9×7, as SGM's).
-pub struct CensusCost {
+/// The per-pixel data cost: the census Hamming distance (9×7, as SGM's) at
+/// the plane's disparity, truncated, plus the disagreement with the initial
+/// map where a pixel is reliable.
+pub struct DataCost<'a> {
     left: Vec<u64>,
     right: Vec<u64>,
+    reliable: &'a DisparityMap,
     width: usize,
     /// Disparities are clamped to this range before the cost is taken.
     range: (f32, f32),
     truncation: f32,
+    agreement: f32,
+    agreement_cap: f32,
 }
 
-impl CensusCost {
-    /// The cost of the two views' census transforms (`left.len()` = `width · h`),
-    /// plane disparities clamped to `range`.
+impl<'a> DataCost<'a> {
+    /// The cost from the two views' census transforms and the LR-checked
+    /// initial map `reliable` (same size), plane disparities clamped to `range`.
     pub fn new(
-        left: Vec<u64>,
-        right: Vec<u64>,
-        width: usize,
+        (left, right): (Vec<u64>, Vec<u64>),
+        reliable: &'a DisparityMap,
         range: (f32, f32),
-        truncation: f32,
+        params: &PlanesParams,
     ) -> Self {
-        CensusCost {
+        DataCost {
             left,
             right,
-            width,
+            reliable,
+            width: reliable.width(),
             range,
-            truncation,
+            truncation: params.truncation,
+            agreement: params.agreement,
+            agreement_cap: params.agreement_cap,
         }
     }
 
-    /// `plane`'s disparity at pixel `(x, y)`, clamped to the search range.
-    /// The truncated cost of pixel `p` at disparity `d`.
+    /// The cost of pixel `p` at disparity `d`.
     fn pixel(&self, p: usize, d: f32) -> f32 {
+        let d0 = self.reliable.as_slice()[p];
+        let agreement = if d0.is_finite() {
+            self.agreement * (d - d0).abs().min(self.agreement_cap)
+        } else {
+            0.0
+        };
+        agreement + self.census(p, d)
+    }
+
+    /// The truncated census cost of pixel `p` at disparity `d`, interpolated
+    /// between whole disparities.
+    fn census(&self, p: usize, d: f32) -> f32 {
         let x = (p % self.width) as f32;
         let xr = x - d;
         if xr < 0.0 {
@@ -184,7 +204,7 @@ type Tried = Vec<(u32, f32)>;
 /// `initial` choice; `None` when no segment has a plane (nothing reliable).
 pub fn assign(
     graph: &SegmentGraph,
-    cost: &CensusCost,
+    cost: &DataCost,
     planes: &[DisparityPlane],
     initial: &[Option<u32>],
     params: &PlanesParams,

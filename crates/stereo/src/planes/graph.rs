@@ -25,9 +25,14 @@ pub struct SegmentGraph {
     edges: Vec<(u32, u32)>,
 }
 
-/// The 4-connected components of `labels`: an id per pixel, in raster order
-/// of the components' first pixels, and the number of components.
-pub fn components(labels: &LabelMap) -> (Plane<u32>, usize) {
+/// The 4-connected components of `labels` within the tiles of side `tile`
+/// (0: no tiles): an id per pixel, in raster order of the components'
+/// first pixels, and the number of components.
+pub fn components(labels: &LabelMap, tile: usize) -> (Plane<u32>, usize) {
+    let tile_of = |p: usize, w: usize| match tile {
+        0 => (0, 0),
+        t => (p % w / t, p / w / t),
+    };
     let (w, h) = labels.dims();
     let mut ids = Plane::new(w, h, u32::MAX);
     let mut count = 0u32;
@@ -36,13 +41,16 @@ pub fn components(labels: &LabelMap) -> (Plane<u32>, usize) {
         if ids.as_slice()[start] != u32::MAX {
             continue;
         }
-        let label = labels.as_slice()[start];
+        let (label, area) = (labels.as_slice()[start], tile_of(start, w));
         ids.as_mut_slice()[start] = count;
         stack.push(start);
         while let Some(p) = stack.pop() {
             let (x, y) = (p % w, p / w);
             let mut visit = |q: usize| {
-                if ids.as_slice()[q] == u32::MAX && labels.as_slice()[q] == label {
+                if ids.as_slice()[q] == u32::MAX
+                    && labels.as_slice()[q] == label
+                    && tile_of(q, w) == area
+                {
                     ids.as_mut_slice()[q] = count;
                     stack.push(q);
                 }
@@ -66,9 +74,10 @@ pub fn components(labels: &LabelMap) -> (Plane<u32>, usize) {
 }
 
 impl SegmentGraph {
-    /// The graph of the connected components of `labels`.
-    pub fn new(labels: &LabelMap) -> Self {
-        let (ids, count) = components(labels);
+    /// The graph of the connected components of `labels` cut into tiles of
+    /// side `tile` ([`components`]).
+    pub fn new(labels: &LabelMap, tile: usize) -> Self {
+        let (ids, count) = components(labels, tile);
         let (w, h) = ids.dims();
         let id = ids.as_slice();
         // Pixel lists by counting sort: raster order within each segment.
@@ -160,7 +169,7 @@ mod tests {
         // 0 0 1 0
         // 1 1 1 0
         let labels = LabelMap::from_vec(4, 2, vec![0, 0, 1, 0, 1, 1, 1, 0]).unwrap();
-        let g = SegmentGraph::new(&labels);
+        let g = SegmentGraph::new(&labels, 0);
         assert_eq!(g.len(), 3);
         assert_eq!(g.ids.as_slice(), &[0, 0, 1, 2, 1, 1, 1, 2]);
         assert_eq!(g.pixels(1), &[2, 4, 5, 6]);
@@ -173,11 +182,22 @@ mod tests {
     #[test]
     fn one_pixel_segments_and_empty_maps() {
         let labels = LabelMap::from_fn(5, 3, |x, y| (x + 5 * y) as u16);
-        let g = SegmentGraph::new(&labels);
+        let g = SegmentGraph::new(&labels, 0);
         assert_eq!(g.len(), 15);
         assert!((0..15).all(|s| g.pixels(s) == [s as u32]));
         assert_eq!(g.neighbours(6).len(), 4);
-        let g = SegmentGraph::new(&LabelMap::new(0, 0, 0));
+        let g = SegmentGraph::new(&LabelMap::new(0, 0, 0), 0);
         assert!(g.is_empty());
+    }
+
+    #[test]
+    fn tiles_cut_large_segments() {
+        let labels = LabelMap::new(10, 6, 7);
+        let g = SegmentGraph::new(&labels, 4);
+        // Tiles of 4×4: three columns by two rows.
+        assert_eq!(g.len(), 6);
+        assert_eq!(g.ids.get(9, 5), 5);
+        assert_eq!(g.pixels(2).len(), 2 * 4);
+        assert_eq!(g.neighbours(0), &[(1, 4), (3, 4)]);
     }
 }

@@ -172,7 +172,7 @@ pub fn scene_report(scene: &Scene, dir: &Path, out: &Path) -> anyhow::Result<Sce
             let table: &[(&str, [u32; 6])] = match algo {
                 Algorithm::Wta => &paper::TABLE_V,
                 Algorithm::LineGrowing => &paper::TABLE_VI,
-                Algorithm::Sgm => &[],
+                Algorithm::Sgm | Algorithm::Planes => &[],
             };
             if input == "original" || input == "fodpso" {
                 save(
