@@ -103,7 +103,7 @@ pub struct MatcherArgs {
     /// occluded match (Hamming bits; default 24).
     #[arg(long)]
     pub plane_truncation: Option<f32>,
-    /// Planes: cut segments into tiles of this side (px; 0, the default,
+    /// Planes: cut segments into tiles of this side (px; default 48, 0
     /// keeps them whole), so that a segment spanning several depths gets
     /// several planes.
     #[arg(long)]
