@@ -10,6 +10,8 @@
 //! * [`Matcher`] does the same keeping its buffers between frames;
 //!   [`wta::WtaMatcher`] alone is what the embedded receiver runs, frame
 //!   after frame without allocating.
+//! * [`planes`] is segment-based stereo: a disparity plane per segment of
+//!   a label map of the left view ([`Matcher::compute_segmented`]).
 //! * [`depth`] turns disparity into metres (`Z = b·f / (d + doffs)`), point
 //!   clouds (PLY), region distances and the number of depth levels.
 //!

@@ -2,8 +2,9 @@
 //! (Section III), as AdaptingBP (Klaus, Sormann, Karner, ICPR 2006) runs them.
 //!
 //! 1. **Segments**: the 4-connected components of the caller's label map
-//!    of the left view ([`graph`]); segmenting is the caller's business, so
-//!    this crate imports nothing above `image`.
+//!    of the left view, cut by square tiles ([`PlanesParams::tile`],
+//!    [`graph`]); segmenting is the caller's business, so this crate
+//!    imports nothing above `image`.
 //! 2. **Initial disparity**: SGM on census costs with the subpixel fit and
 //!    the left-right check; only pixels that pass the check vote.
 //! 3. **Plane per segment** `d = a·x + b·y + c` by slant and offset voting
@@ -11,7 +12,8 @@
 //!    `min_reliable` reliable pixels get no plane of their own.
 //! 4. **Plane set refinement and assignment** ([`assign`]): agreeing planes
 //!    of adjacent segments are clustered and refitted, then each segment
-//!    takes the plane that minimises a truncated census data term plus a
+//!    takes the plane that minimises a data term (truncated census cost and
+//!    agreement with the reliable initial disparities) plus a
 //!    boundary-length smoothness term, by greedy moves.
 //!
 //! The output is dense and subpixel: each pixel takes its segment's plane,
