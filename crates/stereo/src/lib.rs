@@ -10,6 +10,8 @@
 //! * [`Matcher`] does the same keeping its buffers between frames;
 //!   [`wta::WtaMatcher`] alone is what the embedded receiver runs, frame
 //!   after frame without allocating.
+//! * [`planes`] is segment-based stereo: a disparity plane per segment of
+//!   a label map of the left view ([`Matcher::compute_segmented`]).
 //! * [`depth`] turns disparity into metres (`Z = b·f / (d + doffs)`), point
 //!   clouds (PLY), region distances and the number of depth levels.
 //!
@@ -34,6 +36,7 @@ pub mod depth;
 mod lanes;
 pub mod line_growing;
 mod median;
+pub mod planes;
 pub mod refine;
 pub mod sgm;
 pub mod weighted_median;
@@ -42,7 +45,7 @@ pub mod wta;
 use std::fmt;
 use std::str::FromStr;
 
-use stereolink_image::{color, DisparityMap, GrayImage, RgbImage};
+use stereolink_image::{color, DisparityMap, GrayImage, LabelMap, RgbImage};
 
 pub use refine::Refinement;
 
@@ -78,6 +81,17 @@ pub enum StereoError {
     /// Another parameter is out of range.
     #[error("invalid parameter: {0}")]
     Parameter(String),
+    /// The label map of the plane matcher differs in size from the views.
+    #[error("the label map is {}x{} but the views are {}x{}", labels.0, labels.1, image.0, image.1)]
+    LabelMapSize {
+        /// Label map width and height.
+        labels: (usize, usize),
+        /// View width and height.
+        image: (usize, usize),
+    },
+    /// The plane matcher was asked for without the left view's label map.
+    #[error("the planes matcher needs the left view's segmentation (a label map)")]
+    NoSegments,
 }
 
 /// The matching algorithms.
@@ -91,18 +105,22 @@ pub enum Algorithm {
     LineGrowing,
     /// Semi-global matching on census costs (Hirschmüller 2008).
     Sgm,
+    /// Segment-based stereo with disparity planes ([`planes`]).
+    Planes,
 }
 
 impl Algorithm {
-    /// All algorithms, in the order reports list them.
+    /// The pixel-wise algorithms, in the order reports list them (the plane
+    /// matcher needs a segmentation as well).
     pub const ALL: [Algorithm; 3] = [Algorithm::Wta, Algorithm::LineGrowing, Algorithm::Sgm];
 
-    /// The short name used on the command line (`wta`, `lg`, `sgm`).
+    /// The short name used on the command line (`wta`, `lg`, `sgm`, `planes`).
     pub fn name(self) -> &'static str {
         match self {
             Algorithm::Wta => "wta",
             Algorithm::LineGrowing => "lg",
             Algorithm::Sgm => "sgm",
+            Algorithm::Planes => "planes",
         }
     }
 }
@@ -121,8 +139,9 @@ impl FromStr for Algorithm {
             "wta" | "sad" => Ok(Algorithm::Wta),
             "lg" | "line-growing" | "linegrowing" => Ok(Algorithm::LineGrowing),
             "sgm" => Ok(Algorithm::Sgm),
+            "planes" => Ok(Algorithm::Planes),
             other => Err(StereoError::Parameter(format!(
-                "unknown algorithm {other:?}; use wta, lg or sgm"
+                "unknown algorithm {other:?}; use wta, lg, sgm or planes"
             ))),
         }
     }
@@ -160,6 +179,8 @@ pub struct MatchSpec {
     pub sgm: sgm::SgmParams,
     /// Line-growing parameters.
     pub line_growing: line_growing::LineGrowingParams,
+    /// Plane matcher parameters (its initial SGM map uses [`Self::sgm`]).
+    pub planes: planes::PlanesParams,
     /// Post-processing steps.
     pub refine: Refinement,
 }
@@ -178,12 +199,13 @@ impl MatchSpec {
             block: match algorithm {
                 Algorithm::Wta => 11,
                 Algorithm::LineGrowing => 5,
-                Algorithm::Sgm => 1,
+                Algorithm::Sgm | Algorithm::Planes => 1,
             },
             gray_bits: WTA_GRAY_BITS,
             min_filter: WTA_MIN_FILTER,
             sgm: sgm::SgmParams::default(),
             line_growing: line_growing::LineGrowingParams::default(),
+            planes: planes::PlanesParams::default(),
             refine: Refinement::default_for(algorithm),
         };
         if min_disp >= max_disp {
@@ -224,6 +246,7 @@ impl MatchSpec {
             wm.validate()?;
         }
         self.sgm.validate()?;
+        self.planes.validate()?;
         self.line_growing.validate()
     }
 
@@ -273,11 +296,24 @@ impl Matcher {
         Self::default()
     }
 
-    /// Computes the left view's disparity map with `spec` (matching, then refinement).
+    /// Computes the left view's disparity map with `spec` (matching, then
+    /// refinement); [`Algorithm::Planes`] needs [`Self::compute_segmented`].
     pub fn compute(
         &mut self,
         left: &RgbImage,
         right: &RgbImage,
+        spec: &MatchSpec,
+    ) -> Result<DisparityMap, StereoError> {
+        self.compute_segmented(left, right, None, spec)
+    }
+
+    /// [`Self::compute`] with the left view's label map, which the plane
+    /// matcher needs and the others ignore.
+    pub fn compute_segmented(
+        &mut self,
+        left: &RgbImage,
+        right: &RgbImage,
+        labels: Option<&LabelMap>,
         spec: &MatchSpec,
     ) -> Result<DisparityMap, StereoError> {
         check_pair(left, right)?;
@@ -295,6 +331,14 @@ impl Matcher {
             Algorithm::Sgm => {
                 let (l, r) = gray_pair(left, right);
                 sgm::sgm(&l, &r, spec, &mut self.sgm)
+            }
+            Algorithm::Planes => {
+                let labels = labels.ok_or(StereoError::NoSegments)?;
+                let planes = planes::match_planes_with(left, right, labels, spec, &mut self.sgm)?;
+                refine::Raw {
+                    disparity: planes.disparity,
+                    right: None,
+                }
             }
         };
         Ok(refine::postprocess(raw, spec, left))

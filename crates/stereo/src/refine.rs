@@ -107,6 +107,8 @@ impl Refinement {
                 weighted_median: None,
                 fill: Some(HoleFill::Directions),
             },
+            // The planes give a dense subpixel map already.
+            Algorithm::Planes => Refinement::NONE,
             Algorithm::LineGrowing => Refinement {
                 lr_check: None,
                 subpixel: false,

@@ -207,3 +207,50 @@ fn encode_carries_right_labels_over_unless_independent() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--right"));
 }
+
+#[test]
+fn planes_matches_through_eval_and_match_with_any_segments() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("s");
+    let out = stereolink()
+        .args(["synth", scene.to_str().unwrap(), "--seed", "5"])
+        .args(["--width", "160", "--height", "120", "--max-disp", "24"])
+        .output()
+        .unwrap();
+    assert_success(&out);
+    let eval = |extra: &[&str]| -> serde_json::Value {
+        let out = stereolink()
+            .args(["--json", "eval", "--data", scene.to_str().unwrap()])
+            .args(["--algos", "sgm,planes"])
+            .args(extra)
+            .output()
+            .unwrap();
+        assert_success(&out);
+        serde_json::from_slice(&out.stdout).unwrap()
+    };
+    let t = eval(&[]);
+    let bad = |t: &serde_json::Value, i: usize| t["rows"][i]["bad1_nonocc"].as_f64().unwrap();
+    assert_eq!(t["rows"][1]["algorithm"], "planes");
+    // The planes over the mean shift over-segmentation beat SGM here.
+    assert!(bad(&t, 1) < bad(&t, 0), "{t}");
+    let t = eval(&["--segments", "kmeans"]);
+    assert!(bad(&t, 1) < 10.0, "{t}");
+
+    let pfm = dir.path().join("d.pfm");
+    let run = |segments: &str| {
+        stereolink()
+            .args(["match", "--algo", "planes", "--max-disp", "23"])
+            .arg(scene.join("left.png"))
+            .arg(scene.join("right.png"))
+            .args(["-o", pfm.to_str().unwrap(), "--segments", segments])
+            .output()
+            .unwrap()
+    };
+    assert_success(&run("otsu"));
+    assert!(pfm.is_file());
+    let out = run("foo");
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8(out.stderr).unwrap();
+    assert_eq!(err.lines().count(), 1, "{err}");
+    assert!(err.contains("foo"), "{err}");
+}

@@ -6,9 +6,10 @@ use std::time::Instant;
 use anyhow::Context;
 use serde::Serialize;
 use stereolink_image::{metrics::bad_pixel_rate, Scene};
-use stereolink_stereo::{compute_disparity, Algorithm};
+use stereolink_stereo::{Algorithm, Matcher};
 
 use super::matching::MatcherArgs;
+use crate::pipeline::planes::disparity;
 
 /// Arguments of `stereolink eval`.
 #[derive(Debug, clap::Args)]
@@ -79,8 +80,10 @@ pub fn score(scene: &Scene, algorithm: Algorithm, matcher: &MatcherArgs) -> anyh
     let mut m = matcher.clone();
     m.algo = algorithm;
     let spec = m.spec(0, scene.calib.ndisp.saturating_sub(1))?;
+    let segments = m.segments()?;
     let start = Instant::now();
-    let d = compute_disparity(&scene.left, &scene.right, &spec)?;
+    let pair = (&scene.left, &scene.right);
+    let d = disparity(&mut Matcher::new(), pair, &spec, &segments)?;
     let time_ms = start.elapsed().as_secs_f64() * 1e3;
     let gt = scene
         .gt_left
@@ -166,7 +169,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         );
         for r in table.rows.iter().chain(&table.averages) {
             s += &format!(
-                "{:<12} {:<4}       {}  {}  {} |       {}  {}  {} | {:9.1}\n",
+                "{:<12} {:<6}     {}  {}  {} |       {}  {}  {} | {:9.1}\n",
                 r.scene,
                 r.algorithm.name(),
                 f(r.bad1_nonocc),

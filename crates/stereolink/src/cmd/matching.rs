@@ -8,15 +8,19 @@ use serde::Serialize;
 use stereolink_image::{colormap, io, pfm, Scene};
 use stereolink_stereo::depth::region_distance;
 use stereolink_stereo::refine::{HoleFill, WeightedMedian};
-use stereolink_stereo::{compute_disparity, Algorithm, MatchSpec, Matcher, Refinement};
+use stereolink_stereo::{Algorithm, MatchSpec, Matcher, Refinement};
 
 use super::calib::CalibArgs;
+use crate::pipeline::planes::{disparity, Segments};
 use crate::pipeline::sender::default_roi;
 
 /// Matcher options shared by `match`, `eval` and `bench match`.
 #[derive(Debug, Clone, clap::Args)]
 pub struct MatcherArgs {
-    /// Algorithm: wta (SAD winner-take-all), lg (line growing) or sgm (semi-global).
+    /// Algorithm: wta (SAD winner-take-all), lg (line growing), sgm
+    /// (semi-global) or planes (segment-based: a disparity plane per
+    /// segment of the left view, fitted to SGM's LR-checked pixels and
+    /// assigned by greedy energy moves over the segment graph).
     #[arg(long, default_value = "sgm", value_parser = parse_algorithm)]
     pub algo: Algorithm,
     /// Window size for wta and lg (odd, 1–15; for wta at most 11 with
@@ -82,6 +86,28 @@ pub struct MatcherArgs {
     /// Line-growing passes of the averaging filter (eq. 16).
     #[arg(long)]
     pub lg_passes: Option<usize>,
+    /// Planes: the segments are the connected components of this method's
+    /// label map (kmeans, meanshift, otsu, pso, dpso, fodpso) instead of the
+    /// default mean shift over-segmentation (h_s 4, h_r 5). `send` always
+    /// uses the transmitted left labels.
+    #[arg(long, value_name = "METHOD")]
+    pub segments: Option<String>,
+    /// Planes: levels (classes) of --segments (default 3).
+    #[arg(long, default_value_t = 3)]
+    pub segment_levels: usize,
+    /// Planes: smoothness λ per unit of boundary between segments on
+    /// different planes (default 8).
+    #[arg(long)]
+    pub plane_smoothness: Option<f32>,
+    /// Planes: truncation of the per-pixel census cost, also the cost of an
+    /// occluded match (Hamming bits; default 24).
+    #[arg(long)]
+    pub plane_truncation: Option<f32>,
+    /// Planes: cut segments into tiles of this side (px; default 48, 0
+    /// keeps them whole), so that a segment spanning several depths gets
+    /// several planes.
+    #[arg(long)]
+    pub plane_tile: Option<usize>,
 }
 
 fn parse_algorithm(s: &str) -> Result<Algorithm, String> {
@@ -90,6 +116,15 @@ fn parse_algorithm(s: &str) -> Result<Algorithm, String> {
 }
 
 impl MatcherArgs {
+    /// Where the plane matcher's segments come from (seed 1 for the
+    /// stochastic methods).
+    pub fn segments(&self) -> anyhow::Result<Segments> {
+        Ok(match &self.segments {
+            None => Segments::OverSegmentation,
+            Some(m) => Segments::Method(m.parse()?, self.segment_levels, 1),
+        })
+    }
+
     /// [`Self::spec`] for a depth report: the subpixel fit on unless
     /// `--subpixel false`, so that distances are not rounded to whole
     /// disparities.
@@ -148,6 +183,9 @@ impl MatcherArgs {
         spec.sgm.paths = self.paths.unwrap_or(spec.sgm.paths);
         spec.line_growing.threshold = self.lg_threshold.unwrap_or(spec.line_growing.threshold);
         spec.line_growing.passes = self.lg_passes.unwrap_or(spec.line_growing.passes);
+        spec.planes.smoothness = self.plane_smoothness.unwrap_or(spec.planes.smoothness);
+        spec.planes.truncation = self.plane_truncation.unwrap_or(spec.planes.truncation);
+        spec.planes.tile = self.plane_tile.unwrap_or(spec.planes.tile);
         Ok(spec)
     }
 }
@@ -208,14 +246,16 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         &format!("{} and {}", args.left.display(), args.right.display()),
     )?;
     let spec = args.matcher.spec(args.min_disp, args.max_disp)?;
+    let segments = args.matcher.segments()?;
     let start = Instant::now();
-    let disp = compute_disparity(&left, &right, &spec).with_context(|| {
-        format!(
-            "cannot match {} against {}",
-            args.left.display(),
-            args.right.display()
-        )
-    })?;
+    let disp =
+        disparity(&mut Matcher::new(), (&left, &right), &spec, &segments).with_context(|| {
+            format!(
+                "cannot match {} against {}",
+                args.left.display(),
+                args.right.display()
+            )
+        })?;
     let time_ms = start.elapsed().as_secs_f64() * 1e3;
     pfm::write(&args.output, &disp)?;
     if let Some(png) = &args.png {
@@ -305,17 +345,19 @@ pub fn run_bench(args: BenchArgs, out: &super::Output) -> anyhow::Result<()> {
     let scene = Scene::load(&args.scene)?;
     let max_disp = args.max_disp.unwrap_or(scene.calib.ndisp.saturating_sub(1));
     let spec = args.matcher.spec(0, max_disp)?;
+    let segments = args.matcher.segments()?;
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(args.threads.unwrap_or(0))
         .build()?;
     let (times, disp) = pool.install(|| -> anyhow::Result<_> {
         // One matcher for every run, as for the frames of a video.
         let mut matcher = Matcher::new();
-        let disp = matcher.compute(&scene.left, &scene.right, &spec)?;
+        let pair = (&scene.left, &scene.right);
+        let disp = disparity(&mut matcher, pair, &spec, &segments)?;
         let mut times = Vec::with_capacity(args.iters);
         for _ in 0..args.iters.max(1) {
             let t = Instant::now();
-            std::hint::black_box(matcher.compute(&scene.left, &scene.right, &spec)?);
+            std::hint::black_box(disparity(&mut matcher, pair, &spec, &segments)?);
             times.push(t.elapsed().as_secs_f64() * 1e3);
         }
         Ok((times, disp))

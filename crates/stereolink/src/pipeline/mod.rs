@@ -3,10 +3,12 @@
 //! and the board's receiver ([`receiver`]: decode, rebuild, match, render,
 //! drive the axis), the whole system in one process ([`demo`]), the pairs
 //! arriving in a camera folder ([`watch`]), and the calibration of a raw
-//! pair ([`sensor`]: rectification maps and depth from `P1`/`P2`), and the
-//! sender's link in its own thread ([`uplink`]: reports ahead of frames).
+//! pair ([`sensor`]: rectification maps and depth from `P1`/`P2`), the
+//! sender's link in its own thread ([`uplink`]: reports ahead of frames), and
+//! the segments of the plane matcher ([`planes`]).
 
 pub mod demo;
+pub mod planes;
 pub mod receiver;
 pub mod sender;
 pub mod sensor;

@@ -22,7 +22,7 @@ use stereolink_image::{metrics::psnr_rgb, Calibration, DisparityMap, LabelMap, R
 use stereolink_segment::carry::{carry_over, NOTHING};
 use stereolink_segment::{segment, Method, Segmentation};
 use stereolink_stereo::depth::{depth_levels, depth_of, metric, region_distance, LevelSpec, Roi};
-use stereolink_stereo::{compute_disparity, MatchSpec};
+use stereolink_stereo::{Algorithm, MatchSpec, Matcher};
 
 /// What the sender does with a pair.
 #[derive(Clone, Debug)]
@@ -138,6 +138,9 @@ pub fn prepare(
     )?;
     let seg_ms = t.elapsed().as_secs_f64() * 1e3;
     let sent = (sl.to_rgb(), sr.to_rgb());
+    // The plane matcher fits its planes to the transmitted left labels.
+    let planes_labels =
+        (cfg.matcher.algorithm == Algorithm::Planes).then(|| sl.image.labels().clone());
     let psnr_db = (
         psnr_rgb(left, &sent.0)?.overall,
         psnr_rgb(right, &sent.1)?.overall,
@@ -159,7 +162,8 @@ pub fn prepare(
         container::encode(&Message::StereoFrame(Box::new(frame)), frame_id, timestamp);
     let enc_ms = t.elapsed().as_secs_f64() * 1e3;
     let t = Instant::now();
-    let disparity = compute_disparity(left, right, &cfg.matcher)?;
+    let disparity =
+        Matcher::new().compute_segmented(left, right, planes_labels.as_ref(), &cfg.matcher)?;
     let match_ms = t.elapsed().as_secs_f64() * 1e3;
     let (w, h) = left.dims();
     let roi = cfg.roi.unwrap_or_else(|| default_roi(w, h));

@@ -1,0 +1,296 @@
+//! Plane set refinement and plane assignment (steps 4 and 5 of the four-step
+//! method; AdaptingBP §2.4–2.5 use belief propagation for the latter).
+//!
+//! **Clustering**: segments are visited from the most to the fewest
+//! reliable pixels; each joins the cluster of an adjacent segment whose
+//! plane stays within `cluster_tolerance` px of its own over its bounding
+//! box, or starts a cluster. Each cluster is then refitted (least squares
+//! over the inliers) on the reliable pixels of all its segments.
+//!
+//! **Assignment**: every segment `s` takes one cluster plane `P_s`,
+//! minimising `E = Σ_s D(s, P_s) + λ · Σ_(s,t) |∂(s,t)| · [P_s ≠ P_t]`:
+//! the data term `D` sums each pixel's census Hamming cost at the plane's
+//! subpixel disparity (interpolated between whole disparities), truncated
+//! at `truncation`, which is also the cost of a match outside the right
+//! view, so that occluded pixels cost a bounded amount whatever the plane,
+//! plus `agreement` per px of disagreement (capped at `agreement_cap`)
+//! with the initial disparity where that passed the LR check;
+//! the smoothness term charges `λ` per unit of boundary between two
+//! segments that take different planes. Chosen: greedy moves (iterated
+//! conditional modes over segments, Gauss–Seidel in id order). Each move
+//! gives one segment the best of its own and its neighbours' planes; moves
+//! never raise `E`, so the sweeps stop, after at most `sweeps`. Segments
+//! without a plane of their own first take the best of their neighbours'
+//! in breadth-first order from the fitted ones. Cheaper than loopy BP
+//! (no messages over thousands of labels) and deterministic.
+
+use std::collections::VecDeque;
+
+use rayon::prelude::*;
+use stereolink_image::DisparityMap;
+
+use super::fit::{refit, samples, Sample};
+use super::graph::SegmentGraph;
+use super::{DisparityPlane, PlanesParams};
+
+/// The per-pixel data cost: the census Hamming distance (9×7, as SGM's) at
+/// the plane's disparity, truncated, plus the disagreement with the initial
+/// map where a pixel is reliable.
+pub struct DataCost<'a> {
+    left: Vec<u64>,
+    right: Vec<u64>,
+    reliable: &'a DisparityMap,
+    width: usize,
+    /// Disparities are clamped to this range before the cost is taken.
+    range: (f32, f32),
+    truncation: f32,
+    agreement: f32,
+    agreement_cap: f32,
+}
+
+impl<'a> DataCost<'a> {
+    /// The cost from the two views' census transforms and the LR-checked
+    /// initial map `reliable` (same size), plane disparities clamped to `range`.
+    pub fn new(
+        (left, right): (Vec<u64>, Vec<u64>),
+        reliable: &'a DisparityMap,
+        range: (f32, f32),
+        params: &PlanesParams,
+    ) -> Self {
+        DataCost {
+            left,
+            right,
+            reliable,
+            width: reliable.width(),
+            range,
+            truncation: params.truncation,
+            agreement: params.agreement,
+            agreement_cap: params.agreement_cap,
+        }
+    }
+
+    /// The cost of pixel `p` at disparity `d`.
+    fn pixel(&self, p: usize, d: f32) -> f32 {
+        let d0 = self.reliable.as_slice()[p];
+        let agreement = if d0.is_finite() {
+            self.agreement * (d - d0).abs().min(self.agreement_cap)
+        } else {
+            0.0
+        };
+        agreement + self.census(p, d)
+    }
+
+    /// The truncated census cost of pixel `p` at disparity `d`, interpolated
+    /// between whole disparities.
+    fn census(&self, p: usize, d: f32) -> f32 {
+        let x = (p % self.width) as f32;
+        let xr = x - d;
+        if xr < 0.0 {
+            return self.truncation;
+        }
+        let i = xr as usize;
+        let f = xr - i as f32;
+        let row = p - p % self.width;
+        let c = self.left[p];
+        let h0 = (c ^ self.right[row + i]).count_ones() as f32;
+        let h1 = (c ^ self.right[row + (i + 1).min(self.width - 1)]).count_ones() as f32;
+        (h0 + f * (h1 - h0)).min(self.truncation)
+    }
+
+    /// `D(s, plane)`: the summed cost of `pixels` under `plane`.
+    pub fn segment(&self, pixels: &[u32], plane: &DisparityPlane) -> f32 {
+        pixels
+            .iter()
+            .map(|&p| {
+                let p = p as usize;
+                self.pixel(p, plane.pixel(p % self.width, p / self.width, self.range))
+            })
+            .sum()
+    }
+}
+
+/// The planes after clustering and the cluster of each fitted segment.
+pub struct Clusters {
+    /// One refitted plane per cluster.
+    pub planes: Vec<DisparityPlane>,
+    /// Cluster of each segment; `None` for segments without a plane.
+    pub of_segment: Vec<Option<u32>>,
+}
+
+/// Clusters the fitted planes of adjacent segments that agree and refits
+/// each cluster on `disparity`'s reliable pixels.
+pub fn cluster(
+    graph: &SegmentGraph,
+    fitted: &[Option<DisparityPlane>],
+    disparity: &DisparityMap,
+    params: &PlanesParams,
+) -> Clusters {
+    let w = disparity.width();
+    let mut order: Vec<usize> = (0..graph.len()).filter(|&s| fitted[s].is_some()).collect();
+    let mut reliable = vec![0usize; graph.len()];
+    for &s in &order {
+        let d = disparity.as_slice();
+        reliable[s] = graph
+            .pixels(s)
+            .iter()
+            .filter(|&&p| d[p as usize].is_finite())
+            .count();
+    }
+    order.sort_by_key(|&s| std::cmp::Reverse(reliable[s]));
+    let mut of_segment: Vec<Option<u32>> = vec![None; graph.len()];
+    let mut seeds: Vec<DisparityPlane> = Vec::new();
+    for &s in &order {
+        let own = fitted[s].expect("only fitted segments are ordered");
+        let corners = bounding_corners(graph.pixels(s), w);
+        let agrees = |q: &DisparityPlane| {
+            corners
+                .iter()
+                .all(|&(x, y)| (own.at(x, y) - q.at(x, y)).abs() <= params.cluster_tolerance)
+        };
+        let joined = graph
+            .neighbours(s)
+            .iter()
+            .filter_map(|&(t, _)| of_segment[t as usize])
+            .find(|&k| agrees(&seeds[k as usize]));
+        of_segment[s] = Some(joined.unwrap_or_else(|| {
+            seeds.push(own);
+            seeds.len() as u32 - 1
+        }));
+    }
+    // Refit each cluster over its segments' reliable pixels.
+    let mut members: Vec<Vec<usize>> = vec![Vec::new(); seeds.len()];
+    for (s, k) in of_segment.iter().enumerate() {
+        if let Some(k) = k {
+            members[*k as usize].push(s);
+        }
+    }
+    let planes = members
+        .par_iter()
+        .zip(&seeds)
+        .map(|(segs, &seed)| {
+            if segs.len() == 1 {
+                return seed;
+            }
+            let mut all: Vec<Sample> = Vec::new();
+            let mut one = Vec::new();
+            for &s in segs {
+                samples(disparity, graph.pixels(s), &mut one);
+                all.extend_from_slice(&one);
+            }
+            refit(&all, seed, params.fit.inlier).unwrap_or(seed)
+        })
+        .collect();
+    Clusters { planes, of_segment }
+}
+
+/// The four corners of the bounding box of `pixels` (non-empty, raster order).
+fn bounding_corners(pixels: &[u32], w: usize) -> [(f32, f32); 4] {
+    let (y0, y1) = (
+        pixels[0] as usize / w,
+        pixels[pixels.len() - 1] as usize / w,
+    );
+    let (x0, x1) = pixels.iter().fold((usize::MAX, 0), |(lo, hi), &p| {
+        let x = p as usize % w;
+        (lo.min(x), hi.max(x))
+    });
+    let (x0, x1, y0, y1) = (x0 as f32, x1 as f32, y0 as f32, y1 as f32);
+    [(x0, y0), (x1, y0), (x0, y1), (x1, y1)]
+}
+
+/// Data costs of a segment for the planes tried so far.
+type Tried = Vec<(u32, f32)>;
+
+/// The plane of each segment (an index into `planes`), from the clusters'
+/// `initial` choice; `None` when no segment has a plane (nothing reliable).
+pub fn assign(
+    graph: &SegmentGraph,
+    cost: &DataCost,
+    planes: &[DisparityPlane],
+    initial: &[Option<u32>],
+    params: &PlanesParams,
+) -> Option<Vec<u32>> {
+    let n = graph.len();
+    let mut label: Vec<Option<u32>> = initial.to_vec();
+    let mut tried: Vec<Tried> = vec![Vec::new(); n];
+    let data = |s: usize, k: u32, tried: &mut Tried| -> f32 {
+        if let Some(&(_, c)) = tried.iter().find(|(j, _)| *j == k) {
+            return c;
+        }
+        let c = cost.segment(graph.pixels(s), &planes[k as usize]);
+        tried.push((k, c));
+        c
+    };
+    // Energy of segment s under plane k given its neighbours' labels.
+    let local = |s: usize, k: u32, label: &[Option<u32>], tried: &mut Tried| -> f32 {
+        let cut: u32 = graph
+            .neighbours(s)
+            .iter()
+            .filter(|&&(t, _)| label[t as usize].is_some_and(|j| j != k))
+            .map(|&(_, len)| len)
+            .sum();
+        data(s, k, tried) + params.smoothness * cut as f32
+    };
+    let best = |s: usize, label: &[Option<u32>], tried: &mut Tried| -> Option<u32> {
+        let own = label[s];
+        let mut candidates: Vec<u32> = own.into_iter().collect();
+        for &(t, _) in graph.neighbours(s) {
+            if let Some(k) = label[t as usize] {
+                if !candidates.contains(&k) {
+                    candidates.push(k);
+                }
+            }
+        }
+        let mut pick: Option<(u32, f32)> = None;
+        for k in candidates {
+            let e = local(s, k, label, tried);
+            if pick.is_none_or(|(_, b)| e < b) {
+                pick = Some((k, e));
+            }
+        }
+        pick.map(|(k, _)| k)
+    };
+
+    // Segments without a plane, breadth-first from those with one.
+    let mut queue: VecDeque<usize> = (0..n).filter(|&s| label[s].is_some()).collect();
+    if queue.is_empty() {
+        return None;
+    }
+    while let Some(s) = queue.pop_front() {
+        for &(t, _) in graph.neighbours(s) {
+            let t = t as usize;
+            if label[t].is_none() {
+                label[t] = best(t, &label, &mut tried[t]);
+                queue.push_back(t);
+            }
+        }
+    }
+
+    for _ in 0..params.sweeps {
+        // The data costs of the current candidates, in parallel; the moves
+        // below then mostly find them computed.
+        let snapshot = &label;
+        tried.par_iter_mut().enumerate().for_each(|(s, tried)| {
+            let own = snapshot[s].into_iter();
+            let around = graph
+                .neighbours(s)
+                .iter()
+                .filter_map(|&(t, _)| snapshot[t as usize]);
+            for k in own.chain(around) {
+                data(s, k, tried);
+            }
+        });
+        let mut changed = false;
+        for s in 0..n {
+            let k = best(s, &label, &mut tried[s]);
+            if k != label[s] {
+                label[s] = k;
+                changed = true;
+            }
+        }
+        if !changed {
+            break;
+        }
+    }
+    // The graph of a grid is connected, so the search reached every segment.
+    label.into_iter().collect()
+}

@@ -1,0 +1,228 @@
+//! The plane matcher on synthetic slanted planes, and its bad inputs.
+
+use super::*;
+
+/// A textured scene of slanted planar surfaces: the surface of each pixel
+/// by `region(x, y)`, `planes[region]` its disparity; the right view shows
+/// each left surface point at `x − d`, the nearest surface in front.
+struct SlantedScene {
+    left: RgbImage,
+    right: RgbImage,
+    truth: DisparityMap,
+    labels: LabelMap,
+}
+
+/// A smooth random texture: bilinear interpolation of a hashed 3 px grid.
+fn texture(x: f32, y: f32) -> u8 {
+    let hash = |i: i64, j: i64| {
+        let mut v = (i.wrapping_mul(73_856_093) ^ j.wrapping_mul(19_349_663)) as u64;
+        v = v.wrapping_mul(0x9E37_79B9_7F4A_7C15);
+        ((v >> 40) % 200) as f32 + 28.0
+    };
+    let (u, v) = (x / 3.0, y / 3.0);
+    let (i, j) = (u.floor(), v.floor());
+    let (fu, fv) = (u - i, v - j);
+    let (i, j) = (i as i64, j as i64);
+    let top = hash(i, j) * (1.0 - fu) + hash(i + 1, j) * fu;
+    let bottom = hash(i, j + 1) * (1.0 - fu) + hash(i + 1, j + 1) * fu;
+    (top * (1.0 - fv) + bottom * fv) as u8
+}
+
+fn slanted_scene(
+    w: usize,
+    h: usize,
+    planes: &[DisparityPlane],
+    region: impl Fn(usize, usize) -> usize,
+    label: impl Fn(usize, usize) -> u16,
+) -> SlantedScene {
+    let truth = DisparityMap::from_fn(w, h, |x, y| planes[region(x, y)].at(x as f32, y as f32));
+    let left = RgbImage::from_fn(w, h, |x, y| [texture(x as f32, y as f32); 3]);
+    let right = RgbImage::from_fn(w, h, |xr, y| {
+        // The left pixels that land nearest xr; the largest disparity is in front.
+        let mut best: Option<(f32, f32)> = None;
+        for x in xr..w {
+            let d = truth.get(x, y);
+            let xl = xr as f32 + d;
+            if (xl - x as f32).abs() <= 0.5 && best.is_none_or(|(bd, _)| d > bd) {
+                best = Some((d, xl));
+            }
+        }
+        let g = best.map_or(90, |(_, xl)| texture(xl, y as f32));
+        [g; 3]
+    });
+    let labels = LabelMap::from_fn(w, h, label);
+    SlantedScene {
+        left,
+        right,
+        truth,
+        labels,
+    }
+}
+
+const BACK: DisparityPlane = DisparityPlane {
+    a: 0.05,
+    b: 0.02,
+    c: 6.0,
+};
+const FRONT: DisparityPlane = DisparityPlane {
+    a: -0.04,
+    b: 0.03,
+    c: 18.0,
+};
+
+fn in_front(x: usize, y: usize) -> bool {
+    (60..120).contains(&x) && (30..90).contains(&y)
+}
+
+/// Background split into four segments, the slanted box one more.
+fn two_planes() -> SlantedScene {
+    slanted_scene(
+        180,
+        120,
+        &[BACK, FRONT],
+        |x, y| in_front(x, y) as usize,
+        |x, y| {
+            if in_front(x, y) {
+                4
+            } else {
+                (x / 90 + 2 * (y / 60)) as u16
+            }
+        },
+    )
+}
+
+/// The matcher without tiles: the segments are the label map's components.
+fn spec() -> MatchSpec {
+    let mut spec = MatchSpec::new(Algorithm::Planes, 0, 31).unwrap();
+    spec.planes.tile = 0;
+    spec
+}
+
+fn bad_rate(d: &DisparityMap, truth: &DisparityMap) -> f64 {
+    let bad = d
+        .as_slice()
+        .iter()
+        .zip(truth.as_slice())
+        .filter(|(d, t)| (*d - *t).abs() > 1.0 || d.is_nan() || t.is_nan())
+        .count();
+    100.0 * bad as f64 / d.len() as f64
+}
+
+#[test]
+fn slanted_planes_are_recovered_from_the_pair() {
+    let s = two_planes();
+    let m = match_planes(&s.left, &s.right, &s.labels, &spec()).unwrap();
+    assert_eq!(m.graph.len(), 5);
+    assert_eq!(m.planes.len(), 5);
+    for (id, want) in [(0, BACK), (1, BACK), (2, FRONT), (3, BACK), (4, BACK)] {
+        let got = m.planes[id];
+        assert!(
+            (got.a - want.a).abs() < 0.01 && (got.b - want.b).abs() < 0.01,
+            "segment {id}: {got:?} against {want:?}"
+        );
+        // Within a quarter pixel at the middle of the image.
+        assert!((got.at(90.0, 60.0) - want.at(90.0, 60.0)).abs() < 0.25);
+    }
+    let bad = bad_rate(&m.disparity, &s.truth);
+    assert!(bad < 0.5, "{bad:.2} % bad");
+    // The background's four segments agree and share one refitted plane.
+    assert_eq!(m.planes[0], m.planes[1]);
+    assert_eq!(m.planes[0], m.planes[4]);
+}
+
+#[test]
+fn tiles_cut_segments_and_keep_the_planes() {
+    let s = two_planes();
+    let mut spec = spec();
+    spec.planes.tile = 32;
+    let m = match_planes(&s.left, &s.right, &s.labels, &spec).unwrap();
+    assert!(m.graph.len() > 5);
+    let bad = bad_rate(&m.disparity, &s.truth);
+    assert!(bad < 0.5, "{bad:.2} % bad");
+}
+
+#[test]
+fn the_dense_map_is_the_plane_table_rendered() {
+    let s = two_planes();
+    let m = match_planes(&s.left, &s.right, &s.labels, &spec()).unwrap();
+    assert_eq!(render(&m.graph.ids, &m.planes, (0.0, 31.0)), m.disparity);
+    let mut matcher = crate::Matcher::new();
+    let d = matcher
+        .compute_segmented(&s.left, &s.right, Some(&s.labels), &spec())
+        .unwrap();
+    assert_eq!(d, m.disparity);
+    assert_eq!(
+        matcher.compute(&s.left, &s.right, &spec()),
+        Err(StereoError::NoSegments)
+    );
+}
+
+#[test]
+fn a_label_map_of_another_size_is_an_error() {
+    let s = two_planes();
+    let labels = LabelMap::new(100, 120, 0);
+    assert_eq!(
+        match_planes(&s.left, &s.right, &labels, &spec()),
+        Err(StereoError::LabelMapSize {
+            labels: (100, 120),
+            image: (180, 120)
+        })
+    );
+}
+
+#[test]
+fn a_segment_without_reliable_pixels_borrows_a_neighbours_plane() {
+    // The band left of the box is occluded in the right view: nothing there
+    // passes the LR check, yet it gets the background's plane.
+    let s = slanted_scene(
+        180,
+        120,
+        &[BACK, FRONT],
+        |x, y| in_front(x, y) as usize,
+        |x, y| match (
+            in_front(x, y),
+            (50..60).contains(&x) && (30..90).contains(&y),
+        ) {
+            (true, _) => 2,
+            (false, true) => 1,
+            _ => 0,
+        },
+    );
+    let m = match_planes(&s.left, &s.right, &s.labels, &spec()).unwrap();
+    assert!(m.disparity.as_slice().iter().all(|d| d.is_finite()));
+    assert!(bad_rate(&m.disparity, &s.truth) < 0.5);
+}
+
+#[test]
+fn one_pixel_and_thousands_of_segments_still_give_a_dense_map() {
+    let s = two_planes();
+    for labels in [
+        // One segment per pixel: 21 600 segments.
+        LabelMap::from_fn(180, 120, |x, y| ((x + 180 * y) % 65_536) as u16),
+        // 4×4 blocks: 1 350 segments.
+        LabelMap::from_fn(180, 120, |x, y| (x / 4 + 45 * (y / 4)) as u16),
+    ] {
+        let m = match_planes(&s.left, &s.right, &labels, &spec()).unwrap();
+        assert!(m.disparity.as_slice().iter().all(|d| d.is_finite()));
+        let bad = bad_rate(&m.disparity, &s.truth);
+        assert!(bad < 10.0, "{} segments: {bad:.2} % bad", m.graph.len());
+    }
+}
+
+#[test]
+fn a_textureless_pair_gives_no_nan() {
+    let img = RgbImage::new(60, 40, [128; 3]);
+    let labels = LabelMap::from_fn(60, 40, |x, _| (x / 20) as u16);
+    let m = match_planes(
+        &img,
+        &img,
+        &labels,
+        &MatchSpec::new(Algorithm::Planes, 0, 8).unwrap(),
+    )
+    .unwrap();
+    assert!(m.disparity.as_slice().iter().all(|d| !d.is_nan()));
+    assert!(m
+        .planes
+        .iter()
+        .all(|p| p.a.is_finite() && p.b.is_finite() && p.c.is_finite()));
+}
