@@ -25,6 +25,7 @@ extern crate alloc;
 
 pub mod arq;
 pub mod crc;
+pub mod secure;
 pub mod slip;
 pub mod xbee;
 
