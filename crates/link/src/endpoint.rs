@@ -2,7 +2,9 @@
 //! [`Transport`] with the real clock. Both directions share one endpoint,
 //! so a side can send messages and receive messages at the same time.
 //! Each endpoint is one session: its id is drawn from the OS RNG when it is
-//! made, so a restarted process is never taken for the one before.
+//! made, so a restarted process is never taken for the one before. With
+//! keys ([`Endpoint::with_keys`], in [`sealed`]) every message is sealed by
+//! the secure layer and each handshake opens a new session.
 
 use std::collections::VecDeque;
 use std::time::{Duration, Instant};
@@ -11,7 +13,10 @@ use rand::rngs::OsRng;
 use rand::RngCore;
 
 use crate::arq::{ArqError, Config, Micros, Receiver, Segment, SendState, Sender, SessionId};
+use crate::secure::{Channel, SecureError};
 use crate::transport::Transport;
+
+mod sealed;
 
 /// Everything that can end a send or receive.
 #[derive(Debug)]
@@ -24,6 +29,10 @@ pub enum LinkError {
     Timeout,
     /// Nothing at all came back from the peer before the message deadline.
     NoAnswer(Duration),
+    /// No secure session could be set up with the peer.
+    Secure(SecureError),
+    /// The peer answered no handshake before the message deadline.
+    NoHandshake(Duration),
 }
 
 impl std::fmt::Display for LinkError {
@@ -35,6 +44,13 @@ impl std::fmt::Display for LinkError {
             LinkError::NoAnswer(d) => write!(
                 f,
                 "no answer from the peer: nothing came back in {:.0} s, the message deadline",
+                d.as_secs_f64()
+            ),
+            LinkError::Secure(e) => write!(f, "{e}"),
+            LinkError::NoHandshake(d) => write!(
+                f,
+                "no secure session: the peer answered no handshake in {:.0} s \
+                 (is it running with the matching --key/--peer-key pair?)",
                 d.as_secs_f64()
             ),
         }
@@ -76,11 +92,16 @@ pub type SilenceNotice = Box<dyn FnOnce(Duration)>;
 /// A message endpoint over a transport.
 pub struct Endpoint {
     transport: Box<dyn Transport>,
+    cfg: Config,
     session: SessionId,
     sender: Sender,
     receiver: Receiver,
     epoch: Instant,
-    inbox: VecDeque<Vec<u8>>,
+    /// Messages the ARQ delivered, with the peer session they came from.
+    inbox: VecDeque<(SessionId, Vec<u8>)>,
+    /// With keys: the secure channel, and the messages it opened.
+    secure: Option<Channel>,
+    opened: VecDeque<Vec<u8>>,
     failures: VecDeque<ArqError>,
     /// When a valid segment last arrived.
     last_heard: Option<Instant>,
@@ -100,25 +121,24 @@ impl Endpoint {
 
     /// An endpoint with explicit protocol parameters and a fresh session.
     pub fn with_config(transport: Box<dyn Transport>, cfg: Config) -> std::io::Result<Self> {
-        let mut id = [0u8; 4];
-        OsRng
-            .try_fill_bytes(&mut id)
-            .map_err(std::io::Error::other)?;
-        let session = SessionId(u32::from_le_bytes(id));
+        let session = fresh_session()?;
         Ok(Endpoint {
             transport,
+            cfg,
             session,
             sender: Sender::new(cfg, session),
             receiver: Receiver::new(cfg, session),
             epoch: Instant::now(),
             inbox: VecDeque::new(),
+            secure: None,
+            opened: VecDeque::new(),
             failures: VecDeque::new(),
             last_heard: None,
             silence: None,
         })
     }
 
-    /// This endpoint's session.
+    /// This endpoint's current session (with keys, the one of its last handshake).
     pub fn session(&self) -> SessionId {
         self.session
     }
@@ -154,10 +174,12 @@ impl Endpoint {
                 if let Some(a) = ack {
                     self.transport.send(&a)?;
                 }
-                match delivery {
-                    Some(Ok(m)) => self.inbox.push_back(m),
-                    Some(Err((_, e))) => self.failures.push_back(e),
-                    None => {}
+                match (delivery, &seg) {
+                    (Some(Ok(m)), Segment::Data { session, .. }) => {
+                        self.inbox.push_back((*session, m))
+                    }
+                    (Some(Err((_, e))), _) => self.failures.push_back(e),
+                    _ => {}
                 }
             }
         }
@@ -176,8 +198,17 @@ impl Endpoint {
         Ok(())
     }
 
-    /// Sends one message and waits until every fragment is acknowledged.
+    /// Sends one message (sealed, with keys) and waits until every fragment
+    /// is acknowledged.
     pub fn send_message(&mut self, message: &[u8]) -> Result<SendStats, LinkError> {
+        match self.secure {
+            Some(_) => self.send_sealed(message),
+            None => self.send_raw(message),
+        }
+    }
+
+    /// Sends `message` as it is.
+    fn send_raw(&mut self, message: &[u8]) -> Result<SendStats, LinkError> {
         let start = Instant::now();
         self.sender
             .start(message, self.now())
@@ -230,7 +261,7 @@ impl Endpoint {
     pub fn recv_message(&mut self, timeout: Duration) -> Result<Vec<u8>, LinkError> {
         let until = Instant::now() + timeout;
         loop {
-            if let Some(m) = self.inbox.pop_front() {
+            if let Some(m) = self.next_message()? {
                 return Ok(m);
             }
             if let Some(e) = self.failures.pop_front() {
@@ -242,6 +273,16 @@ impl Endpoint {
             }
             self.service((until - now).min(TICK))?;
         }
+    }
+
+    /// The next message for the layer above: as delivered, or with keys
+    /// once the secure layer opened it.
+    fn next_message(&mut self) -> Result<Option<Vec<u8>>, LinkError> {
+        if self.secure.is_none() {
+            return Ok(self.inbox.pop_front().map(|(_, m)| m));
+        }
+        self.open_inbox()?;
+        Ok(self.opened.pop_front())
     }
 
     /// Keeps answering the peer (ACKs for retransmitted fragments) for `time`.
@@ -257,6 +298,15 @@ impl Endpoint {
     pub fn duplicates(&self) -> u64 {
         self.receiver.duplicates()
     }
+}
+
+/// A random session id from the OS RNG.
+fn fresh_session() -> std::io::Result<SessionId> {
+    let mut id = [0u8; 4];
+    OsRng
+        .try_fill_bytes(&mut id)
+        .map_err(std::io::Error::other)?;
+    Ok(SessionId(u32::from_le_bytes(id)))
 }
 
 #[cfg(test)]

@@ -1,0 +1,159 @@
+//! The endpoint with keys: every message goes through the secure
+//! [`Channel`]. Before sealing, a handshake runs when there is no session or
+//! it is due for a rekey; each handshake first opens a fresh ARQ session of
+//! this endpoint, so the ARQ session and the Noise session begin and end
+//! together. A message whose ACKs came from a receiver session other than
+//! the handshake's peer reached a restarted peer that could not open it: it
+//! is sent again under a new handshake, never reported delivered.
+
+use std::time::{Duration, Instant};
+
+use super::{fresh_session, Endpoint, LinkError, SendStats, TICK};
+use crate::arq::Sender;
+use crate::secure::{Channel, Keys, Opened, Rejections, SecureConfig};
+
+/// How long a handshake waits for its RESPONSE before starting over.
+const HANDSHAKE_WAIT: Duration = Duration::from_secs(2);
+
+impl Endpoint {
+    /// Seals every message with the paired `keys` (see [`crate::secure`]).
+    pub fn with_keys(mut self, keys: Keys, cfg: SecureConfig) -> Self {
+        self.secure = Some(Channel::new(keys, cfg));
+        self
+    }
+
+    /// Messages the secure layer refused, by cause (`None` without keys).
+    pub fn rejections(&self) -> Option<Rejections> {
+        self.secure.as_ref().map(Channel::rejections)
+    }
+
+    /// Seals and sends `message`, after a handshake if one is due.
+    pub(super) fn send_sealed(&mut self, message: &[u8]) -> Result<SendStats, LinkError> {
+        let start = Instant::now();
+        loop {
+            self.ensure_session(start)?;
+            let channel = self.secure.as_mut().expect("called with keys");
+            let sealed = channel.seal(message).map_err(LinkError::Secure)?;
+            let peer = channel.established().map(|(_, peer)| peer);
+            let stats = self.send_raw(&sealed)?;
+            if self.sender.receiver() == peer {
+                return Ok(SendStats {
+                    bytes: message.len() as u64,
+                    elapsed: start.elapsed(),
+                    ..stats
+                });
+            }
+            // A restarted peer acknowledged it but holds no session to open it.
+            if let Some(c) = self.secure.as_mut() {
+                c.forget();
+            }
+        }
+    }
+
+    fn deadline(&self) -> Duration {
+        Duration::from_micros(self.cfg.deadline)
+    }
+
+    /// Runs handshakes until a session is established from our current
+    /// ARQ session, or the message deadline passes.
+    fn ensure_session(&mut self, start: Instant) -> Result<(), LinkError> {
+        let due = |e: &Self| {
+            e.secure
+                .as_ref()
+                .is_some_and(|c| c.needs_handshake(e.now()))
+        };
+        while due(self) {
+            if start.elapsed() >= self.deadline() {
+                return Err(LinkError::NoHandshake(start.elapsed()));
+            }
+            self.session = fresh_session()?;
+            self.sender = Sender::new(self.cfg, self.session);
+            self.receiver.renew(self.session);
+            let channel = self.secure.as_mut().expect("called with keys");
+            let init = channel.initiate(self.session).map_err(LinkError::Secure)?;
+            self.send_raw(&init)?;
+            let until = Instant::now() + HANDSHAKE_WAIT;
+            while due(self) && Instant::now() < until {
+                self.service(TICK)?;
+                self.open_inbox()?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Passes the delivered messages through the channel: opened ones wait
+    /// in `opened`, a handshake INIT is answered.
+    pub(super) fn open_inbox(&mut self) -> Result<(), LinkError> {
+        while let Some((from, bytes)) = self.inbox.pop_front() {
+            let now = self.now();
+            let Some(channel) = self.secure.as_mut() else {
+                return Ok(());
+            };
+            match channel.open(from, self.session, &bytes, now) {
+                Opened::Message(m) => self.opened.push_back(m),
+                Opened::Reply(r) => match self.send_raw(&r) {
+                    // A RESPONSE nobody takes (a replayed INIT) is not fatal.
+                    Err(LinkError::Io(e)) => return Err(LinkError::Io(e)),
+                    Ok(_) | Err(_) => {}
+                },
+                Opened::Established | Opened::Rejected(_) => {}
+            }
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::secure::public_key;
+    use crate::sim::{pair, SimConfig};
+
+    fn keys() -> (Keys, Keys) {
+        let (a, b) = ([5u8; 32], [6u8; 32]);
+        (Keys::new(a, public_key(&b)), Keys::new(b, public_key(&a)))
+    }
+
+    #[test]
+    fn sealed_messages_cross_a_lossy_link_and_a_sender_restart() {
+        let (ka, kb) = keys();
+        let (a, b) = pair(
+            SimConfig {
+                loss: 0.1,
+                seed: 9,
+                ..SimConfig::default()
+            },
+            20.0,
+        );
+        let rx = std::thread::spawn(move || {
+            let mut e = Endpoint::new(Box::new(b))
+                .unwrap()
+                .with_keys(kb, SecureConfig::default());
+            let got: Vec<Vec<u8>> = (0..4)
+                .map(|_| e.recv_message(Duration::from_secs(20)).unwrap())
+                .collect();
+            e.linger(Duration::from_millis(300)).unwrap();
+            (got, e.rejections().unwrap())
+        });
+        let msgs: Vec<Vec<u8>> = (0..4u8).map(|i| vec![i; 1500]).collect();
+        // Two sender lives over the same radio: the second handshakes anew.
+        let mut e = Endpoint::new(Box::new(a))
+            .unwrap()
+            .with_keys(ka.clone(), SecureConfig::default());
+        let first = e.session();
+        for m in &msgs[..2] {
+            assert_eq!(e.send_message(m).unwrap().bytes, 1500);
+        }
+        assert_ne!(e.session(), first, "the handshake opened a new session");
+        let Endpoint { transport, .. } = e;
+        let mut e = Endpoint::new(transport)
+            .unwrap()
+            .with_keys(ka, SecureConfig::default());
+        for m in &msgs[2..] {
+            e.send_message(m).unwrap();
+        }
+        let (got, rejected) = rx.join().unwrap();
+        assert_eq!(got, msgs);
+        assert_eq!(rejected.total(), 0, "{rejected}");
+    }
+}
