@@ -19,6 +19,9 @@ mod channel;
 pub mod replay;
 pub mod wire;
 
+#[cfg(feature = "std")]
+pub mod keyfile;
+
 pub use channel::{Channel, Opened};
 
 use crate::arq::Micros;

@@ -9,6 +9,7 @@ use stereolink_link::spec;
 use stereolink_robot::open_axis;
 use stereolink_robot::policy::MotionPolicy;
 
+use super::keygen::KeyArgs;
 use crate::pipeline::receiver::{BoardReceiver, Event};
 
 /// Arguments of `stereolink receive`.
@@ -50,6 +51,8 @@ pub struct Args {
     /// Axis speed limit, mm/s.
     #[arg(long, default_value_t = 50.0)]
     pub max_speed: f64,
+    #[command(flatten)]
+    pub keys: KeyArgs,
 }
 
 /// Receives, shows and moves until done.
@@ -60,9 +63,10 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         args.matcher
     );
     let spec = super::link_spec(&args.link)?;
-    let mut ep = Endpoint::new(
+    let ep = Endpoint::new(
         spec::open(&spec).with_context(|| format!("cannot open link {}", args.link))?,
     )?;
+    let mut ep = args.keys.apply(ep, args.robot.is_some())?;
     let mut board = BoardReceiver::new(args.max_disp, 9, Duration::from_secs(args.watchdog_s));
     board.policy = MotionPolicy {
         standoff_mm: args.standoff_mm,
@@ -119,6 +123,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
                 Event::Rejected(why) => eprintln!("{why}"),
             }
         }
+        board.status.security = security_line(&ep);
         if matches!(event, Event::Report { .. }) {
             frames += 1;
             if let Some(axis) = board.axis.as_mut() {
@@ -130,6 +135,9 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     }
     // Answer late retransmissions, and let the axis finish its move.
     ep.linger(Duration::from_millis(500))?;
+    if let (Some(r), false) = (ep.rejections(), out.json) {
+        println!("link: {r}");
+    }
     if let Some(axis) = board.axis.as_mut() {
         let pos = stereolink_robot::wait_until_idle(axis.as_mut(), 6000)?
             .context("the axis is still moving")?;
@@ -141,4 +149,15 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         out.emit(&events, String::new)?;
     }
     Ok(())
+}
+
+/// The screen's security note: sealed or not, and the refusals by cause.
+fn security_line(ep: &Endpoint) -> String {
+    match ep.rejections() {
+        Some(r) => format!(
+            "SEALED  REJ TAG {} RPL {} SES {} HS {}",
+            r.bad_tag, r.replay, r.unknown_session, r.handshake
+        ),
+        None => "INSECURE".into(),
+    }
 }

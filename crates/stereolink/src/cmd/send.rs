@@ -20,6 +20,7 @@ use stereolink_capture::StereoCapture;
 
 use super::calib::CalibArgs;
 use super::camera::CameraArgs;
+use super::keygen::KeyArgs;
 use super::matching::MatcherArgs;
 use super::segment::SegmentArgs;
 use crate::pipeline::sender::{prepare, SenderConfig};
@@ -103,6 +104,8 @@ pub struct Args {
     pub segment: SegmentArgs,
     #[command(flatten)]
     pub matcher: MatcherArgs,
+    #[command(flatten)]
+    pub keys: KeyArgs,
 }
 
 #[derive(Serialize)]
@@ -145,7 +148,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         deadline: args.deadline_s.saturating_mul(1_000_000),
         ..Config::for_mtu(transport.mtu())
     };
-    let mut ep = Endpoint::with_config(transport, arq)?;
+    let mut ep = args.keys.apply(Endpoint::with_config(transport, arq)?, false)?;
     let (link, deadline_s) = (args.link.clone(), args.deadline_s);
     ep.on_silence(
         SILENCE_HINT,
