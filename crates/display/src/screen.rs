@@ -187,7 +187,13 @@ impl Screen {
             &status.message,
             [160, 200, 255],
         );
-        draw_text(img, x + 12, sy + GLYPH_H + 5, &status.security, [255, 200, 120]);
+        draw_text(
+            img,
+            x + 12,
+            sy + GLYPH_H + 5,
+            &status.security,
+            [255, 200, 120],
+        );
         &self.image
     }
 }

@@ -322,6 +322,11 @@ impl Sender {
         self.peer
     }
 
+    /// The time allowed for the messages started from now on.
+    pub fn set_deadline(&mut self, deadline: Micros) {
+        self.cfg.deadline = deadline;
+    }
+
     /// Starts sending `message` at `now`.
     pub fn start(&mut self, message: &[u8], now: Micros) -> Result<u16, ArqError> {
         if self.state == SendState::Sending {

@@ -13,7 +13,11 @@ use crate::arq::Sender;
 use crate::secure::{Channel, Keys, Opened, Rejections, SecureConfig};
 
 /// How long a handshake waits for its RESPONSE before starting over.
-const HANDSHAKE_WAIT: Duration = Duration::from_secs(2);
+const HANDSHAKE_WAIT: Duration = Duration::from_secs(3);
+
+/// How long a RESPONSE is retransmitted: a replayed INIT, whose sender is
+/// gone, costs the responder at most this, not a whole message deadline.
+const RESPONSE_DEADLINE: Duration = Duration::from_secs(3);
 
 impl Endpoint {
     /// Seals every message with the paired `keys` (see [`crate::secure`]).
@@ -91,11 +95,17 @@ impl Endpoint {
             };
             match channel.open(from, self.session, &bytes, now) {
                 Opened::Message(m) => self.opened.push_back(m),
-                Opened::Reply(r) => match self.send_raw(&r) {
-                    // A RESPONSE nobody takes (a replayed INIT) is not fatal.
-                    Err(LinkError::Io(e)) => return Err(LinkError::Io(e)),
-                    Ok(_) | Err(_) => {}
-                },
+                Opened::Reply(r) => {
+                    self.sender
+                        .set_deadline(RESPONSE_DEADLINE.as_micros() as u64);
+                    let sent = self.send_raw(&r);
+                    self.sender.set_deadline(self.cfg.deadline);
+                    match sent {
+                        // A RESPONSE nobody takes (a replayed INIT) is not fatal.
+                        Err(LinkError::Io(e)) => return Err(LinkError::Io(e)),
+                        Ok(_) | Err(_) => {}
+                    }
+                }
                 Opened::Established | Opened::Rejected(_) => {}
             }
         }

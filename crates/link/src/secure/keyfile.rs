@@ -117,7 +117,10 @@ mod tests {
         use std::os::unix::fs::PermissionsExt;
         let mode = std::fs::metadata(&key).unwrap().permissions().mode();
         assert_eq!(mode & 0o777, 0o600);
-        assert_eq!(public_key(&read_key(&key).unwrap()), read_key(&public).unwrap());
+        assert_eq!(
+            public_key(&read_key(&key).unwrap()),
+            read_key(&public).unwrap()
+        );
         assert!(matches!(generate(&name), Err(KeyFileError::Exists(_))));
         std::fs::write(dir.join("bad.pub"), "not a key\n").unwrap();
         assert!(matches!(

@@ -148,7 +148,9 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         deadline: args.deadline_s.saturating_mul(1_000_000),
         ..Config::for_mtu(transport.mtu())
     };
-    let mut ep = args.keys.apply(Endpoint::with_config(transport, arq)?, false)?;
+    let mut ep = args
+        .keys
+        .apply(Endpoint::with_config(transport, arq)?, false)?;
     let (link, deadline_s) = (args.link.clone(), args.deadline_s);
     ep.on_silence(
         SILENCE_HINT,
