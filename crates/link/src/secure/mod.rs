@@ -21,6 +21,8 @@ pub mod wire;
 
 #[cfg(feature = "std")]
 pub mod keyfile;
+#[cfg(feature = "std")]
+pub mod sim;
 
 pub use channel::{Channel, Opened};
 
