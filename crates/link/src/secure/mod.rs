@@ -16,6 +16,7 @@
 //! `now`); `snow` draws the ephemeral keys from the OS through `getrandom`.
 
 mod channel;
+pub mod fuzz;
 pub mod replay;
 pub mod wire;
 

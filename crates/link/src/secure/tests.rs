@@ -258,3 +258,14 @@ proptest! {
         prop_assert!(matches!(r.open(SessionId(from), B, &bytes, 1), Opened::Rejected(_)));
     }
 }
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(512))]
+
+    /// The fuzz target's harness on random inputs, in the normal test
+    /// suite (cargo-fuzz is not installed in CI).
+    #[test]
+    fn fuzz_harness_on_random_inputs(data in proptest::collection::vec(any::<u8>(), 0..600)) {
+        fuzz::drive(&data);
+    }
+}

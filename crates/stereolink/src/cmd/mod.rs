@@ -20,6 +20,7 @@ pub mod radio;
 pub mod receive;
 pub mod rectify;
 pub mod report;
+pub mod secure_bench;
 pub mod segment;
 pub mod send;
 pub mod synth;
