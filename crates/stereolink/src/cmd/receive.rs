@@ -18,7 +18,8 @@ pub struct Args {
     /// Link: serial:/dev/ttyUSB0?baud=115200&api=2, udp:BIND?peer=ADDR, fallback:A,B.
     #[arg(long)]
     pub link: String,
-    /// Display: fb:/dev/fb0, png:DIR or web:127.0.0.1:8080.
+    /// Display: fb:/dev/fb0, png:DIR or web:127.0.0.1:8080 (a viewer on any other
+    /// address answers only requests with the token printed at start).
     #[arg(long)]
     pub display: Option<String>,
     /// Axis: grbl:/dev/ttyACM0 or sim.
@@ -75,7 +76,9 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         max_speed_mm_s: args.max_speed,
     };
     if let Some(d) = &args.display {
-        board.sink = Some(open_sink(d).with_context(|| format!("cannot open display {d}"))?);
+        let sink = open_sink(d).with_context(|| format!("cannot open display {d}"))?;
+        eprintln!("display: {}", sink.describe());
+        board.sink = Some(sink);
     }
     if let Some(r) = &args.robot {
         board.axis = Some(open_axis(r).with_context(|| format!("cannot open axis {r}"))?);
