@@ -34,7 +34,7 @@ pub const NOISE_PARAMS: &str = "Noise_KK_25519_ChaChaPoly_BLAKE2s";
 
 /// Mixed into the handshake as the Noise prologue: a peer speaking another
 /// version of this layer fails the handshake instead of misreading it.
-pub const PROLOGUE: &[u8] = b"stereolink link v3";
+pub const PROLOGUE: &[u8] = b"stereolink secure v1";
 
 /// A device's static X25519 key pair and the peer's public key.
 #[derive(Clone)]
