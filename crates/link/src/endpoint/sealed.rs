@@ -100,10 +100,9 @@ impl Endpoint {
                         .set_deadline(RESPONSE_DEADLINE.as_micros() as u64);
                     let sent = self.send_raw(&r);
                     self.sender.set_deadline(self.cfg.deadline);
-                    match sent {
-                        // A RESPONSE nobody takes (a replayed INIT) is not fatal.
-                        Err(LinkError::Io(e)) => return Err(LinkError::Io(e)),
-                        Ok(_) | Err(_) => {}
+                    // A RESPONSE nobody takes (a replayed INIT) is not fatal.
+                    if let Err(LinkError::Io(e)) = sent {
+                        return Err(LinkError::Io(e));
                     }
                 }
                 Opened::Established | Opened::Rejected(_) => {}

@@ -301,7 +301,7 @@ impl Channel {
             .ok_or(Rejection::UnknownSession)?;
         let plain = self.pending[i].open(counter, sealed)?;
         // Confirmed: it replaces the current session and every older pending one.
-        self.current = self.pending.drain(..=i).last();
+        self.current = self.pending.drain(..=i).next_back();
         Ok(plain)
     }
 }
