@@ -165,4 +165,37 @@ mod tests {
         assert_eq!(got, msgs);
         assert_eq!(rejected.total(), 0, "{rejected}");
     }
+
+    #[test]
+    fn a_message_the_restarted_receiver_could_not_open_is_sent_again() {
+        let (ka, kb) = keys();
+        let (a, b) = pair(SimConfig::default(), 20.0);
+        let msgs: Vec<Vec<u8>> = (0..4u8).map(|i| vec![i; 700]).collect();
+        let rx = std::thread::spawn(move || {
+            let mut e = Endpoint::new(Box::new(b))
+                .unwrap()
+                .with_keys(kb.clone(), SecureConfig::default());
+            let mut got: Vec<Vec<u8>> = (0..2)
+                .map(|_| e.recv_message(Duration::from_secs(20)).unwrap())
+                .collect();
+            // The receiver restarts at once: same radio, no state, no keys.
+            let Endpoint { transport, .. } = e;
+            let mut e = Endpoint::new(transport)
+                .unwrap()
+                .with_keys(kb, SecureConfig::default());
+            got.extend((0..2).map(|_| e.recv_message(Duration::from_secs(20)).unwrap()));
+            e.linger(Duration::from_millis(300)).unwrap();
+            (got, e.rejections().unwrap())
+        });
+        let mut e = Endpoint::new(Box::new(a))
+            .unwrap()
+            .with_keys(ka, SecureConfig::default());
+        for m in &msgs {
+            e.send_message(m).unwrap();
+        }
+        let (got, rejected) = rx.join().unwrap();
+        assert_eq!(got, msgs, "every message once, none lost to the restart");
+        // The first copy of message 3 reached a receiver with no session.
+        assert_eq!(rejected.unknown_session, 1, "{rejected}");
+    }
 }
