@@ -14,7 +14,7 @@ use chacha20poly1305::aead::{AeadInPlace, KeyInit};
 use chacha20poly1305::{ChaCha20Poly1305, Nonce, Tag};
 use snow::HandshakeState;
 
-use super::replay::{ReplayWindow, Stale};
+use super::replay::ReplayWindow;
 use super::wire::{self, Message};
 use super::{Keys, Rejection, Rejections, SecureConfig, SecureError, NOISE_PARAMS, PROLOGUE};
 use crate::arq::{Micros, SessionId};
@@ -198,9 +198,9 @@ impl Channel {
         noise: &[u8],
         now: Micros,
     ) -> Result<Vec<u8>, Rejection> {
-        let ephemeral: [u8; wire::KEY_LEN] = noise[..wire::KEY_LEN]
-            .try_into()
-            .map_err(|_| Rejection::Handshake)?;
+        let ephemeral = *noise
+            .first_chunk::<{ wire::KEY_LEN }>()
+            .ok_or(Rejection::Handshake)?;
         let known = |s: &Session| s.peer == from;
         if self.answered.contains(&ephemeral)
             || self.current.as_ref().is_some_and(known)
@@ -348,15 +348,13 @@ impl Session {
 
     /// Checks the counter, authenticates and decrypts, then marks the counter.
     fn open(&mut self, counter: u64, sealed: &[u8]) -> Result<Vec<u8>, Rejection> {
-        self.window
-            .check(counter)
-            .map_err(|_: Stale| Rejection::Replay)?;
+        self.window.check(counter).map_err(|_| Rejection::Replay)?;
         let (body, tag) = sealed
-            .split_at_checked(sealed.len().wrapping_sub(wire::TAG_LEN))
+            .split_last_chunk::<{ wire::TAG_LEN }>()
             .ok_or(Rejection::BadTag)?;
         let mut plain = body.to_vec();
         self.recv
-            .decrypt_in_place_detached(&nonce(counter), &[], &mut plain, Tag::from_slice(tag))
+            .decrypt_in_place_detached(&nonce(counter), &[], &mut plain, &Tag::from(*tag))
             .map_err(|_| Rejection::BadTag)?;
         self.window.mark(counter);
         Ok(plain)
