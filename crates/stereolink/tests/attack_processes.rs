@@ -488,3 +488,37 @@ fn attacks_over_udp_are_refused() {
 fn attacks_over_a_pty_pair_are_refused() {
     attacks(Air::pty());
 }
+
+#[test]
+fn a_robot_without_keys_needs_insecure_and_is_warned_about_each_start() {
+    let link = format!(
+        "udp:127.0.0.1:{}?peer=127.0.0.1:{}",
+        free_port(),
+        free_port()
+    );
+    let args = [
+        "receive",
+        "--link",
+        &link,
+        "--robot",
+        "sim",
+        "--timeout-s",
+        "1",
+    ];
+    let refused = spawn(&args).wait_with_output().unwrap();
+    assert!(!refused.status.success());
+    let err = String::from_utf8_lossy(&refused.stderr);
+    assert!(
+        err.contains("refusing to drive the axis") && err.contains("--insecure"),
+        "{err}"
+    );
+    let insecure = spawn(&[&args[..], &["--insecure"]].concat())
+        .wait_with_output()
+        .unwrap();
+    assert!(insecure.status.success());
+    let err = String::from_utf8_lossy(&insecure.stderr);
+    assert!(
+        err.contains("anyone in radio range can send frames and reports and move the axis"),
+        "{err}"
+    );
+}
