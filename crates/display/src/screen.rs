@@ -37,6 +37,9 @@ pub struct ScreenStatus {
     pub axis_mm: Option<f64>,
     /// A free line (method, errors, ...).
     pub message: String,
+    /// The link's security, after the free line: sealed or not, and the
+    /// messages refused by cause.
+    pub security: String,
 }
 
 /// The screen and its buffers.
@@ -177,12 +180,19 @@ impl Screen {
             None => write!(text, "   AXIS --"),
         };
         draw_text(img, MARGIN + 2, sy, text, TEXT);
-        draw_text(
+        let x = draw_text(
             img,
             MARGIN + 2,
             sy + GLYPH_H + 5,
             &status.message,
             [160, 200, 255],
+        );
+        draw_text(
+            img,
+            x + 12,
+            sy + GLYPH_H + 5,
+            &status.security,
+            [255, 200, 120],
         );
         &self.image
     }

@@ -2,6 +2,10 @@
 //! page that refreshes the screen image and the status every half second.
 //!
 //! Routes: `/` (the page), `/screen.png` (the latest screen), `/status.json`.
+//! It only shows: no route changes anything, and none reaches the axis. On
+//! a loopback address anyone on the machine may look; on any other address
+//! every request must carry `?token=T`, a random token drawn at start and
+//! given in [`WebViewer::url`], or it is answered 403.
 
 use std::io::{self, BufRead, BufReader, Write};
 use std::net::{TcpListener, TcpStream};
@@ -20,11 +24,12 @@ img{image-rendering:pixelated;width:960px;height:544px;border:1px solid #444}</s
 <img id="screen" src="/screen.png" alt="receiver screen">
 <pre id="status">waiting for the first frame…</pre>
 <script>
+const q = location.search.includes('token=') ? '?token=' + new URLSearchParams(location.search).get('token') : '';
 async function tick(){
   try{
-    const s = await (await fetch('/status.json',{cache:'no-store'})).json();
+    const s = await (await fetch('/status.json' + q,{cache:'no-store'})).json();
     document.getElementById('status').textContent = JSON.stringify(s, null, 1);
-    document.getElementById('screen').src = '/screen.png?frame=' + s.frame_id;
+    document.getElementById('screen').src = '/screen.png' + q + (q ? '&' : '?') + 'frame=' + s.frame_id;
   }catch(e){}
 }
 setInterval(tick, 500); tick();
@@ -40,6 +45,8 @@ struct State {
 /// The viewer: serves until dropped (the server thread then exits with the process).
 pub struct WebViewer {
     addr: String,
+    /// Required on a non-loopback address.
+    token: Option<String>,
     state: Arc<Mutex<State>>,
 }
 
@@ -47,32 +54,66 @@ impl WebViewer {
     /// Starts serving on `addr` (e.g. `127.0.0.1:8080`; port 0 picks one).
     pub fn start(addr: &str) -> io::Result<Self> {
         let listener = TcpListener::bind(addr)?;
-        let addr = listener.local_addr()?.to_string();
+        let local = listener.local_addr()?;
+        let token = match local.ip().is_loopback() {
+            true => None,
+            false => Some(random_token()?),
+        };
+        let addr = local.to_string();
         let state = Arc::new(Mutex::new(State {
             png: imgio::encode_png_rgb(&RgbImage::new(480, 272, [16, 18, 24])),
             status: "{\"frame_id\":0}".into(),
         }));
-        let shared = state.clone();
+        let (shared, required) = (state.clone(), token.clone());
         std::thread::spawn(move || {
             for stream in listener.incoming().flatten() {
-                let _ = serve(stream, &shared);
+                let _ = serve(stream, &shared, required.as_deref());
             }
         });
-        Ok(WebViewer { addr, state })
+        Ok(WebViewer { addr, token, state })
     }
 
-    /// The address it serves on.
+    /// The address it serves on, with the token when one is required.
     pub fn url(&self) -> String {
-        format!("http://{}/", self.addr)
+        match &self.token {
+            Some(t) => format!("http://{}/?token={t}", self.addr),
+            None => format!("http://{}/", self.addr),
+        }
     }
 }
 
-fn serve(mut stream: TcpStream, state: &Mutex<State>) -> io::Result<()> {
+/// 128 bits from the OS, in hex.
+fn random_token() -> io::Result<String> {
+    let mut bytes = [0u8; 16];
+    io::Read::read_exact(&mut std::fs::File::open("/dev/urandom")?, &mut bytes)?;
+    Ok(bytes.iter().map(|b| format!("{b:02x}")).collect())
+}
+
+/// Whether the request's query carries `token` (compared in constant time).
+fn authorised(query: &str, token: Option<&str>) -> bool {
+    let Some(token) = token else { return true };
+    query.split('&').any(|kv| {
+        kv.strip_prefix("token=").is_some_and(|t| {
+            t.len() == token.len()
+                && t.bytes()
+                    .zip(token.bytes())
+                    .fold(0, |d, (a, b)| d | (a ^ b))
+                    == 0
+        })
+    })
+}
+
+fn serve(mut stream: TcpStream, state: &Mutex<State>, token: Option<&str>) -> io::Result<()> {
     stream.set_read_timeout(Some(std::time::Duration::from_secs(2)))?;
     let mut line = String::new();
     BufReader::new(&stream).take_line(&mut line)?;
-    let path = line.split_whitespace().nth(1).unwrap_or("/");
-    let path = path.split('?').next().unwrap_or("/");
+    let target = line.split_whitespace().nth(1).unwrap_or("/");
+    let (path, query) = target.split_once('?').unwrap_or((target, ""));
+    let path = if authorised(query, token) {
+        path
+    } else {
+        "forbidden"
+    };
     let (status, kind, body): (&str, &str, Vec<u8>) = {
         let s = state
             .lock()
@@ -85,6 +126,12 @@ fn serve(mut stream: TcpStream, state: &Mutex<State>) -> io::Result<()> {
             ),
             "/screen.png" => ("200 OK", "image/png", s.png.clone()),
             "/status.json" => ("200 OK", "application/json", s.status.clone().into_bytes()),
+            "forbidden" => (
+                "403 Forbidden",
+                "text/plain",
+                b"this viewer needs the token printed at its start: open the URL given there"
+                    .to_vec(),
+            ),
             _ => ("404 Not Found", "text/plain", b"not found".to_vec()),
         }
     };
@@ -158,5 +205,27 @@ mod tests {
         let (_, status) = get(&addr, "/status.json");
         assert!(String::from_utf8_lossy(&status).contains("\"frame_id\":9"));
         assert!(get(&addr, "/nope").0.contains("404"));
+        assert!(v.url().ends_with('/'), "no token on loopback: {}", v.url());
+    }
+
+    #[test]
+    fn beyond_loopback_every_route_needs_the_token() {
+        let v = WebViewer::start("0.0.0.0:0").unwrap();
+        let port = v.addr.rsplit(':').next().unwrap().to_string();
+        let addr = format!("127.0.0.1:{port}");
+        let token = v.url().split("token=").nth(1).unwrap().to_string();
+        assert_eq!(token.len(), 32);
+        for path in ["/", "/screen.png", "/status.json"] {
+            assert!(get(&addr, path).0.contains("403"), "{path}");
+            assert!(get(&addr, &format!("{path}?token=00{}", &token[2..]))
+                .0
+                .contains("403"));
+            let (h, _) = get(&addr, &format!("{path}?token={token}&frame=1"));
+            assert!(h.contains("200"), "{path}: {h}");
+        }
+        // Nothing but GET-style reads exist: any other path is unknown.
+        assert!(get(&addr, &format!("/axis?token={token}"))
+            .0
+            .contains("404"));
     }
 }

@@ -331,6 +331,16 @@ impl Sender {
         }
     }
 
+    /// The receiver session whose ACKs this sender trusts (the last heard).
+    pub fn receiver(&self) -> Option<SessionId> {
+        self.peer
+    }
+
+    /// The time allowed for the messages started from now on.
+    pub fn set_deadline(&mut self, deadline: Micros) {
+        self.cfg.deadline = deadline;
+    }
+
     /// Starts sending `message` at `now`.
     pub fn start(&mut self, message: &[u8], now: Micros) -> Result<u16, ArqError> {
         if self.state == SendState::Sending {
@@ -612,6 +622,12 @@ impl Receiver {
     /// Duplicate DATA segments dropped so far.
     pub fn duplicates(&self) -> u64 {
         self.duplicates
+    }
+
+    /// Names `session` in the ACKs from now on (a new handshake opened a new
+    /// session of this endpoint); what it holds of its peers is kept.
+    pub fn renew(&mut self, session: SessionId) {
+        self.session = session;
     }
 
     fn ack(&self, (session, msg_id): MsgKey, p: &Pending) -> Vec<u8> {

@@ -2,7 +2,9 @@
 //! [`Transport`] with the real clock. Both directions share one endpoint,
 //! so a side can send messages and receive messages at the same time.
 //! Each endpoint is one session: its id is drawn from the OS RNG when it is
-//! made, so a restarted process is never taken for the one before.
+//! made, so a restarted process is never taken for the one before. With
+//! keys ([`Endpoint::with_keys`], in [`sealed`]) every message is sealed by
+//! the secure layer and each handshake opens a new session.
 //!
 //! Outgoing messages take one of two [`Lane`]s, each its own ARQ sender in
 //! the one session: a depth report on the urgent lane goes ahead of the
@@ -16,7 +18,10 @@ use rand::rngs::OsRng;
 use rand::RngCore;
 
 use crate::arq::{ArqError, Config, Micros, Receiver, Segment, SendState, Sender, SessionId};
+use crate::secure::{Channel, SecureError};
 use crate::transport::{LinkStats, Notice, Transport};
+
+mod sealed;
 
 /// Everything that can end a send or receive.
 #[derive(Debug)]
@@ -29,6 +34,10 @@ pub enum LinkError {
     Timeout,
     /// Nothing at all came back from the peer before the message deadline.
     NoAnswer(Duration),
+    /// No secure session could be set up with the peer.
+    Secure(SecureError),
+    /// The peer answered no handshake before the message deadline.
+    NoHandshake(Duration),
 }
 
 impl std::fmt::Display for LinkError {
@@ -40,6 +49,13 @@ impl std::fmt::Display for LinkError {
             LinkError::NoAnswer(d) => write!(
                 f,
                 "no answer from the peer: nothing came back in {:.0} s, the message deadline",
+                d.as_secs_f64()
+            ),
+            LinkError::Secure(e) => write!(f, "{e}"),
+            LinkError::NoHandshake(d) => write!(
+                f,
+                "no secure session: the peer answered no handshake in {:.0} s \
+                 (is it running with the matching --key/--peer-key pair?)",
                 d.as_secs_f64()
             ),
         }
@@ -133,6 +149,7 @@ pub type SendOutcome = (Lane, Result<SendStats, LinkError>);
 /// A message endpoint over a transport.
 pub struct Endpoint {
     transport: Box<dyn Transport>,
+    cfg: Config,
     session: SessionId,
     /// One sender per [`Lane`], in `Lane::ALL` order.
     senders: [Sender; 2],
@@ -140,10 +157,20 @@ pub struct Endpoint {
     started: [Option<Instant>; 2],
     /// Sends that ended and were not yet taken.
     ended: VecDeque<SendOutcome>,
+    /// With keys: each lane's message in the clear and the peer session it
+    /// was sealed for, so that it can be sent again under a new handshake.
+    sealed_for: [Option<(Vec<u8>, Option<SessionId>)>; 2],
+    /// Sealed messages a restarted peer could not open, to send again (with
+    /// when they were first submitted).
+    resend: VecDeque<(Lane, Vec<u8>, Instant)>,
     last_progress: Instant,
     receiver: Receiver,
     epoch: Instant,
-    inbox: VecDeque<Vec<u8>>,
+    /// Messages the ARQ delivered, with the peer session they came from.
+    inbox: VecDeque<(SessionId, Vec<u8>)>,
+    /// With keys: the secure channel, and the messages it opened.
+    secure: Option<Channel>,
+    opened: VecDeque<Vec<u8>>,
     failures: VecDeque<ArqError>,
     /// When a valid segment last arrived.
     last_heard: Option<Instant>,
@@ -165,21 +192,22 @@ impl Endpoint {
 
     /// An endpoint with explicit protocol parameters and a fresh session.
     pub fn with_config(transport: Box<dyn Transport>, cfg: Config) -> std::io::Result<Self> {
-        let mut id = [0u8; 4];
-        OsRng
-            .try_fill_bytes(&mut id)
-            .map_err(std::io::Error::other)?;
-        let session = SessionId(u32::from_le_bytes(id));
+        let session = fresh_session()?;
         Ok(Endpoint {
             transport,
+            cfg,
             session,
             senders: [0, 1].map(|lane| Sender::lane(cfg, session, lane, 2)),
             started: [None; 2],
             ended: VecDeque::new(),
+            sealed_for: [None, None],
+            resend: VecDeque::new(),
             last_progress: Instant::now(),
             receiver: Receiver::new(cfg, session),
             epoch: Instant::now(),
             inbox: VecDeque::new(),
+            secure: None,
+            opened: VecDeque::new(),
             failures: VecDeque::new(),
             last_heard: None,
             silence: None,
@@ -188,7 +216,7 @@ impl Endpoint {
         })
     }
 
-    /// This endpoint's session.
+    /// This endpoint's current session (with keys, the one of its last handshake).
     pub fn session(&self) -> SessionId {
         self.session
     }
@@ -246,10 +274,12 @@ impl Endpoint {
                 if let Some(a) = ack {
                     self.transport.send(&a)?;
                 }
-                match delivery {
-                    Some(Ok(m)) => self.inbox.push_back(m),
-                    Some(Err((_, e))) => self.failures.push_back(e),
-                    None => {}
+                match (delivery, &seg) {
+                    (Some(Ok(m)), Segment::Data { session, .. }) => {
+                        self.inbox.push_back((*session, m))
+                    }
+                    (Some(Err((_, e))), _) => self.failures.push_back(e),
+                    _ => {}
                 }
             }
         }
@@ -287,16 +317,45 @@ impl Endpoint {
         }
     }
 
-    /// Starts sending `message` on `lane`; [`Endpoint::poll_sends`] drives
-    /// it. A lane carries one message at a time ([`ArqError::Busy`]).
+    /// Starts sending `message` on `lane` (sealed, with keys: after a
+    /// handshake when one is due and both lanes are idle);
+    /// [`Endpoint::poll_sends`] drives it. A lane carries one message at a
+    /// time ([`ArqError::Busy`]).
     pub fn submit(&mut self, lane: Lane, message: &[u8]) -> Result<(), LinkError> {
+        match self.secure {
+            Some(_) => self.submit_sealed(lane, message, Instant::now()),
+            None => self.submit_raw(lane, message),
+        }
+    }
+
+    /// Starts sending `message` on `lane` as it is.
+    fn submit_raw(&mut self, lane: Lane, message: &[u8]) -> Result<(), LinkError> {
         let now = self.now();
         self.senders[lane.index()]
             .start(message, now)
             .map_err(LinkError::Arq)?;
         self.started[lane.index()] = Some(Instant::now());
+        self.sealed_for[lane.index()] = None;
         self.last_progress = Instant::now();
         Ok(())
+    }
+
+    /// Sends `message` on `lane` as it is and waits for its end.
+    fn send_raw(&mut self, lane: Lane, message: &[u8]) -> Result<SendStats, LinkError> {
+        self.submit_raw(lane, message)?;
+        self.wait_for(lane)
+    }
+
+    /// Drives the link until the send on `lane` ended.
+    fn wait_for(&mut self, lane: Lane) -> Result<SendStats, LinkError> {
+        loop {
+            self.drive(TICK)?;
+            if let Some(i) = self.ended.iter().position(|(l, _)| *l == lane) {
+                if let Some((_, result)) = self.ended.remove(i) {
+                    return result;
+                }
+            }
+        }
     }
 
     /// Whether `lane` has no message in flight.
@@ -316,14 +375,7 @@ impl Endpoint {
     /// [`Endpoint::poll_sends`]).
     pub fn send_message(&mut self, message: &[u8]) -> Result<SendStats, LinkError> {
         self.submit(Lane::Bulk, message)?;
-        loop {
-            self.drive(TICK)?;
-            if let Some(i) = self.ended.iter().position(|(l, _)| *l == Lane::Bulk) {
-                if let Some((_, result)) = self.ended.remove(i) {
-                    return result;
-                }
-            }
-        }
+        self.wait_for(Lane::Bulk)
     }
 
     /// One round: transmit what the lanes have (urgent first), settle the
@@ -348,6 +400,7 @@ impl Endpoint {
         for lane in Lane::ALL {
             self.settle(lane);
         }
+        self.send_again()?;
         let Some(start) = self.started.iter().flatten().min().copied() else {
             return self.service(wait);
         };
@@ -395,8 +448,22 @@ impl Endpoint {
             SendState::Failed(e) => Err(LinkError::Arq(e)),
             SendState::Done => {
                 let c = sender.counters();
+                let mut bytes = c.message_bytes;
+                if let Some((clear, peer)) = self.sealed_for[lane.index()].take() {
+                    if sender.receiver() != peer {
+                        // A restarted peer acknowledged it but holds no
+                        // session to open it: never report it delivered.
+                        self.started[lane.index()] = None;
+                        self.resend.push_back((lane, clear, start));
+                        if let Some(c) = self.secure.as_mut() {
+                            c.forget();
+                        }
+                        return;
+                    }
+                    bytes = clear.len() as u64;
+                }
                 Ok(SendStats {
-                    bytes: c.message_bytes,
+                    bytes,
                     segments: c.segments,
                     retransmissions: c.retransmissions,
                     elapsed: start.elapsed(),
@@ -404,6 +471,7 @@ impl Endpoint {
             }
             SendState::Idle | SendState::Sending => return,
         };
+        self.sealed_for[lane.index()] = None;
         if lane == Lane::Bulk && result.is_ok() {
             self.report_progress(start);
         }
@@ -415,7 +483,7 @@ impl Endpoint {
     pub fn recv_message(&mut self, timeout: Duration) -> Result<Vec<u8>, LinkError> {
         let until = Instant::now() + timeout;
         loop {
-            if let Some(m) = self.inbox.pop_front() {
+            if let Some(m) = self.next_message()? {
                 return Ok(m);
             }
             if let Some(e) = self.failures.pop_front() {
@@ -427,6 +495,16 @@ impl Endpoint {
             }
             self.service((until - now).min(TICK))?;
         }
+    }
+
+    /// The next message for the layer above: as delivered, or with keys
+    /// once the secure layer opened it.
+    fn next_message(&mut self) -> Result<Option<Vec<u8>>, LinkError> {
+        if self.secure.is_none() {
+            return Ok(self.inbox.pop_front().map(|(_, m)| m));
+        }
+        self.open_inbox()?;
+        Ok(self.opened.pop_front())
     }
 
     /// Keeps answering the peer (ACKs for retransmitted fragments) for `time`.
@@ -442,6 +520,15 @@ impl Endpoint {
     pub fn duplicates(&self) -> u64 {
         self.receiver.duplicates()
     }
+}
+
+/// A random session id from the OS RNG.
+fn fresh_session() -> std::io::Result<SessionId> {
+    let mut id = [0u8; 4];
+    OsRng
+        .try_fill_bytes(&mut id)
+        .map_err(std::io::Error::other)?;
+    Ok(SessionId(u32::from_le_bytes(id)))
 }
 
 #[cfg(test)]

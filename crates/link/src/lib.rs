@@ -27,6 +27,7 @@ extern crate alloc;
 pub mod arq;
 pub mod crc;
 pub mod pacing;
+pub mod secure;
 pub mod slip;
 pub mod xbee;
 

@@ -16,6 +16,8 @@ pub enum Target {
     /// Time the rectification of a raw pair (JSON keys `gray_median_ms`,
     /// `rgb_median_ms`).
     Rectify(super::rectify::BenchArgs),
+    /// Verify and decrypt a sealed frame, as the board does (JSON key `median_ms`).
+    Open(super::secure_bench::BenchArgs),
 }
 
 /// Runs the chosen benchmark.
@@ -25,5 +27,6 @@ pub fn run(target: Target, out: &super::Output) -> anyhow::Result<()> {
         Target::Segment(args) => super::segment::run_bench(args, out),
         Target::Codec(args) => super::codec::run_bench(args, out),
         Target::Rectify(args) => super::rectify::run_bench(args, out),
+        Target::Open(args) => super::secure_bench::run_bench(args, out),
     }
 }

@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use anyhow::Context;
 use stereolink_image::synth::{synthesize, SynthSpec};
 use stereolink_image::Scene;
+use stereolink_link::secure::{keyfile, public_key, Keys};
 use stereolink_link::sim::SimConfig;
 use stereolink_stereo::depth::LevelSpec;
 
@@ -48,6 +49,10 @@ pub struct Args {
     /// Address of the web viewer.
     #[arg(long, default_value = "127.0.0.1:8080")]
     pub web_addr: String,
+    /// Run the link unsealed (by default both ends get freshly generated
+    /// keys and every message is sealed, as `send`/`receive` with keys).
+    #[arg(long)]
+    pub insecure: bool,
     #[command(flatten)]
     pub segment: SegmentArgs,
     #[command(flatten)]
@@ -68,6 +73,12 @@ fn rectified_scene(scene: Scene, sensor: &Sensor) -> anyhow::Result<Scene> {
         masks: Default::default(),
         calib: sensor.depth,
     })
+}
+
+/// A key pair for each end, drawn for this run and paired with each other.
+fn generated_keys() -> anyhow::Result<(Keys, Keys)> {
+    let (a, b) = (keyfile::random_key()?, keyfile::random_key()?);
+    Ok((Keys::new(a, public_key(&b)), Keys::new(b, public_key(&a))))
 }
 
 /// Runs the demo and prints its summary.
@@ -120,6 +131,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         },
         speedup: args.speedup,
         sink,
+        keys: (!args.insecure).then(generated_keys).transpose()?,
     };
     let bar = super::progress(4, "demo");
     let step = |what: &str| {
@@ -135,6 +147,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
              segmented ({}): PSNR {:.2} / {:.2} dB\n\
              sent {} B (frame) + {} B (depth report) vs {} B of original PNGs: {:.1}x smaller ({:.1} % reduction)\n\
              simulated XBee link, {:.0} % frame loss: {:.2} s of radio time, {:.1} kb/s goodput, {} retransmissions of {} segments\n\
+             {}\n\
              received views equal the sent ones: {}\n\
              target distance {} (ground truth {}); axis commanded {}, ended at {} (error {})\n",
             r.scene,
@@ -154,6 +167,11 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
             r.goodput_bps / 1e3,
             r.retransmissions,
             r.segments,
+            if r.sealed {
+                format!("link sealed (Noise KK) with keys generated for this run; {} messages rejected", r.rejected)
+            } else {
+                "link NOT sealed (--insecure): anyone in radio range could move the axis".into()
+            },
             if r.received_equals_sent { "yes, bit for bit" } else { "NO" },
             opt(Some(r.distance_m), "m"),
             opt(r.true_distance_m, "m"),

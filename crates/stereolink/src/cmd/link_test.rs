@@ -11,6 +11,7 @@ use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 use stereolink_link::arq::{Config, DATA_OVERHEAD};
 use stereolink_link::endpoint::Endpoint;
+use stereolink_link::secure::sim::sealed_transfer;
 use stereolink_link::sim::{self, SimConfig};
 use stereolink_link::spec::{self, LinkSpec};
 
@@ -46,6 +47,11 @@ pub struct Args {
     /// the reports took to arrive.
     #[arg(long)]
     pub report_latency: bool,
+    /// With --sweep: also seal the message with the secure layer (Noise KK,
+    /// after a simulated handshake) and print the goodput with and without
+    /// keys, averaged over --count seeds, and the handshake's time.
+    #[arg(long, requires = "sweep")]
+    pub keys: bool,
     /// On a real link: this process sends or receives.
     #[arg(long, value_enum)]
     pub role: Option<Role>,
@@ -106,6 +112,7 @@ struct SweepRow {
 pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     let spec = super::link_spec(&args.link)?;
     match spec {
+        LinkSpec::Sim { config, .. } if args.sweep && args.keys => sweep_sealed(config, &args, out),
         LinkSpec::Sim { config, .. } if args.sweep => sweep(config, &args, out),
         LinkSpec::Sim { config, .. } if args.report_latency => {
             super::link_latency::run(config, &args.link, args.size, out)
@@ -155,7 +162,7 @@ fn print_summary(s: &Summary, out: &super::Output) -> anyhow::Result<()> {
 fn sweep(config: SimConfig, args: &Args, out: &super::Output) -> anyhow::Result<()> {
     let bound = config.bound_bps();
     let msg = test_message(args.seed, 0, args.size);
-    let rows: Vec<SweepRow> = [0.0, 0.01, 0.05, 0.10, 0.20, 0.30]
+    let rows: Vec<SweepRow> = SWEEP_LOSSES
         .into_iter()
         .map(|loss| {
             let r = sim::transfer(
@@ -196,6 +203,98 @@ fn sweep(config: SimConfig, args: &Args, out: &super::Output) -> anyhow::Result<
                 r.goodput_of_bound * 100.0,
                 r.segments,
                 r.retransmissions
+            );
+        }
+        s
+    })
+}
+
+/// The losses every sweep runs.
+const SWEEP_LOSSES: [f64; 6] = [0.0, 0.01, 0.05, 0.10, 0.20, 0.30];
+
+#[derive(Serialize)]
+struct SealedRow {
+    loss: f64,
+    seeds: usize,
+    delivered_plain: usize,
+    delivered_sealed: usize,
+    goodput_plain_bps: f64,
+    goodput_sealed_bps: f64,
+    goodput_loss_percent: f64,
+    handshake_median_ms: f64,
+    handshake_max_ms: f64,
+}
+
+/// The sweep with and without keys, `--count` seeds per loss (the same
+/// seeds for both), goodput as message bytes over the mean time.
+fn sweep_sealed(config: SimConfig, args: &Args, out: &super::Output) -> anyhow::Result<()> {
+    let msg = test_message(args.seed, 0, args.size);
+    let arq = Config::for_mtu(config.mtu);
+    let seeds = args.count.max(1);
+    let bar = super::progress((SWEEP_LOSSES.len() * seeds) as u64, "sweep");
+    let rows: Vec<SealedRow> = SWEEP_LOSSES
+        .into_iter()
+        .map(|loss| {
+            let (mut plain, mut sealed, mut hs) = (Vec::new(), Vec::new(), Vec::new());
+            for k in 0..seeds as u64 {
+                let sim = SimConfig {
+                    loss,
+                    seed: config.seed.wrapping_add(k),
+                    ..config
+                };
+                plain.push(sim::transfer(sim, arq, &msg));
+                let r = sealed_transfer(sim, arq, &msg);
+                anyhow::ensure!(
+                    !r.message.delivered || r.opened,
+                    "a sealed message did not open"
+                );
+                if r.handshake_done {
+                    hs.push(r.handshake_seconds * 1e3);
+                }
+                sealed.push(r.message);
+                bar.inc(1);
+            }
+            let goodput = |rs: &[sim::TransferReport]| {
+                let ok: Vec<_> = rs.iter().filter(|r| r.delivered).collect();
+                let secs: f64 = ok.iter().map(|r| r.seconds).sum();
+                (
+                    ok.len(),
+                    ok.len() as f64 * msg.len() as f64 * 8.0 / secs.max(1e-9),
+                )
+            };
+            let ((dp, gp), (ds, gs)) = (goodput(&plain), goodput(&sealed));
+            hs.sort_by(f64::total_cmp);
+            Ok(SealedRow {
+                loss,
+                seeds,
+                delivered_plain: dp,
+                delivered_sealed: ds,
+                goodput_plain_bps: gp,
+                goodput_sealed_bps: gs,
+                goodput_loss_percent: 100.0 * (1.0 - gs / gp.max(1e-9)),
+                handshake_median_ms: hs.get(hs.len() / 2).copied().unwrap_or(f64::NAN),
+                handshake_max_ms: hs.last().copied().unwrap_or(f64::NAN),
+            })
+        })
+        .collect::<anyhow::Result<_>>()?;
+    bar.finish_and_clear();
+    out.emit(&rows, || {
+        let mut s = format!(
+            "{} B message over simulated XBee 802.15.4 at {} baud, {} seeds per loss, with and without keys\n \
+             loss  delivered  goodput kb/s: no keys  keys  loss of goodput  handshake ms: median  max\n",
+            args.size, config.baud, seeds
+        );
+        for r in &rows {
+            s += &format!(
+                "{:4.0} %  {:>3}/{:<3}  {:>24.1}  {:4.1}  {:13.2} %  {:>20.1}  {:4.1}\n",
+                r.loss * 100.0,
+                r.delivered_sealed,
+                r.delivered_plain,
+                r.goodput_plain_bps / 1e3,
+                r.goodput_sealed_bps / 1e3,
+                r.goodput_loss_percent,
+                r.handshake_median_ms,
+                r.handshake_max_ms
             );
         }
         s

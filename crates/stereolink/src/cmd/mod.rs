@@ -13,6 +13,7 @@ pub mod demo;
 pub mod depth;
 pub mod eval;
 pub mod info;
+pub mod keygen;
 pub mod link_latency;
 pub mod link_test;
 pub mod matching;
@@ -20,6 +21,7 @@ pub mod radio;
 pub mod receive;
 pub mod rectify;
 pub mod report;
+pub mod secure_bench;
 pub mod segment;
 pub mod send;
 pub mod synth;
@@ -133,6 +135,8 @@ pub enum Command {
     Send(Box<send::Args>),
     /// Receiver: rebuild, match, display and drive the axis.
     Receive(receive::Args),
+    /// Make a device's key pair for the secure link (NAME.key, NAME.pub).
+    Keygen(keygen::Args),
     /// Reproduce the paper's tables on a data folder as an HTML report.
     Report(report::Args),
     /// Time one stage alone (for comparing with other tools in one run).
@@ -160,6 +164,7 @@ impl Command {
             Command::Capture(args) => capture::run(args, out),
             Command::Send(args) => send::run(*args, out),
             Command::Receive(args) => receive::run(args, out),
+            Command::Keygen(args) => keygen::run(args, out),
             Command::Report(args) => report::run(args, out),
             Command::Bench(target) => bench::run(target, out),
         }

@@ -5,10 +5,12 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use stereolink_display::open_sink;
 use stereolink_link::endpoint::{Endpoint, LinkError};
+use stereolink_link::secure::{Rejections, SecureConfig};
 use stereolink_link::spec;
 use stereolink_robot::open_axis;
 use stereolink_robot::policy::MotionPolicy;
 
+use super::keygen::KeyArgs;
 use crate::pipeline::receiver::{BoardReceiver, Event};
 
 /// Arguments of `stereolink receive`.
@@ -21,7 +23,8 @@ pub struct Args {
     /// --report-link`); messages are taken from both.
     #[arg(long, value_name = "SPEC")]
     pub report_link: Option<String>,
-    /// Display: fb:/dev/fb0, png:DIR or web:127.0.0.1:8080.
+    /// Display: fb:/dev/fb0, png:DIR or web:127.0.0.1:8080 (a viewer on any other
+    /// address answers only requests with the token printed at start).
     #[arg(long)]
     pub display: Option<String>,
     /// Axis: grbl:/dev/ttyACM0 or sim.
@@ -55,6 +58,8 @@ pub struct Args {
     /// Axis speed limit, mm/s.
     #[arg(long, default_value_t = 50.0)]
     pub max_speed: f64,
+    #[command(flatten)]
+    pub keys: KeyArgs,
 }
 
 /// Receives, shows and moves until done.
@@ -64,11 +69,15 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         "the board matches with wta only (got {})",
         args.matcher
     );
+    let keys = args.keys.load(args.robot.is_some())?;
     let mut eps = Vec::new();
     for link in std::iter::once(&args.link).chain(&args.report_link) {
         let spec = super::link_spec(link)?;
         let mut ep =
             Endpoint::new(spec::open(&spec).with_context(|| format!("cannot open link {link}"))?)?;
+        if let Some(keys) = keys.clone() {
+            ep = ep.with_keys(keys, SecureConfig::default());
+        }
         let name = link.clone();
         ep.on_notice(Box::new(move |notice| eprintln!("link {name}: {notice}")));
         eps.push(ep);
@@ -81,7 +90,9 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         max_speed_mm_s: args.max_speed,
     };
     if let Some(d) = &args.display {
-        board.sink = Some(open_sink(d).with_context(|| format!("cannot open display {d}"))?);
+        let sink = open_sink(d).with_context(|| format!("cannot open display {d}"))?;
+        eprintln!("display: {}", sink.describe());
+        board.sink = Some(sink);
     }
     if let Some(r) = &args.robot {
         board.axis = Some(open_axis(r).with_context(|| format!("cannot open axis {r}"))?);
@@ -142,6 +153,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
                 frames += 1;
             }
         }
+        board.status.security = security_line(&eps);
         if matches!(event, Event::Report { .. }) {
             if let Some(axis) = board.axis.as_mut() {
                 board.status.axis_mm = axis.position().ok();
@@ -163,11 +175,11 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         }
     }
     if !out.json {
-        for (ep, link) in eps
-            .iter()
-            .zip(std::iter::once(&args.link).chain(&args.report_link))
-        {
-            println!("link {link}: {}", ep.link_stats());
+        for (ep, label) in eps.iter().zip(["link", "report link"]) {
+            println!("{label}: {}", ep.link_stats());
+            if let Some(r) = ep.rejections() {
+                println!("{label}: {r}");
+            }
         }
     }
     if out.json {
@@ -190,5 +202,24 @@ fn next_message(eps: &mut [Endpoint], timeout: Duration) -> Result<Vec<u8>, Link
         if Instant::now() >= until {
             return Err(LinkError::Timeout);
         }
+    }
+}
+
+/// The screen's security note: sealed or not, and the refusals by cause
+/// over all the links.
+fn security_line(eps: &[Endpoint]) -> String {
+    let all: Option<Vec<Rejections>> = eps.iter().map(Endpoint::rejections).collect();
+    match all {
+        Some(r) => {
+            let sum = |f: fn(&Rejections) -> u64| r.iter().map(f).sum::<u64>();
+            format!(
+                "SEALED  REJ TAG {} RPL {} SES {} HS {}",
+                sum(|r| r.bad_tag),
+                sum(|r| r.replay),
+                sum(|r| r.unknown_session),
+                sum(|r| r.handshake)
+            )
+        }
+        None => "INSECURE".into(),
     }
 }

@@ -14,6 +14,7 @@ use stereolink_calib::StereoRectifier;
 use stereolink_image::{io, Calibration, RgbImage};
 use stereolink_link::arq::Config;
 use stereolink_link::endpoint::{Endpoint, Progress, ProgressReport, SendStats};
+use stereolink_link::secure::SecureConfig;
 use stereolink_link::spec;
 use stereolink_link::transport::Transport;
 use stereolink_stereo::depth::{LevelSpec, Roi};
@@ -22,6 +23,7 @@ use stereolink_capture::StereoCapture;
 
 use super::calib::CalibArgs;
 use super::camera::CameraArgs;
+use super::keygen::KeyArgs;
 use super::matching::MatcherArgs;
 use super::segment::SegmentArgs;
 use crate::pipeline::sender::{prepare, SenderConfig};
@@ -115,6 +117,8 @@ pub struct Args {
     pub segment: SegmentArgs,
     #[command(flatten)]
     pub matcher: MatcherArgs,
+    #[command(flatten)]
+    pub keys: KeyArgs,
 }
 
 #[derive(Serialize)]
@@ -165,6 +169,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         ),
         None => None,
     };
+    let keys = args.keys.load(false)?;
     let deadline_s = args.deadline_s;
     let endpoint = move |transport: Box<dyn Transport>, link: String| {
         let arq = Config {
@@ -172,6 +177,9 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
             ..Config::for_mtu(transport.mtu())
         };
         let mut ep = Endpoint::with_config(transport, arq)?;
+        if let Some(keys) = keys.clone() {
+            ep = ep.with_keys(keys, SecureConfig::default());
+        }
         let hint = link.clone();
         ep.on_silence(
             SILENCE_HINT,

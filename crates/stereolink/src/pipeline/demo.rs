@@ -11,6 +11,7 @@ use stereolink_display::{anaglyph, Anaglyph, Sink};
 use stereolink_image::{colormap, io, metrics::reduction_percent, Scene};
 use stereolink_link::arq::Config;
 use stereolink_link::endpoint::Endpoint;
+use stereolink_link::secure::{Keys, SecureConfig};
 use stereolink_link::sim::{pair, SimConfig};
 use stereolink_robot::sim::{MotorParams, SimAxis};
 use stereolink_stereo::depth::{region_distance, Roi};
@@ -32,6 +33,8 @@ pub struct DemoConfig {
     pub speedup: f64,
     /// An extra display (e.g. the web viewer).
     pub sink: Option<Box<dyn Sink>>,
+    /// The sender's and the receiver's keys; `None` runs the link unsealed.
+    pub keys: Option<(Keys, Keys)>,
 }
 
 /// What the demo measured (written as `report.json`).
@@ -65,6 +68,10 @@ pub struct DemoReport {
     pub retransmissions: u64,
     /// Link segments sent.
     pub segments: u64,
+    /// Every message was sealed by the secure layer (Noise KK).
+    pub sealed: bool,
+    /// Messages the receiver's secure layer refused (0 on a clean run).
+    pub rejected: u64,
     /// The received views equal the sent segmented views bit for bit.
     pub received_equals_sent: bool,
     /// Reported target distance, metres.
@@ -126,8 +133,14 @@ pub fn run(cfg: DemoConfig, progress: &dyn Fn(&str)) -> anyhow::Result<DemoRepor
     board.sink = cfg.sink;
     // Timers follow the radio's clock, which runs `speedup` times faster.
     let arq = radio_config(cfg.link.mtu, cfg.speedup);
+    let sealed = cfg.keys.is_some();
+    let (tx_keys, rx_keys) = cfg.keys.unzip();
+    let seal = move |ep: Endpoint, keys: Option<Keys>| match keys {
+        Some(k) => ep.with_keys(k, SecureConfig::default()),
+        None => ep,
+    };
     let sender = std::thread::spawn(move || -> anyhow::Result<(f64, u64, u64)> {
-        let mut ep = Endpoint::with_config(Box::new(tx_end), arq)?;
+        let mut ep = seal(Endpoint::with_config(Box::new(tx_end), arq)?, tx_keys);
         let (mut secs, mut retx, mut segs) = (0.0, 0, 0);
         for m in &messages {
             let s = ep.send_message(m)?;
@@ -137,7 +150,7 @@ pub fn run(cfg: DemoConfig, progress: &dyn Fn(&str)) -> anyhow::Result<DemoRepor
         }
         Ok((secs, retx, segs))
     });
-    let mut ep = Endpoint::with_config(Box::new(rx_end), arq)?;
+    let mut ep = seal(Endpoint::with_config(Box::new(rx_end), arq)?, rx_keys);
     let mut events = Vec::new();
     for _ in 0..2 {
         let msg = ep
@@ -148,6 +161,7 @@ pub fn run(cfg: DemoConfig, progress: &dyn Fn(&str)) -> anyhow::Result<DemoRepor
     while !sender.is_finished() {
         ep.linger(Duration::from_millis(50))?;
     }
+    let rejected = ep.rejections().map_or(0, |r| r.total());
     let (wall_secs, retransmissions, segments) = sender
         .join()
         .map_err(|_| anyhow::anyhow!("the sender thread panicked"))??;
@@ -220,6 +234,8 @@ pub fn run(cfg: DemoConfig, progress: &dyn Fn(&str)) -> anyhow::Result<DemoRepor
         link_seconds,
         goodput_bps: bytes as f64 * 8.0 / link_seconds.max(1e-9),
         retransmissions,
+        sealed,
+        rejected,
         segments,
         received_equals_sent: received_left == prepared.sent.0 && received_right == prepared.sent.1,
         distance_m: prepared.report.target_distance_m as f64,
