@@ -167,10 +167,14 @@ pub struct Endpoint {
     receiver: Receiver,
     epoch: Instant,
     /// Messages the ARQ delivered, with the peer session they came from.
-    inbox: VecDeque<(SessionId, Vec<u8>)>,
+    inbox: VecDeque<(SessionId, Vec<u8>, Held)>,
     /// With keys: the secure channel, and the messages it opened.
     secure: Option<Channel>,
-    opened: VecDeque<Vec<u8>>,
+    opened: VecDeque<(Vec<u8>, Held)>,
+    /// The held ACKs of messages handed up: sent when the layer above asks
+    /// again ([`Endpoint::recv_message`], [`Endpoint::linger`]), that is,
+    /// once it has dealt with them.
+    handed: Vec<Held>,
     failures: VecDeque<ArqError>,
     /// When a valid segment last arrived.
     last_heard: Option<Instant>,
@@ -178,6 +182,18 @@ pub struct Endpoint {
     progress: Option<ProgressReport>,
     notices: Option<NoticeReport>,
 }
+
+/// A message's key, the ACK that completed it (empty once sent) and when it
+/// arrived: held until the layer above has dealt with the message, or for
+/// at most [`HOLD_MAX`].
+type Held = (MsgKey, Vec<u8>, Instant);
+
+/// The longest an ACK is held for a layer above that is slow to ask again
+/// (the board takes a few hundred ms a frame): the sender must not time out.
+const HOLD_MAX: Duration = Duration::from_secs(1);
+
+/// A message of a peer session.
+type MsgKey = (SessionId, u16);
 
 /// Longest single wait inside the loops, so timers and peers are served.
 const TICK: Duration = Duration::from_millis(20);
@@ -208,6 +224,7 @@ impl Endpoint {
             inbox: VecDeque::new(),
             secure: None,
             opened: VecDeque::new(),
+            handed: Vec::new(),
             failures: VecDeque::new(),
             last_heard: None,
             silence: None,
@@ -270,16 +287,26 @@ impl Endpoint {
                 self.senders
                     .iter_mut()
                     .for_each(|s| s.on_segment(&seg, now));
+                let key = match seg {
+                    Segment::Data {
+                        session, msg_id, ..
+                    } => Some((session, msg_id)),
+                    _ => None,
+                };
                 let (ack, delivery) = self.receiver.on_segment(&seg, now);
-                if let Some(a) = ack {
-                    self.transport.send(&a)?;
-                }
-                match (delivery, &seg) {
-                    (Some(Ok(m)), Segment::Data { session, .. }) => {
-                        self.inbox.push_back((*session, m))
+                match (delivery, key) {
+                    // The ACK that completes a message waits until the layer
+                    // above has taken it and dealt with it.
+                    (Some(Ok(m)), Some(key)) => {
+                        let held = (key, ack.unwrap_or_default(), Instant::now());
+                        self.inbox.push_back((key.0, m, held));
+                        return Ok(());
                     }
                     (Some(Err((_, e))), _) => self.failures.push_back(e),
                     _ => {}
+                }
+                if let Some(a) = ack.filter(|_| !key.is_some_and(|k| self.holds(k))) {
+                    self.transport.send(&a)?;
                 }
             }
         }
@@ -295,6 +322,7 @@ impl Endpoint {
         if let Some(Err((_, e))) = self.receiver.poll(self.now()) {
             self.failures.push_back(e);
         }
+        self.release_overdue()?;
         let notices = self.transport.take_notices();
         if let Some(say) = self.notices.as_mut() {
             notices.into_iter().for_each(say);
@@ -480,7 +508,9 @@ impl Endpoint {
     }
 
     /// Waits up to `timeout` for the next complete message.
+    /// The message handed up before was dealt with: its ACK goes now.
     pub fn recv_message(&mut self, timeout: Duration) -> Result<Vec<u8>, LinkError> {
+        self.release()?;
         let until = Instant::now() + timeout;
         loop {
             if let Some(m) = self.next_message()? {
@@ -500,15 +530,62 @@ impl Endpoint {
     /// The next message for the layer above: as delivered, or with keys
     /// once the secure layer opened it.
     fn next_message(&mut self) -> Result<Option<Vec<u8>>, LinkError> {
-        if self.secure.is_none() {
-            return Ok(self.inbox.pop_front().map(|(_, m)| m));
+        let next = match self.secure {
+            None => self.inbox.pop_front().map(|(_, m, held)| (m, held)),
+            Some(_) => {
+                self.open_inbox()?;
+                self.opened.pop_front()
+            }
+        };
+        Ok(next.map(|(m, held)| {
+            self.handed.push(held);
+            m
+        }))
+    }
+
+    /// Whether the ACK of message `key` is held (the message not yet dealt
+    /// with above): its duplicates are not acknowledged either, so a sender
+    /// never takes a message the receiving process died holding for
+    /// delivered.
+    fn holds(&self, key: MsgKey) -> bool {
+        let held = |h: &Held| h.0 == key && !h.1.is_empty();
+        self.inbox.iter().any(|(_, _, h)| held(h))
+            || self.opened.iter().any(|(_, h)| held(h))
+            || self.handed.iter().any(held)
+    }
+
+    /// Sends the held ACKs of the messages the layer above has dealt with.
+    fn release(&mut self) -> Result<(), LinkError> {
+        for (_, ack, _) in std::mem::take(&mut self.handed) {
+            self.send_ack(&ack)?;
         }
-        self.open_inbox()?;
-        Ok(self.opened.pop_front())
+        Ok(())
+    }
+
+    /// Sends the ACKs held longer than [`HOLD_MAX`].
+    fn release_overdue(&mut self) -> Result<(), LinkError> {
+        let overdue: Vec<Vec<u8>> = (self.inbox.iter_mut().map(|(_, _, h)| h))
+            .chain(self.opened.iter_mut().map(|(_, h)| h))
+            .chain(self.handed.iter_mut())
+            .filter(|h| !h.1.is_empty() && h.2.elapsed() >= HOLD_MAX)
+            .map(|h| std::mem::take(&mut h.1))
+            .collect();
+        for ack in overdue {
+            self.send_ack(&ack)?;
+        }
+        Ok(())
+    }
+
+    fn send_ack(&mut self, ack: &[u8]) -> Result<(), LinkError> {
+        if !ack.is_empty() {
+            self.transport.send(ack)?;
+        }
+        Ok(())
     }
 
     /// Keeps answering the peer (ACKs for retransmitted fragments) for `time`.
     pub fn linger(&mut self, time: Duration) -> Result<(), LinkError> {
+        self.release()?;
         let until = Instant::now() + time;
         while Instant::now() < until {
             self.service(TICK.min(until - Instant::now()))?;
@@ -643,5 +720,28 @@ mod tests {
         assert_eq!(order, vec![Lane::Urgent, Lane::Bulk]);
         assert!(outcomes.iter().all(|(_, r)| r.is_ok()));
         assert_eq!(rx.join().unwrap(), vec![report, frame]);
+    }
+
+    /// A receiving process that dies holding a message it was handed (its
+    /// ACK held until it asks again) never lets the sender think it was
+    /// delivered: the next life gets it.
+    #[test]
+    fn a_message_the_receiver_died_holding_goes_to_its_next_life() {
+        let (a, b) = pair(SimConfig::default(), 20.0);
+        let rx = std::thread::spawn(move || {
+            let mut e = Endpoint::new(Box::new(b)).unwrap();
+            let first = e.recv_message(Duration::from_secs(20)).unwrap();
+            // Dies while dealing with it: no further call, no ACK.
+            let Endpoint { transport, .. } = e;
+            let mut e = Endpoint::new(transport).unwrap();
+            let again = e.recv_message(Duration::from_secs(20)).unwrap();
+            e.linger(Duration::from_millis(300)).unwrap();
+            (first, again)
+        });
+        let mut e = Endpoint::new(Box::new(a)).unwrap();
+        let message = vec![0x3C; 900];
+        e.send_message(&message).unwrap();
+        let (first, again) = rx.join().unwrap();
+        assert_eq!((first, again), (message.clone(), message));
     }
 }

@@ -198,7 +198,7 @@ fn sender_restart(rx_link: &str, tx_link: &str) {
     );
 }
 
-/// A receiver killed after the second frame's report, and a new one
+/// A receiver killed once it showed the second frame, and a new one
 /// started on the same link: the one sender's six frames are shown once each
 /// across the two.
 fn receiver_restart(rx_link: &str, tx_link: &str) {
@@ -208,7 +208,7 @@ fn receiver_restart(rx_link: &str, tx_link: &str) {
     let first = receiver(rx_link, &dir.path().join("screens-1"));
     std::thread::sleep(Duration::from_millis(200));
     let tx = sender(tx_link, &scene, 6);
-    first.wait_for("report 2:");
+    first.wait_for("frame 2:");
     let mut shown = frame_ids(&first.kill());
     let second = receiver(rx_link, &dir.path().join("screens-2"));
     let sent = sent_ids(tx, "sender");

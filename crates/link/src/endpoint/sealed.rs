@@ -101,15 +101,23 @@ impl Endpoint {
     }
 
     /// Passes the delivered messages through the channel: opened ones wait
-    /// in `opened`, a handshake INIT is answered.
+    /// in `opened` (their ACKs held), a handshake INIT is answered (its ACK
+    /// sent first: the initiator waits for it).
     pub(super) fn open_inbox(&mut self) -> Result<(), LinkError> {
-        while let Some((from, bytes)) = self.inbox.pop_front() {
+        while let Some((from, bytes, held)) = self.inbox.pop_front() {
             let now = self.now();
             let Some(channel) = self.secure.as_mut() else {
                 return Ok(());
             };
-            match channel.open(from, self.session, &bytes, now) {
-                Opened::Message(m) => self.opened.push_back(m),
+            let opened = channel.open(from, self.session, &bytes, now);
+            if let Opened::Message(m) = opened {
+                self.opened.push_back((m, held));
+                continue;
+            }
+            // The layer itself dealt with it (a handshake, a refusal).
+            self.send_ack(&held.1)?;
+            match opened {
+                Opened::Message(_) => {}
                 Opened::Reply(r) => {
                     // On a lane that is free (both busy: the peer's handshake
                     // times out and it tries again).
@@ -201,7 +209,9 @@ mod tests {
             let mut got: Vec<Vec<u8>> = (0..2)
                 .map(|_| e.recv_message(Duration::from_secs(20)).unwrap())
                 .collect();
-            // The receiver restarts at once: same radio, no state, no keys.
+            // It has dealt with both (linger sends their held ACKs), then
+            // restarts at once: same radio, no state, no keys.
+            e.linger(Duration::ZERO).unwrap();
             let Endpoint { transport, .. } = e;
             let mut e = Endpoint::new(transport)
                 .unwrap()
