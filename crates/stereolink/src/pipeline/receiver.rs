@@ -5,7 +5,9 @@
 //! Only a message that decoded completely (CRC-32 over the link, CRC-32 of
 //! the container body, every structural check) reaches the axis, and only
 //! through a [`ValidatedDistance`]; a frame that fails is reported and
-//! ignored. The WTA matcher and the screen keep their buffers between frames.
+//! ignored. The WTA matcher and the screen keep their buffers between frames,
+//! and the disparities stay integers from the matcher to the screen (the
+//! board has no FPU).
 
 use std::time::Instant;
 
@@ -17,7 +19,9 @@ use stereolink_display::{anaglyph_into, Anaglyph, Screen, ScreenStatus, Sink};
 use stereolink_image::{DisparityMap, RgbImage};
 use stereolink_robot::policy::{MotionPolicy, ValidatedDistance, Watchdog};
 use stereolink_robot::Axis;
-use stereolink_stereo::wta::{luma_samples_into, Samples, WtaMatcher, WtaParams};
+use stereolink_stereo::wta::{
+    levels_to_disparity, luma_samples_into, Levels, Samples, WtaMatcher, WtaParams, NO_DISPARITY,
+};
 
 /// What the receiver did with one message.
 #[derive(Clone, Debug, serde::Serialize)]
@@ -51,7 +55,7 @@ pub struct BoardReceiver {
     matcher: WtaMatcher,
     params: WtaParams,
     gray: (Samples, Samples),
-    disparity: DisparityMap,
+    levels: Levels,
     screen: Screen,
     mode: Anaglyph,
     limits: Limits,
@@ -88,7 +92,7 @@ impl BoardReceiver {
                 subpixel: false,
             },
             gray: Default::default(),
-            disparity: DisparityMap::default(),
+            levels: Levels::default(),
             screen: Screen::new(),
             mode: Anaglyph::Dubois,
             limits: Limits::default(),
@@ -114,9 +118,10 @@ impl BoardReceiver {
         self.shown.then(|| self.decoder.views())
     }
 
-    /// The last disparity map computed on the board.
-    pub fn disparity(&self) -> &DisparityMap {
-        &self.disparity
+    /// The last disparity map computed on the board (a new map: the
+    /// board keeps integer disparities).
+    pub fn disparity(&self) -> DisparityMap {
+        levels_to_disparity(&self.levels)
     }
 
     /// The current screen.
@@ -174,14 +179,14 @@ impl BoardReceiver {
         let (left, right) = self.decoder.views();
         luma_samples_into(left, self.params.gray_bits, &mut self.gray.0);
         luma_samples_into(right, self.params.gray_bits, &mut self.gray.1);
-        if self.disparity.dims() != (w, h) {
-            self.disparity.reset(w, h, 0.0);
+        if self.levels.dims() != (w, h) {
+            self.levels.reset(w, h, 0);
         }
-        self.matcher.compute_into(
+        self.matcher.compute_levels_into(
             &self.gray.0,
             &self.gray.1,
             &self.params,
-            &mut self.disparity,
+            &mut self.levels,
         );
         anaglyph_into(left, right, self.mode, &mut self.view);
         self.shown = true;
@@ -206,12 +211,15 @@ impl BoardReceiver {
         if !self.shown {
             return Ok(());
         }
-        let max = (self.params.min_disp + self.params.ndisp - 1) as f32;
-        let screen = self.screen.render(
+        let (min, max) = (
+            self.params.min_disp,
+            self.params.min_disp + self.params.ndisp - 1,
+        );
+        let screen = self.screen.render_levels(
             &self.view,
-            &self.disparity,
-            self.params.min_disp as f32,
-            max,
+            &self.levels,
+            NO_DISPARITY,
+            (min as u16, max as u16),
             &self.status,
         );
         match self.sink.as_mut() {
