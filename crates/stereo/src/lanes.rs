@@ -123,10 +123,11 @@ impl LaneOps for Portable {
     }
 }
 
-/// Two lanes per `u32` word for the sliding window sum (the board's WTA
-/// runs without a min filter), [`Portable`] for the rest: an absolute
-/// difference, a minimum or a compare per lane costs a scalar CPU fewer
-/// instructions than their SWAR forms.
+/// Two lanes per `u32` word for the column sums' and the sliding window
+/// sum's updates (the board's WTA runs without a min filter), the latter
+/// fused with the search for the smallest cost; [`Portable`] for the rest.
+/// Absolute differences, minima and compares stay one lane at a time: a
+/// scalar CPU does them in fewer instructions than their SWAR forms.
 ///
 /// Exact because of what the band loop adds and subtracts: every lane is a
 /// sum of absolute differences that the window bound keeps below 2^16
@@ -157,6 +158,17 @@ fn as_words<'a>(
     aligned.then_some((acc, a, s))
 }
 
+/// The word holding the lanes `first` and `second`, in memory order.
+#[inline(always)]
+fn word(first: u16, second: u16) -> u32 {
+    let (a, b) = (first as u32, second as u32);
+    if cfg!(target_endian = "little") {
+        a | b << 16
+    } else {
+        a << 16 | b
+    }
+}
+
 /// A word's two lanes, in memory order.
 #[inline(always)]
 fn lanes_of(v: u32) -> (u32, u32) {
@@ -170,10 +182,25 @@ fn lanes_of(v: u32) -> (u32, u32) {
 impl LaneOps for Swar {
     const SKIP_ALIKE_ROWS: bool = true;
 
+    /// The differences per lane, the column sums a word at a time: the
+    /// leaving row's pair subtracted, then the entering row's added.
     #[inline(always)]
     unsafe fn accumulate(col: &mut [u16], l: u16, r: &[u16], leaving: Option<(u16, &[u16])>) {
-        // SAFETY: portable code.
-        unsafe { Portable::accumulate(col, l, r, leaving) }
+        let n = col.len();
+        // SAFETY: every bit pattern is a valid u32, and a valid pair of u16.
+        let (head, words, tail) = unsafe { col.align_to_mut::<u32>() };
+        match leaving {
+            Some((ls, rs)) if head.is_empty() && tail.is_empty() => {
+                let pairs = r[..n].chunks_exact(2).zip(rs[..n].chunks_exact(2));
+                for (c, (r, s)) in words.iter_mut().zip(pairs) {
+                    let new = word(l.abs_diff(r[0]), l.abs_diff(r[1]));
+                    let old = word(ls.abs_diff(s[0]), ls.abs_diff(s[1]));
+                    *c = c.wrapping_sub(old).wrapping_add(new);
+                }
+            }
+            // SAFETY: portable code.
+            _ => unsafe { Portable::accumulate(col, l, r, leaving) },
+        }
     }
 
     #[inline(always)]
@@ -219,23 +246,26 @@ impl LaneOps for Swar {
             // SAFETY: portable code.
             return unsafe { Portable::add_sub_argmin(acc, a, s, valid) };
         };
-        // Packed as in Portable::argmin: cost high, lane low.
-        let mut best = u32::MAX;
-        let mut words = h.iter_mut().zip(a).zip(s).zip((0u32..).step_by(2));
-        for (((h, &a), &s), k) in words.by_ref().take(valid / 2) {
-            *h = h.wrapping_sub(s).wrapping_add(a);
+        // Packed as in Portable::argmin: cost high, lane low. The words
+        // whose both lanes are valid, then the one with a last valid lane,
+        // then the rest (only updated).
+        let slide = |h: &mut u32, a: u32, s: u32| *h = h.wrapping_sub(s).wrapping_add(a);
+        let (mut best, mut k) = (u32::MAX, 0);
+        let full = valid / 2;
+        for ((h, &a), &s) in h[..full].iter_mut().zip(&a[..full]).zip(&s[..full]) {
+            slide(h, a, s);
             let (first, second) = lanes_of(*h);
             best = best.min(first << 16 | k).min(second << 16 | (k + 1));
+            k += 2;
         }
+        let mut rest = h[full..].iter_mut().zip(&a[full..]).zip(&s[full..]);
         if valid % 2 == 1 {
-            if let Some((((h, &a), &s), k)) = words.next() {
-                *h = h.wrapping_sub(s).wrapping_add(a);
+            if let Some(((h, &a), &s)) = rest.next() {
+                slide(h, a, s);
                 best = best.min(lanes_of(*h).0 << 16 | k);
             }
         }
-        for (((h, &a), &s), _) in words {
-            *h = h.wrapping_sub(s).wrapping_add(a);
-        }
+        rest.for_each(|((h, &a), &s)| slide(h, a, s));
         ((best & 0xFFFF) as usize, (best >> 16) as u16)
     }
 
