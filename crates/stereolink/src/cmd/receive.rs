@@ -1,6 +1,6 @@
 //! `stereolink receive`: the board's receiver on a real link.
 
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use stereolink_display::open_sink;
@@ -10,6 +10,9 @@ use stereolink_robot::open_axis;
 use stereolink_robot::policy::MotionPolicy;
 
 use crate::pipeline::receiver::{BoardReceiver, Event};
+
+/// The longest wait for a message before the screen looks at the axis.
+const POLL: Duration = Duration::from_millis(200);
 
 /// Arguments of `stereolink receive`.
 #[derive(Debug, clap::Args)]
@@ -78,12 +81,20 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     }
     let mut frames = 0;
     let mut events = Vec::new();
+    let (timeout, mut heard) = (Duration::from_secs(args.timeout_s), Instant::now());
     while args.frames == 0 || frames < args.frames {
-        let msg = match ep.recv_message(Duration::from_secs(args.timeout_s)) {
+        // Short waits, so that the screen follows the axis while the link
+        // is silent.
+        let msg = match ep.recv_message(POLL.min(timeout)) {
             Ok(m) => m,
+            Err(LinkError::Timeout) if heard.elapsed() < timeout => {
+                board.follow_axis().context("display")?;
+                continue;
+            }
             Err(LinkError::Timeout) if args.frames == 0 => break,
             Err(e) => return Err(e).context("receiving"),
         };
+        heard = Instant::now();
         let event = board.handle(&msg);
         if let (Some(dir), Event::Frame { .. }, Some((l, r))) = (&args.save, &event, board.pair()) {
             std::fs::create_dir_all(dir)
@@ -137,6 +148,8 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
             println!("axis at {pos:.3} mm");
         }
     }
+    // The screen shows where the axis settled.
+    board.follow_axis().context("display")?;
     if out.json {
         out.emit(&events, String::new)?;
     }

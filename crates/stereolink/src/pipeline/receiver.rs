@@ -228,6 +228,23 @@ impl BoardReceiver {
         }
     }
 
+    /// Reads the axis and redraws the screen when its position, to the
+    /// 0.1 mm the status line shows, changed: called while waiting for
+    /// messages, the screen follows the axis as it moves and shows where
+    /// it settles.
+    pub fn follow_axis(&mut self) -> std::io::Result<()> {
+        let Some(axis) = self.axis.as_mut() else {
+            return Ok(());
+        };
+        let now = axis.position().ok();
+        let shown = |mm: Option<f64>| mm.map(|a| (a * 10.0).round() as i64);
+        if shown(now) != shown(self.status.axis_mm) {
+            self.status.axis_mm = now;
+            self.refresh()?;
+        }
+        Ok(())
+    }
+
     /// Stops the axis if the watchdog expired; returns true if it did.
     pub fn check_watchdog(&mut self) -> bool {
         if self.watchdog.expired(Instant::now()) {
@@ -237,5 +254,59 @@ impl BoardReceiver {
             }
         }
         false
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use stereolink_codec::{Message, SegmentationKind, StereoFrame, View};
+    use stereolink_image::synth::{synthesize, SynthSpec};
+    use stereolink_segment::segment;
+
+    /// A report moved the axis: the status line follows it while it moves,
+    /// and the screen shows where it settled.
+    #[test]
+    fn the_screen_follows_the_axis_until_it_settles() {
+        let scene = synthesize(&SynthSpec {
+            width: 96,
+            height: 64,
+            max_disp: 16,
+            seed: 2,
+        })
+        .unwrap();
+        let method = "kmeans".parse().unwrap();
+        let view = |img| View::Indexed(segment(img, &method, 3, 1).unwrap().image);
+        let frame = StereoFrame {
+            kind: SegmentationKind::KMeans,
+            levels: 3,
+            params: String::new(),
+            thresholds: None,
+            calibration: None,
+            left: view(&scene.left),
+            right: view(&scene.right),
+        };
+        let bytes = container::encode(&Message::StereoFrame(Box::new(frame)), 1, 0);
+        let mut board = BoardReceiver::new(15, 5, std::time::Duration::from_secs(10));
+        board.axis = Some(stereolink_robot::open_axis("sim").unwrap());
+        assert!(matches!(board.handle(&bytes), Event::Frame { .. }));
+        let first = board.screen().clone();
+        board.axis.as_mut().unwrap().move_to(250.0, 50.0).unwrap();
+        let mut shown = Vec::new();
+        while board.axis.as_mut().unwrap().is_moving().unwrap() {
+            board.follow_axis().unwrap();
+            shown.push(board.status.axis_mm);
+            assert!(shown.len() < 1_000_000, "the axis never settles");
+        }
+        board.follow_axis().unwrap();
+        let settled = board.axis.as_mut().unwrap().position().unwrap();
+        let tenths = |mm: f64| (mm * 10.0).round();
+        assert_eq!(board.status.axis_mm.map(tenths), Some(tenths(settled)));
+        assert!(tenths(settled) > 2000.0, "moved to {settled} mm");
+        assert!(
+            shown.windows(2).filter(|w| w[0] != w[1]).count() > 10,
+            "the status line moved with the axis"
+        );
+        assert_ne!(board.screen(), &first);
     }
 }
