@@ -16,7 +16,7 @@
 //!   sender's addresses. A broadcast always succeeds.
 
 use std::io::{Read, Write};
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
 
@@ -98,11 +98,11 @@ impl Config {
 #[derive(Debug, Default)]
 pub struct Counters {
     /// API frames of a type its firmware does not take.
-    pub ignored: AtomicU64,
+    pub ignored: AtomicUsize,
     /// Frames handed to the peer.
-    pub delivered: AtomicU64,
+    pub delivered: AtomicUsize,
     /// The largest payload handed to the peer.
-    pub largest: AtomicU64,
+    pub largest: AtomicUsize,
 }
 
 /// One radio: reads its host's frames from `host`, answers on `answer`,
@@ -196,7 +196,7 @@ impl Radio {
                 data: value.unwrap_or_default(),
             });
         }
-        let len = frame.payload().map_or(0, <[u8]>::len) as u64;
+        let len = frame.payload().map_or(0, <[u8]>::len);
         let (rx, broadcast) = self.route(frame);
         let delivered = rx.is_some();
         if let (Some(rx), Some((_, port))) = (rx, self.peer.as_mut()) {
