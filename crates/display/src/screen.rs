@@ -3,12 +3,14 @@
 //! id, link quality, distance, axis position, and a free message).
 //!
 //! [`Screen`] keeps its buffers, so rendering frame after frame allocates
-//! nothing once the first frame is drawn.
+//! nothing once the first frame is drawn. The board has no FPU: integer
+//! disparities ([`Screen::render_levels`]) are painted from a table of the
+//! range's colours, and the panels are scaled without a division per pixel.
 
 use serde::Serialize;
 use std::fmt::Write;
 
-use stereolink_image::{colormap, DisparityMap, Rgb, RgbImage};
+use stereolink_image::{colormap, DisparityMap, Plane, Rgb, RgbImage};
 
 use crate::font::{draw_text, text_width, GLYPH_H};
 
@@ -46,6 +48,8 @@ pub struct ScreenStatus {
 pub struct Screen {
     image: RgbImage,
     colour: RgbImage,
+    /// The colour of each integer disparity of the range (render_levels).
+    palette: Vec<Rgb>,
     /// Scratch for the text drawn, so rendering allocates nothing.
     text: String,
 }
@@ -55,6 +59,7 @@ impl Default for Screen {
         Screen {
             image: RgbImage::new(SCREEN_WIDTH, SCREEN_HEIGHT, BACKGROUND),
             colour: RgbImage::new(0, 0, BACKGROUND),
+            palette: Vec::new(),
             text: String::new(),
         }
     }
@@ -72,14 +77,31 @@ fn blit_scaled(dst: &mut RgbImage, src: &RgbImage, x0: usize, y0: usize, w: usiz
         ((sh as f32 * scale) as usize).max(1),
     );
     let (ox, oy) = (x0 + (w - tw.min(w)) / 2, y0 + (h - th.min(h)) / 2);
-    for y in 0..th.min(h) {
-        let sy = (y * sh / th).min(sh - 1);
+    for (y, sy) in nearest(sh, th).take(h).enumerate() {
         let row = src.row(sy);
         let out = &mut dst.row_mut(oy + y)[ox..ox + tw.min(w)];
-        for (x, px) in out.iter_mut().enumerate() {
-            *px = row[(x * sw / tw).min(sw - 1)];
+        for (px, sx) in out.iter_mut().zip(nearest(sw, tw)) {
+            *px = row[sx];
         }
     }
+}
+
+/// The source indices `⌊i · n / len⌋` for `i = 0..len` of a target `len`
+/// long scaled from a source `n` long (each below `n`): stepped without a
+/// division per index, a whole step `n / len` and a carried remainder.
+fn nearest(n: usize, len: usize) -> impl Iterator<Item = usize> {
+    let (step, rem) = (n / len, n % len);
+    let (mut at, mut carry) = (0, 0);
+    (0..len).map(move |_| {
+        let i = at;
+        at += step;
+        carry += rem;
+        if carry >= len {
+            at += 1;
+            carry -= len;
+        }
+        i
+    })
 }
 
 impl Screen {
@@ -103,25 +125,68 @@ impl Screen {
         dmax: f32,
         status: &ScreenStatus,
     ) -> &RgbImage {
-        if self.colour.dims() != disparity.dims() {
-            self.colour
-                .reset(disparity.width(), disparity.height(), BACKGROUND);
-        }
         let span = (dmax - dmin).max(f32::EPSILON);
         let turbo = colormap::turbo_table();
-        let paint = |t: f32| turbo[colormap::turbo_index(t)];
-        for (c, &d) in self
-            .colour
-            .as_mut_slice()
-            .iter_mut()
-            .zip(disparity.as_slice())
-        {
-            *c = if d.is_finite() {
-                paint((d - dmin) / span)
+        self.colour_from(disparity, |d| {
+            if d.is_finite() {
+                turbo[colormap::turbo_index((d - dmin) / span)]
             } else {
                 colormap::INVALID
-            };
+            }
+        });
+        self.compose(view, dmin, dmax, status)
+    }
+
+    /// [`render`](Self::render) for integer disparities (`no_disparity`
+    /// marks a pixel without one) over `dmin..=dmax`: the same screen as
+    /// `render` of their `f32` values, painted from a table of the range's
+    /// colours, with no floating point per pixel.
+    pub fn render_levels(
+        &mut self,
+        view: &RgbImage,
+        levels: &Plane<u16>,
+        no_disparity: u16,
+        (dmin, dmax): (u16, u16),
+        status: &ScreenStatus,
+    ) -> &RgbImage {
+        let dmax = dmax.max(dmin);
+        let (lo, span) = (dmin as f32, ((dmax - dmin) as f32).max(f32::EPSILON));
+        let turbo = colormap::turbo_table();
+        let mut palette = std::mem::take(&mut self.palette);
+        palette.clear();
+        palette.extend((dmin..=dmax).map(|l| turbo[colormap::turbo_index((l as f32 - lo) / span)]));
+        // Above dmax the float path clamps to the last colour of the table
+        // (below dmin, to the first, which is dmin's).
+        palette.push(turbo[255]);
+        let above = palette.len() - 1;
+        self.colour_from(levels, |l| match l {
+            _ if l == no_disparity => colormap::INVALID,
+            _ => palette[(l.saturating_sub(dmin) as usize).min(above)],
+        });
+        self.palette = palette;
+        self.compose(view, lo, dmax as f32, status)
+    }
+
+    /// Paints the disparity panel's source, one colour per map pixel.
+    fn colour_from<T: Copy>(&mut self, map: &Plane<T>, paint: impl Fn(T) -> Rgb) {
+        if self.colour.dims() != map.dims() {
+            self.colour.reset(map.width(), map.height(), BACKGROUND);
         }
+        for (c, &d) in self.colour.as_mut_slice().iter_mut().zip(map.as_slice()) {
+            *c = paint(d);
+        }
+    }
+
+    /// Draws the panels, the colour bar over `[dmin, dmax]` and the status.
+    fn compose(
+        &mut self,
+        view: &RgbImage,
+        dmin: f32,
+        dmax: f32,
+        status: &ScreenStatus,
+    ) -> &RgbImage {
+        let turbo = colormap::turbo_table();
+        let paint = |t: f32| turbo[colormap::turbo_index(t)];
         let img = &mut self.image;
         img.as_mut_slice().fill(BACKGROUND);
         draw_text(img, MARGIN + 2, MARGIN + 1, "3-D VIEW", ACCENT);
@@ -139,10 +204,8 @@ impl Screen {
         // Colour bar with its range.
         let bx = dx + PANEL_W - BAR_W - 14;
         for y in 0..PANEL_H {
-            let t = 1.0 - y as f32 / (PANEL_H - 1) as f32;
-            for x in bx..bx + BAR_W {
-                img.set(x, top + y, paint(t));
-            }
+            let c = paint(1.0 - y as f32 / (PANEL_H - 1) as f32);
+            img.row_mut(top + y)[bx..bx + BAR_W].fill(c);
         }
         let text = &mut self.text;
         text.clear();
@@ -201,6 +264,43 @@ impl Screen {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn nearest_indices_are_the_divisions() {
+        for n in 1..70 {
+            for len in 1..70 {
+                let stepped: Vec<usize> = nearest(n, len).collect();
+                let divided: Vec<usize> = (0..len).map(|i| i * n / len).collect();
+                assert_eq!(stepped, divided, "{n} into {len}");
+            }
+        }
+    }
+
+    /// Integer levels give the screen that their `f32` values give, in and
+    /// out of the range and without a disparity.
+    #[test]
+    fn integer_levels_paint_the_float_screen() {
+        const NONE: u16 = u16::MAX;
+        let view = RgbImage::from_fn(480, 272, |x, y| [x as u8, y as u8, 90]);
+        let levels = Plane::from_fn(480, 272, |x, y| match (x + 3 * y) % 41 {
+            40 => NONE,
+            v => v as u16,
+        });
+        let floats = levels.map(|l| if l == NONE { f32::INFINITY } else { l as f32 });
+        let status = ScreenStatus {
+            frame_id: 3,
+            ..Default::default()
+        };
+        for (dmin, dmax) in [(0, 31), (2, 31), (5, 5), (0, 63)] {
+            let a = Screen::new()
+                .render(&view, &floats, dmin as f32, dmax as f32, &status)
+                .clone();
+            let b = Screen::new()
+                .render_levels(&view, &levels, NONE, (dmin, dmax), &status)
+                .clone();
+            assert!(a == b, "range {dmin}..={dmax}");
+        }
+    }
 
     #[test]
     fn renders_the_fixed_size_layout_and_reuses_its_buffer() {

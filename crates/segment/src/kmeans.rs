@@ -275,6 +275,7 @@ fn chunk_sums(
 
 /// Runs `$call` with the const `$k` equal to `$n` when `$n` is 1 to 8:
 /// `Some(result)`, else `None`.
+#[cfg(target_arch = "x86_64")]
 macro_rules! with_centres {
     ($n:expr, $k:ident => $call:expr) => {
         match $n {
@@ -314,6 +315,7 @@ macro_rules! with_centres {
         }
     };
 }
+#[cfg(target_arch = "x86_64")]
 use with_centres;
 
 /// The nearest of `K` centres for four colours: distances as in [`dist2`]

@@ -1,12 +1,14 @@
-//! The vector operations of the WTA band loop, once portably and once with
-//! AVX2 intrinsics.
+//! The vector operations of the WTA band loop: portably, with AVX2
+//! intrinsics, and in SWAR for a CPU without vector instructions.
 //!
 //! A pixel's costs are `u16` lanes, one per disparity, padded to a whole
 //! number of [`LANES`]-wide blocks. LLVM does not reliably vectorise these
 //! short loops once they are inlined into the band loop (it fully unrolls
-//! them into scalar code), so the AVX2 set is written with intrinsics. Both
-//! sets use the same wrapping integer arithmetic and the same tie rule, so
-//! they give bit-identical results; the tests check that.
+//! them into scalar code), so the AVX2 set is written with intrinsics. The
+//! SWAR set (the ARM926 board: no SIMD) adds and subtracts two lanes held in
+//! one `u32` word per instruction. All sets use the same integer arithmetic
+//! and the same tie rule, so they give bit-identical results; the tests
+//! check that.
 
 /// Disparities per vector block (one AVX2 register of `u16`).
 pub const LANES: usize = 16;
@@ -17,6 +19,11 @@ pub const LANES: usize = 16;
 /// Every method may use the instruction set the implementation is named
 /// after: call them only when the CPU has it.
 pub(crate) trait LaneOps {
+    /// Whether the band loop should skip the column sums' update where a
+    /// row and the one leaving the window agree (they cancel): it pays on
+    /// a scalar CPU, not where a vector updates 16 lanes in a few
+    /// instructions and camera rows almost never agree.
+    const SKIP_ALIKE_ROWS: bool = false;
     /// `col[k] += |l − r[k]|`, and `−= |ls − rs[k]|` for a leaving row.
     unsafe fn accumulate(col: &mut [u16], l: u16, r: &[u16], leaving: Option<(u16, &[u16])>);
     /// `out[k] = base[k] + a[k] − s[k]`.
@@ -29,6 +36,16 @@ pub(crate) trait LaneOps {
     /// the lowest index wins ties. The value comes from the reduction, so
     /// a caller need not load it back from a just-written cost vector.
     unsafe fn argmin(costs: &[u16], valid: usize) -> (usize, u16);
+    /// [`add_sub`](Self::add_sub) with `s`, then [`argmin`](Self::argmin)
+    /// of the sums: one pass where a kernel fuses them.
+    #[inline(always)]
+    unsafe fn add_sub_argmin(acc: &mut [u16], a: &[u16], s: &[u16], valid: usize) -> (usize, u16) {
+        // SAFETY: forwarded from the caller.
+        unsafe {
+            Self::add_sub(acc, a, Some(s));
+            Self::argmin(acc, valid)
+        }
+    }
     /// For every lane `i` with `i < valid`: if `costs[i] < best[i]`, then
     /// `best[i] = costs[i]` and `which[i] = i` (an earlier smaller or equal
     /// cost stays).
@@ -103,6 +120,165 @@ impl LaneOps for Portable {
             let take = c < *b;
             (*b, *w) = if take { (c, i) } else { (*b, *w) };
         }
+    }
+}
+
+/// Two lanes per `u32` word for the column sums' and the sliding window
+/// sum's updates (the board's WTA runs without a min filter), the latter
+/// fused with the search for the smallest cost; [`Portable`] for the rest.
+/// Absolute differences, minima and compares stay one lane at a time: a
+/// scalar CPU does them in fewer instructions than their SWAR forms.
+///
+/// Exact because of what the band loop adds and subtracts: every lane is a
+/// sum of absolute differences that the window bound keeps below 2^16
+/// (`WtaParams::max_block`), and every subtraction removes a term of that
+/// sum, so subtracting before adding never borrows from, nor carries into,
+/// the other lane of a word.
+pub(crate) struct Swar;
+
+/// `acc`, `a` and `s` (each cut to `acc.len()`) as words of two lanes, if
+/// all three are aligned for `u32` (they are where they come from a `Vec`
+/// at an even offset).
+#[inline(always)]
+fn as_words<'a>(
+    acc: &'a mut [u16],
+    a: &'a [u16],
+    s: &'a [u16],
+) -> Option<(&'a mut [u32], &'a [u32], &'a [u32])> {
+    let n = acc.len();
+    // SAFETY: every bit pattern is a valid u32, and a valid pair of u16.
+    let ((a0, a, a1), (s0, s, s1), (h0, acc, h1)) = unsafe {
+        (
+            a[..n].align_to::<u32>(),
+            s[..n].align_to::<u32>(),
+            acc.align_to_mut::<u32>(),
+        )
+    };
+    let aligned = [a0, a1, s0, s1, h0, h1].iter().all(|rest| rest.is_empty());
+    aligned.then_some((acc, a, s))
+}
+
+/// The word holding the lanes `first` and `second`, in memory order.
+#[inline(always)]
+fn word(first: u16, second: u16) -> u32 {
+    let (a, b) = (first as u32, second as u32);
+    if cfg!(target_endian = "little") {
+        a | b << 16
+    } else {
+        a << 16 | b
+    }
+}
+
+/// A word's two lanes, in memory order.
+#[inline(always)]
+fn lanes_of(v: u32) -> (u32, u32) {
+    if cfg!(target_endian = "little") {
+        (v & 0xFFFF, v >> 16)
+    } else {
+        (v >> 16, v & 0xFFFF)
+    }
+}
+
+impl LaneOps for Swar {
+    const SKIP_ALIKE_ROWS: bool = true;
+
+    /// The differences per lane, the column sums a word at a time: the
+    /// leaving row's pair subtracted, then the entering row's added.
+    #[inline(always)]
+    unsafe fn accumulate(col: &mut [u16], l: u16, r: &[u16], leaving: Option<(u16, &[u16])>) {
+        let n = col.len();
+        // SAFETY: every bit pattern is a valid u32, and a valid pair of u16.
+        let (head, words, tail) = unsafe { col.align_to_mut::<u32>() };
+        match leaving {
+            Some((ls, rs)) if head.is_empty() && tail.is_empty() => {
+                let pairs = r[..n].chunks_exact(2).zip(rs[..n].chunks_exact(2));
+                for (c, (r, s)) in words.iter_mut().zip(pairs) {
+                    let new = word(l.abs_diff(r[0]), l.abs_diff(r[1]));
+                    let old = word(ls.abs_diff(s[0]), ls.abs_diff(s[1]));
+                    *c = c.wrapping_sub(old).wrapping_add(new);
+                }
+            }
+            // SAFETY: portable code.
+            _ => unsafe { Portable::accumulate(col, l, r, leaving) },
+        }
+    }
+
+    #[inline(always)]
+    unsafe fn add_sub_from(out: &mut [u16], base: &[u16], a: &[u16], s: &[u16]) {
+        // SAFETY: portable code.
+        unsafe { Portable::add_sub_from(out, base, a, s) }
+    }
+
+    #[inline(always)]
+    unsafe fn min_assign(acc: &mut [u16], a: &[u16]) {
+        // SAFETY: portable code.
+        unsafe { Portable::min_assign(acc, a) }
+    }
+
+    #[inline(always)]
+    unsafe fn add_sub(acc: &mut [u16], a: &[u16], s: Option<&[u16]>) {
+        match s {
+            Some(s) => {
+                if let Some((h, a, s)) = as_words(acc, a, s) {
+                    for ((h, &a), &s) in h.iter_mut().zip(a).zip(s) {
+                        *h = h.wrapping_sub(s).wrapping_add(a);
+                    }
+                    return;
+                }
+            }
+            None => {
+                if let Some((h, a, _)) = as_words(acc, a, a) {
+                    h.iter_mut()
+                        .zip(a)
+                        .for_each(|(h, &a)| *h = h.wrapping_add(a));
+                    return;
+                }
+            }
+        }
+        // SAFETY: portable code.
+        unsafe { Portable::add_sub(acc, a, s) }
+    }
+
+    /// One pass: each word's new sums are compared while in registers.
+    #[inline(always)]
+    unsafe fn add_sub_argmin(acc: &mut [u16], a: &[u16], s: &[u16], valid: usize) -> (usize, u16) {
+        let Some((h, a, s)) = as_words(acc, a, s) else {
+            // SAFETY: portable code.
+            return unsafe { Portable::add_sub_argmin(acc, a, s, valid) };
+        };
+        // Packed as in Portable::argmin: cost high, lane low. The words
+        // whose both lanes are valid, then the one with a last valid lane,
+        // then the rest (only updated).
+        let slide = |h: &mut u32, a: u32, s: u32| *h = h.wrapping_sub(s).wrapping_add(a);
+        let (mut best, mut k) = (u32::MAX, 0);
+        let full = valid / 2;
+        for ((h, &a), &s) in h[..full].iter_mut().zip(&a[..full]).zip(&s[..full]) {
+            slide(h, a, s);
+            let (first, second) = lanes_of(*h);
+            best = best.min(first << 16 | k).min(second << 16 | (k + 1));
+            k += 2;
+        }
+        let mut rest = h[full..].iter_mut().zip(&a[full..]).zip(&s[full..]);
+        if valid % 2 == 1 {
+            if let Some(((h, &a), &s)) = rest.next() {
+                slide(h, a, s);
+                best = best.min(lanes_of(*h).0 << 16 | k);
+            }
+        }
+        rest.for_each(|((h, &a), &s)| slide(h, a, s));
+        ((best & 0xFFFF) as usize, (best >> 16) as u16)
+    }
+
+    #[inline(always)]
+    unsafe fn argmin(costs: &[u16], valid: usize) -> (usize, u16) {
+        // SAFETY: portable code.
+        unsafe { Portable::argmin(costs, valid) }
+    }
+
+    #[inline(always)]
+    unsafe fn min_update(best: &mut [u16], which: &mut [u16], costs: &[u16], valid: usize) {
+        // SAFETY: portable code.
+        unsafe { Portable::min_update(best, which, costs, valid) }
     }
 }
 

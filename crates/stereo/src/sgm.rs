@@ -295,6 +295,7 @@ fn cost_volume(
                 // SAFETY: AVX2 presence was checked at run time.
                 return unsafe { cost_row_avx2(l, r, min_disp, nd, out) };
             }
+            let _ = avx2; // only x86-64 has an AVX2 kernel
             cost_row(l, r, min_disp, nd, out, false)
         });
 }
@@ -899,6 +900,7 @@ mod tests {
         }
     }
 
+    #[cfg(target_arch = "x86_64")]
     #[test]
     fn avx2_census_equals_portable() {
         if !crate::wta::avx2_available() {

@@ -18,11 +18,15 @@
 //! entering row, subtract the leaving one) and a horizontal running sum over
 //! the columns gives the window sum. The disparity axis is innermost and
 //! contiguous, padded to a whole number of `LANES`-wide blocks of `u16`
-//! lanes; the lane operations come in two sets (`lanes` module), AVX2
-//! intrinsics chosen at run time where the CPU has them and portable Rust
-//! elsewhere, which give bit-identical results (integer arithmetic, the
-//! same tie rule: the smallest disparity wins). Row bands run in parallel
-//! (rayon). Window pixels outside the image replicate the border.
+//! lanes; the lane operations come in three sets (`lanes` module, see
+//! [`Kernel`]): AVX2 intrinsics chosen at run time where the CPU has them,
+//! SWAR on a CPU without vector instructions (the ARM926 board), and
+//! portable Rust elsewhere, which give bit-identical results (integer
+//! arithmetic, the same tie rule: the smallest disparity wins). On the
+//! SWAR kernel, a column whose entering and leaving rows agree (long runs
+//! of them in a segmented pair) skips its update: the two cancel. Row
+//! bands run in parallel (rayon). Window pixels outside the image
+//! replicate the border.
 //!
 //! A match outside the right view (`x − d < 0`) is not considered; pixels
 //! with `x < d_min` get no disparity (`inf`).
@@ -30,11 +34,30 @@
 use rayon::prelude::*;
 use stereolink_image::{DisparityMap, Plane, RgbImage};
 
-use crate::lanes::{LaneOps, Portable, LANES};
+use crate::lanes::{LaneOps, Portable, Swar, LANES};
 use crate::{MatchSpec, StereoError};
 
 /// Gray samples of a view, [`WtaParams::gray_bits`] bits each.
 pub type Samples = Plane<u16>;
+
+/// Integer disparities, as [`WtaMatcher::compute_levels_into`] writes them:
+/// a CPU without an FPU keeps them as small integers until a caller needs
+/// `f32` ([`levels_to_disparity`]).
+pub type Levels = Plane<u16>;
+
+/// The level of a pixel without a disparity (`inf` in a [`DisparityMap`]).
+pub const NO_DISPARITY: u16 = u16::MAX;
+
+/// The [`DisparityMap`] of `levels` ([`NO_DISPARITY`] becomes `inf`).
+pub fn levels_to_disparity(levels: &Levels) -> DisparityMap {
+    levels.map(|l| {
+        if l == NO_DISPARITY {
+            f32::INFINITY
+        } else {
+            l as f32
+        }
+    })
+}
 
 /// Writes the luma of `img` into `out` (resized, storage reused) in fixed
 /// point with `bits` bits (8..=10): BT.601 weights `(77 R + 150 G + 29 B) / 256`
@@ -160,10 +183,30 @@ impl WtaParams {
     }
 }
 
+/// The lane operations a [`WtaMatcher`] runs; all give the same disparities.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Kernel {
+    /// AVX2 where the CPU has it; else SWAR on a CPU without vector
+    /// instructions (32-bit ARM without NEON), portable loops elsewhere.
+    #[default]
+    Auto,
+    /// Plain loops, which the compiler vectorises where the CPU has vectors.
+    Portable,
+    /// Two `u16` lanes per `u32` word, and alike rows skipped: for a CPU
+    /// without vector instructions.
+    Swar,
+}
+
+/// True where the target has no vector unit the portable loops could use.
+const NO_VECTORS: bool = cfg!(all(target_arch = "arm", not(target_feature = "neon")));
+
 /// Scratch of one row band.
 #[derive(Default)]
 struct Band {
     colsum: Vec<u16>,
+    /// Per reversed-row index, how many of the entering and leaving right
+    /// rows' samples before it differ (the SWAR kernel's skip test).
+    differ: Vec<u32>,
     /// The window sums of the last `min_filter` rows, `W × lanes` each.
     ring: Vec<u16>,
     /// Their per-lane minimum over those rows (with the min filter on).
@@ -183,8 +226,7 @@ pub struct WtaMatcher {
     /// Each right row, border-padded and reversed (see [`reversed_rows`]).
     reversed: Vec<u16>,
     bands: Vec<Band>,
-    /// Never use the AVX2 kernel (to test or measure the portable one).
-    portable: bool,
+    kernel: Kernel,
 }
 
 /// Fewest rows per parallel band: each band re-primes `block` rows.
@@ -201,11 +243,16 @@ impl WtaMatcher {
         Self::default()
     }
 
-    /// A matcher that always runs the portable kernel, as on a CPU without
-    /// SIMD (the embedded board): same results, for testing and measuring.
+    /// A matcher that always runs the portable kernel (no AVX2): same
+    /// results, for testing and measuring.
     pub fn portable() -> Self {
+        Self::with_kernel(Kernel::Portable)
+    }
+
+    /// A matcher that runs `kernel`: same results, for testing and measuring.
+    pub fn with_kernel(kernel: Kernel) -> Self {
         WtaMatcher {
-            portable: true,
+            kernel,
             ..Self::default()
         }
     }
@@ -222,6 +269,25 @@ impl WtaMatcher {
         params: &WtaParams,
         out: &mut DisparityMap,
     ) {
+        self.compute(left, right, params, out, None);
+    }
+
+    /// As [`compute_into`](Self::compute_into), with integer disparities:
+    /// the same winners, without an integer-to-float conversion per pixel
+    /// (a software routine on a CPU without an FPU).
+    ///
+    /// # Panics
+    /// As [`compute_into`](Self::compute_into), and if `params` asks for
+    /// subpixel refinement or a disparity reaches [`NO_DISPARITY`].
+    pub fn compute_levels_into(
+        &mut self,
+        left: &Samples,
+        right: &Samples,
+        params: &WtaParams,
+        out: &mut Levels,
+    ) {
+        assert!(!params.subpixel, "integer levels have no subpixel part");
+        assert!(params.min_disp + params.ndisp <= NO_DISPARITY as usize);
         self.compute(left, right, params, out, None);
     }
 
@@ -247,12 +313,12 @@ impl WtaMatcher {
         self.compute(left, right, params, out, Some(right_out));
     }
 
-    fn compute(
+    fn compute<T: Disparity>(
         &mut self,
         left: &Samples,
         right: &Samples,
         params: &WtaParams,
-        out: &mut DisparityMap,
+        out: &mut Plane<T>,
         right_out: Option<&mut DisparityMap>,
     ) {
         use rayon::iter::Either;
@@ -278,7 +344,12 @@ impl WtaMatcher {
         self.bands
             .resize_with(n_bands.max(self.bands.len()), Band::default);
         let reversed = &self.reversed;
-        let use_avx2 = !self.portable && avx2_available();
+        let kernel = match self.kernel {
+            Kernel::Auto if avx2_available() => Kernel::Auto,
+            Kernel::Auto if NO_VECTORS => Kernel::Swar,
+            Kernel::Auto => Kernel::Portable,
+            k => k,
+        };
         let right_rows = match right_out {
             Some(r) => Either::Left(r.as_mut_slice().par_chunks_mut(w * band_rows).map(Some)),
             None => Either::Right((0..n_bands).into_par_iter().map(|_| None)),
@@ -297,6 +368,9 @@ impl WtaMatcher {
                     y0: i * band_rows,
                 };
                 band.colsum.resize(w * nl, 0);
+                if kernel == Kernel::Swar {
+                    band.differ.resize(stride + 1, 0);
+                }
                 let m = params.min_filter.max(1);
                 band.ring.resize(if m > 1 { m * w * nl } else { 0 }, 0);
                 band.vmin.resize(if m > 1 { w * nl } else { 0 }, 0);
@@ -305,15 +379,18 @@ impl WtaMatcher {
                     band.right_best.resize(w + nl, 0);
                     band.right_lane.resize(w + nl, 0);
                 }
-                if use_avx2 {
-                    #[cfg(target_arch = "x86_64")]
-                    // SAFETY: only reached when the CPU reports AVX2 (checked in
-                    // `avx2_available`).
-                    unsafe {
-                        band_avx2(&job, band, rows, right_rows)
+                match kernel {
+                    // Auto stands for AVX2 here.
+                    Kernel::Auto => {
+                        #[cfg(target_arch = "x86_64")]
+                        // SAFETY: only reached when the CPU reports AVX2 (checked in
+                        // `avx2_available`).
+                        unsafe {
+                            band_avx2(&job, band, rows, right_rows)
+                        }
                     }
-                } else {
-                    band_portable(&job, band, rows, right_rows)
+                    Kernel::Portable => band_scalar::<Portable, T>(&job, band, rows, right_rows),
+                    Kernel::Swar => band_scalar::<Swar, T>(&job, band, rows, right_rows),
                 }
             });
     }
@@ -365,14 +442,24 @@ struct Job<'a> {
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn band_avx2(job: &Job, band: &mut Band, out: &mut [f32], right: Option<&mut [f32]>) {
+unsafe fn band_avx2<T: Disparity>(
+    job: &Job,
+    band: &mut Band,
+    out: &mut [T],
+    right: Option<&mut [f32]>,
+) {
     // SAFETY: this function only runs where AVX2 is present.
-    unsafe { band_with::<crate::lanes::Avx2>(job, band, out, right) }
+    unsafe { band_with::<crate::lanes::Avx2, T>(job, band, out, right) }
 }
 
-fn band_portable(job: &Job, band: &mut Band, out: &mut [f32], right: Option<&mut [f32]>) {
-    // SAFETY: the portable lane operations need no special instructions.
-    unsafe { band_with::<Portable>(job, band, out, right) }
+fn band_scalar<K: LaneOps, T: Disparity>(
+    job: &Job,
+    band: &mut Band,
+    out: &mut [T],
+    right: Option<&mut [f32]>,
+) {
+    // SAFETY: the portable and SWAR lane operations need no special instructions.
+    unsafe { band_with::<K, T>(job, band, out, right) }
 }
 
 /// Processes the rows of one band with the lane operations `K`; `out`
@@ -388,10 +475,10 @@ fn band_portable(job: &Job, band: &mut Band, out: &mut [f32], right: Option<&mut
 /// # Safety
 /// The CPU must have the instructions `K` uses.
 #[inline(always)]
-unsafe fn band_with<K: LaneOps>(
+unsafe fn band_with<K: LaneOps, T: Disparity>(
     job: &Job,
     band: &mut Band,
-    out: &mut [f32],
+    out: &mut [T],
     mut right: Option<&mut [f32]>,
 ) {
     let (w, h) = job.left.dims();
@@ -401,6 +488,7 @@ unsafe fn band_with<K: LaneOps>(
     let clamp_y = |y: isize| y.clamp(0, h as isize - 1) as usize;
     let clamp_x = |x: isize| x.clamp(0, w as isize - 1) as usize;
     let colsum = &mut band.colsum[..w * nd];
+    let differ = &mut band.differ[..];
     let ring = &mut band.ring[..if m > 1 { m * w * nd } else { 0 }];
     let vmin = &mut band.vmin[..if m > 1 { w * nd } else { 0 }];
     let cost = &mut band.cost[..nd];
@@ -413,7 +501,7 @@ unsafe fn band_with<K: LaneOps>(
     colsum.fill(0);
     for dy in -r..=r {
         // SAFETY: forwarded from this function's contract.
-        unsafe { accumulate_row::<K>(job, colsum, clamp_y(first as isize + dy), None) };
+        unsafe { accumulate_row::<K>(job, colsum, differ, clamp_y(first as isize + dy), None) };
     }
     let mut next = first;
     for (i, out_row) in out.chunks_exact_mut(w).enumerate() {
@@ -424,7 +512,7 @@ unsafe fn band_with<K: LaneOps>(
             if next > first {
                 let (entering, leaving) = (clamp_y(yc + r), clamp_y(yc - r - 1));
                 // SAFETY: as above.
-                unsafe { accumulate_row::<K>(job, colsum, entering, Some(leaving)) };
+                unsafe { accumulate_row::<K>(job, colsum, differ, entering, Some(leaving)) };
             }
             if m > 1 {
                 let col = |x: isize| &colsum[clamp_x(x) * nd..][..nd];
@@ -464,23 +552,31 @@ unsafe fn band_with<K: LaneOps>(
         right_best.fill(u16::MAX);
         for (x, d) in out_row.iter_mut().enumerate() {
             let xi = x as isize;
+            // Disparities d_min.. up to x (none below d_min).
+            let valid = (x + 1).saturating_sub(p.min_disp).min(p.ndisp);
+            // The smallest cost, when the slide below found it.
+            let mut found = None;
             if m == 1 {
                 // No min filter: the window sum slides along the row in
                 // `cost` (no ring), the column x + r entering and x − r − 1
                 // leaving.
+                let (entering, leaving) = (col(xi + r), col(xi - r - 1));
                 if x == 0 {
                     cost.fill(0);
                     for dx in -r..=r {
                         // SAFETY: as above.
                         unsafe { K::add_sub(cost, col(dx), None) };
                     }
+                } else if valid > 0 {
+                    // SAFETY: as above.
+                    found = Some(unsafe { K::add_sub_argmin(cost, entering, leaving, valid) });
                 } else {
                     // SAFETY: as above.
-                    unsafe { K::add_sub(cost, col(xi + r), Some(col(xi - r - 1))) };
+                    unsafe { K::add_sub(cost, entering, Some(leaving)) };
                 }
             }
-            if x < p.min_disp {
-                *d = f32::INFINITY;
+            if valid == 0 {
+                *d = T::NONE;
                 continue;
             }
             let at_col = |x: isize| &costs[clamp_x(x) * nd..][..nd];
@@ -494,9 +590,9 @@ unsafe fn band_with<K: LaneOps>(
                 }
                 cost
             };
-            let valid = p.ndisp.min(x - p.min_disp + 1);
             // SAFETY: as above.
-            *d = winner(cost, valid, unsafe { K::argmin(cost, valid) }, p);
+            let best = found.unwrap_or_else(|| unsafe { K::argmin(cost, valid) });
+            *d = T::winner(cost, valid, best, p);
             if right.is_some() {
                 // Lane k is the right pixel x − d_min − k, at W − 1 − that.
                 let at = w - 1 - (x - p.min_disp);
@@ -523,52 +619,104 @@ unsafe fn band_with<K: LaneOps>(
 /// subtracts those of row `leaving` when given:
 /// `colsum[x][k] += |L(x, y) − R(x − d_min − k, y)|`.
 ///
+/// With [`LaneOps::SKIP_ALIKE_ROWS`], a column whose left sample and
+/// right samples are the same in both rows is left as it is (what enters
+/// equals what leaves); `differ` (one more than a reversed row long)
+/// counts the differing right samples, so the test costs two loads.
+///
 /// # Safety
 /// The CPU must have the instructions `K` uses.
 #[inline(always)]
 unsafe fn accumulate_row<K: LaneOps>(
     job: &Job,
     colsum: &mut [u16],
+    differ: &mut [u32],
     y: usize,
     leaving: Option<usize>,
 ) {
     let w = job.left.width();
     let nd = lanes(job.params.ndisp);
-    // The right pixels `x − d_min − k`, k = 0..nd, of left column `x` in row `y`.
-    let right_of = |y: usize, x: usize| {
-        let base = y * job.stride + w + job.params.min_disp - 1 - x;
-        &job.reversed[base..base + nd]
-    };
+    // Where the right pixels `x − d_min − k`, k = 0..nd, of left column `x`
+    // start in a reversed row.
+    let start = |x: usize| w + job.params.min_disp - 1 - x;
+    let row = |y: usize| &job.reversed[y * job.stride..(y + 1) * job.stride];
+    let right_of = |y: usize, x: usize| &row(y)[start(x)..start(x) + nd];
     let left = job.left.row(y);
     let gone_left = leaving.map(|s| job.left.row(s));
+    let skip = K::SKIP_ALIKE_ROWS && leaving.is_some();
+    if let (true, Some(s)) = (skip, leaving) {
+        let mut n = 0;
+        differ[0] = 0;
+        for ((c, a), b) in differ[1..].iter_mut().zip(row(y)).zip(row(s)) {
+            n += (a != b) as u32;
+            *c = n;
+        }
+    }
     for (x, col) in colsum.chunks_exact_mut(nd).enumerate() {
         let gone = leaving.zip(gone_left).map(|(s, l)| (l[x], right_of(s, x)));
+        if skip
+            && gone.is_some_and(|(l, _)| l == left[x])
+            && differ[start(x) + nd] == differ[start(x)]
+        {
+            continue;
+        }
         // SAFETY: forwarded from this function's contract.
         unsafe { K::accumulate(col, left[x], right_of(y, x), gone) };
     }
 }
 
-/// The winning disparity among the first `valid` of `costs`, given the
-/// index `k` of their smallest cost and that cost (index `k` is disparity
-/// `d_min + k`): applies the uniqueness test and the subpixel fit.
-#[inline(always)]
-fn winner(costs: &[u16], valid: usize, (k, best): (usize, u16), p: &WtaParams) -> f32 {
-    let costs = &costs[..valid];
-    if p.uniqueness > 0 {
-        let limit = best as u32 * (100 + p.uniqueness);
-        let ambiguous = costs
-            .iter()
-            .enumerate()
-            .any(|(j, &c)| j.abs_diff(k) > 1 && (c as u32) * 100 < limit);
-        if ambiguous {
+/// A disparity as a band writes it: `f32` (with the subpixel fit) or an
+/// integer level.
+trait Disparity: Copy + Send + Sync {
+    /// A pixel without a disparity.
+    const NONE: Self;
+    /// The winning disparity among the first `valid` of `costs`, given the
+    /// index `k` of their smallest cost and that cost (index `k` is
+    /// disparity `d_min + k`), after the uniqueness test.
+    fn winner(costs: &[u16], valid: usize, best: (usize, u16), p: &WtaParams) -> Self;
+}
+
+impl Disparity for f32 {
+    const NONE: f32 = f32::INFINITY;
+
+    /// Also applies the subpixel fit.
+    #[inline(always)]
+    fn winner(costs: &[u16], valid: usize, (k, best): (usize, u16), p: &WtaParams) -> f32 {
+        let costs = &costs[..valid];
+        if ambiguous(costs, (k, best), p) {
             return f32::INFINITY;
         }
+        let mut d = (p.min_disp + k) as f32;
+        if p.subpixel && k > 0 && k + 1 < costs.len() {
+            d += crate::refine::parabola(costs[k - 1] as f32, best as f32, costs[k + 1] as f32);
+        }
+        d
     }
-    let mut d = (p.min_disp + k) as f32;
-    if p.subpixel && k > 0 && k + 1 < costs.len() {
-        d += crate::refine::parabola(costs[k - 1] as f32, best as f32, costs[k + 1] as f32);
+}
+
+impl Disparity for u16 {
+    const NONE: u16 = NO_DISPARITY;
+
+    #[inline(always)]
+    fn winner(costs: &[u16], valid: usize, (k, best): (usize, u16), p: &WtaParams) -> u16 {
+        if ambiguous(&costs[..valid], (k, best), p) {
+            NO_DISPARITY
+        } else {
+            (p.min_disp + k) as u16
+        }
     }
-    d
+}
+
+/// The uniqueness test: true when a disparity more than 1 away from the
+/// winner `k` costs less than `(100 + uniqueness) %` of its cost `best`.
+#[inline(always)]
+fn ambiguous(costs: &[u16], (k, best): (usize, u16), p: &WtaParams) -> bool {
+    let limit = best as u32 * (100 + p.uniqueness);
+    p.uniqueness > 0
+        && costs
+            .iter()
+            .enumerate()
+            .any(|(j, &c)| j.abs_diff(k) > 1 && (c as u32) * 100 < limit)
 }
 
 /// Straightforward per pixel SAD and min filter (O(n²·m²) per pixel and
@@ -609,7 +757,7 @@ pub(crate) fn reference(left: &Samples, right: &Samples, p: &WtaParams) -> Dispa
             })
             .collect();
         let k = (0..costs.len()).min_by_key(|&k| (costs[k], k)).unwrap();
-        winner(&costs, costs.len(), (k, costs[k]), p)
+        f32::winner(&costs, costs.len(), (k, costs[k]), p)
     })
 }
 
@@ -617,6 +765,8 @@ pub(crate) fn reference(left: &Samples, right: &Samples, p: &WtaParams) -> Dispa
 mod tests {
     use super::*;
     use proptest::prelude::*;
+
+    const KERNELS: [Kernel; 3] = [Kernel::Auto, Kernel::Portable, Kernel::Swar];
 
     /// Noise with `bits`-bit samples.
     fn noise(w: usize, h: usize, seed: u64, bits: u32) -> Samples {
@@ -760,7 +910,7 @@ mod tests {
             WtaMatcher::new().compute_into(&fl, &fr, &p, &mut d);
             crate::refine::flip(&d)
         };
-        for mut matcher in [WtaMatcher::new(), WtaMatcher::portable()] {
+        for mut matcher in KERNELS.map(WtaMatcher::with_kernel) {
             let (mut l, mut r) = (DisparityMap::new(w, h, 0.0), DisparityMap::new(w, h, 0.0));
             matcher.compute_both_into(&left, &right, &p, &mut l, &mut r);
             let mut plain = DisparityMap::new(w, h, 0.0);
@@ -773,6 +923,39 @@ mod tests {
                 }
                 // No left pixel lies right of the last right columns' match.
                 assert_eq!(r.get(w - 1, y), f32::INFINITY);
+            }
+        }
+    }
+
+    /// A segmented-looking view: three gray levels in blocks, so that
+    /// rows repeat and the SWAR kernel skips the columns they leave alike.
+    fn blocks(w: usize, h: usize, seed: u64) -> Samples {
+        Samples::from_fn(w, h, |x, y| {
+            let v = ((x / 5) as u64 * 31 + (y / 7) as u64 * 17) ^ seed;
+            [20, 130, 240][(v.wrapping_mul(0x9E37_79B9) >> 9) as usize % 3]
+        })
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(24))]
+        /// Every kernel equals the naive definition on blocky pairs, where
+        /// the SWAR kernel's skipping of alike rows takes part.
+        #[test]
+        fn kernels_equal_reference_on_blocks(
+            w in 1usize..60, h in 1usize..40, seed in any::<u64>(), shift in 0usize..6,
+            min_disp in 0usize..3, ndisp in 1usize..20, half in 0usize..5,
+        ) {
+            let right = blocks(w, h, seed);
+            let left = Samples::from_fn(w, h, |x, y| right.get(x.saturating_sub(shift), y));
+            let p = WtaParams {
+                min_disp, ndisp, block: 2 * half + 1, gray_bits: 8, min_filter: 0,
+                uniqueness: 0, subpixel: false,
+            };
+            let slow = reference(&left, &right, &p);
+            for kernel in KERNELS {
+                let mut levels = Levels::new(w, h, 0);
+                WtaMatcher::with_kernel(kernel).compute_levels_into(&left, &right, &p, &mut levels);
+                prop_assert_eq!(&levels_to_disparity(&levels), &slow, "{:?}", kernel);
             }
         }
     }
@@ -793,10 +976,15 @@ mod tests {
             let p = WtaParams { min_disp, ndisp, block, gray_bits, min_filter, uniqueness, subpixel };
             let slow = reference(&l, &r, &p);
             let bits = |m: &DisparityMap| m.as_slice().iter().map(|v| v.to_bits()).collect::<Vec<_>>();
-            for mut matcher in [WtaMatcher::new(), WtaMatcher::portable()] {
+            for mut matcher in KERNELS.map(WtaMatcher::with_kernel) {
                 let mut fast = DisparityMap::new(w, h, 0.0);
                 matcher.compute_into(&l, &r, &p, &mut fast);
                 prop_assert_eq!(bits(&fast), bits(&slow));
+                if !subpixel {
+                    let mut levels = Levels::new(w, h, 0);
+                    matcher.compute_levels_into(&l, &r, &p, &mut levels);
+                    prop_assert_eq!(bits(&levels_to_disparity(&levels)), bits(&slow));
+                }
             }
         }
     }

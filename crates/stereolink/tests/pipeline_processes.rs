@@ -128,7 +128,7 @@ fn send_and_receive_over_two_emulated_zigbee_radios() {
         format!("serial:{}?baud=115200&api=2&dest=0x{a:016X}", radio.b),
         format!("serial:{}?baud=115200&api=2&dest=0x{b:016X}", radio.a),
     );
-    let count = |i: usize, c: fn(&common::xbee::Counters) -> &std::sync::atomic::AtomicU64| {
+    let count = |i: usize, c: fn(&common::xbee::Counters) -> &std::sync::atomic::AtomicUsize| {
         c(&radio.counters[i]).load(std::sync::atomic::Ordering::Relaxed)
     };
     // Radio 0 serves the sender: the frame's fragments, full to NP.

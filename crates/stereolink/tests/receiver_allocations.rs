@@ -1,7 +1,8 @@
 //! The board's receiver keeps fixed buffers: once it has shown a frame of a
-//! size, decoding, matching and rendering the next ones allocates nothing.
-//! Counted by a global allocator, in a test binary of its own so that no
-//! other test allocates meanwhile.
+//! size, decoding, matching and rendering the next ones allocates nothing,
+//! and its heap peaks below the board's 16 MiB budget. Counted by a global
+//! allocator, in a test binary of its own so that no other test allocates
+//! meanwhile (tools/arm926/board runs it on the ARM926 too).
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -15,22 +16,34 @@ use stereolink_segment::segment;
 struct Counting;
 
 static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
+/// Bytes allocated and not freed, and their peak.
+static LIVE: AtomicUsize = AtomicUsize::new(0);
+static PEAK: AtomicUsize = AtomicUsize::new(0);
+
+fn grew(bytes: usize) {
+    let live = LIVE.fetch_add(bytes, Ordering::Relaxed) + bytes;
+    PEAK.fetch_max(live, Ordering::Relaxed);
+}
 
 // SAFETY: forwards to the system allocator, only counting.
 unsafe impl GlobalAlloc for Counting {
     unsafe fn alloc(&self, layout: Layout) -> *mut u8 {
         ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        grew(layout.size());
         // SAFETY: the caller's contract, forwarded.
         unsafe { System.alloc(layout) }
     }
 
     unsafe fn dealloc(&self, ptr: *mut u8, layout: Layout) {
+        LIVE.fetch_sub(layout.size(), Ordering::Relaxed);
         // SAFETY: the caller's contract, forwarded.
         unsafe { System.dealloc(ptr, layout) }
     }
 
     unsafe fn realloc(&self, ptr: *mut u8, layout: Layout, new_size: usize) -> *mut u8 {
         ALLOCATIONS.fetch_add(1, Ordering::Relaxed);
+        LIVE.fetch_sub(layout.size(), Ordering::Relaxed);
+        grew(new_size);
         // SAFETY: the caller's contract, forwarded.
         unsafe { System.realloc(ptr, layout, new_size) }
     }
@@ -60,6 +73,9 @@ fn frames_after_the_first_allocate_nothing() {
         right: view(&scene.right),
     };
     let bytes = container::encode(&Message::StereoFrame(Box::new(frame)), 1, 0);
+    // The receiver's own peak: from what the sender's side left live.
+    let base = LIVE.load(Ordering::Relaxed);
+    PEAK.store(base, Ordering::Relaxed);
     let mut board = BoardReceiver::new(31, 9, Duration::from_secs(10));
     let shown = |e: Event| matches!(e, Event::Frame { .. });
     let start = ALLOCATIONS.load(Ordering::Relaxed);
@@ -76,6 +92,12 @@ fn frames_after_the_first_allocate_nothing() {
         0,
         "allocations in three frames after the first"
     );
+    let peak = PEAK.load(Ordering::Relaxed) - base;
+    eprintln!(
+        "receiver peak heap: {:.2} MiB",
+        peak as f64 / (1 << 20) as f64
+    );
+    assert!(peak <= 16 << 20, "peak heap {peak} bytes");
     // And the frame shown is the one sent.
     let (left, _) = board.pair().unwrap();
     assert_eq!(left.dims(), (480, 272));

@@ -3,7 +3,7 @@
 //! rectified preview with guide lines to judge it by eye.
 
 use std::path::{Path, PathBuf};
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
 use anyhow::{bail, Context};
@@ -187,7 +187,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         .zip(&right)
         .map(|(l, r)| format!("{} + {}", file_name(l), file_name(r)))
         .collect();
-    let searched = AtomicU64::new(0);
+    let searched = AtomicUsize::new(0);
     let options = CalibrateOptions {
         board: args.board,
         square: args.square,
@@ -203,7 +203,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         },
     };
     let report = calibrate_images(&pairs, &names, &options, &|| {
-        bar.set_position(searched.fetch_add(1, Ordering::Relaxed) + 1);
+        bar.set_position(searched.fetch_add(1, Ordering::Relaxed) as u64 + 1);
     })?;
     bar.finish_and_clear();
 

@@ -13,6 +13,9 @@ use stereolink_robot::policy::MotionPolicy;
 use super::keygen::KeyArgs;
 use crate::pipeline::receiver::{BoardReceiver, Event};
 
+/// The longest wait for a message before the screen looks at the axis.
+const POLL: Duration = Duration::from_millis(200);
+
 /// Arguments of `stereolink receive`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
@@ -100,12 +103,20 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     let mut frames = 0;
     let mut halves = std::collections::BTreeSet::new();
     let mut events = Vec::new();
+    let (timeout, mut heard) = (Duration::from_secs(args.timeout_s), Instant::now());
     while args.frames == 0 || frames < args.frames {
-        let msg = match next_message(&mut eps, Duration::from_secs(args.timeout_s)) {
+        // Short waits, so that the screen follows the axis while the link
+        // is silent.
+        let msg = match next_message(&mut eps, POLL.min(timeout)) {
             Ok(m) => m,
+            Err(LinkError::Timeout) if heard.elapsed() < timeout => {
+                board.follow_axis().context("display")?;
+                continue;
+            }
             Err(LinkError::Timeout) if args.frames == 0 => break,
             Err(e) => return Err(e).context("receiving"),
         };
+        heard = Instant::now();
         let event = board.handle(&msg);
         if let (Some(dir), Event::Frame { .. }, Some((l, r))) = (&args.save, &event, board.pair()) {
             std::fs::create_dir_all(dir)
@@ -174,6 +185,8 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
             println!("axis at {pos:.3} mm");
         }
     }
+    // The screen shows where the axis settled.
+    board.follow_axis().context("display")?;
     if !out.json {
         for (ep, label) in eps.iter().zip(["link", "report link"]) {
             println!("{label}: {}", ep.link_stats());

@@ -205,7 +205,7 @@ pub fn run(cfg: DemoConfig, progress: &dyn Fn(&str)) -> anyhow::Result<DemoRepor
     write_png(
         &cfg.out,
         "board-disparity.png",
-        &colormap::colorize_with_bar(board.disparity(), 0.0, dmax),
+        &colormap::colorize_with_bar(&board.disparity(), 0.0, dmax),
     )?;
     board.status.axis_mm = axis_final;
     board.status.link_quality = Some(1.0 - retransmissions as f64 / segments.max(1) as f64);

@@ -5,7 +5,9 @@
 //! Only a message that decoded completely (CRC-32 over the link, CRC-32 of
 //! the container body, every structural check) reaches the axis, and only
 //! through a [`ValidatedDistance`]; a frame that fails is reported and
-//! ignored. The WTA matcher and the screen keep their buffers between frames.
+//! ignored. The WTA matcher and the screen keep their buffers between frames,
+//! and the disparities stay integers from the matcher to the screen (the
+//! board has no FPU).
 
 use std::time::Instant;
 
@@ -17,7 +19,9 @@ use stereolink_display::{anaglyph_into, Anaglyph, Screen, ScreenStatus, Sink};
 use stereolink_image::{DisparityMap, RgbImage};
 use stereolink_robot::policy::{MotionPolicy, ValidatedDistance, Watchdog};
 use stereolink_robot::Axis;
-use stereolink_stereo::wta::{luma_samples_into, Samples, WtaMatcher, WtaParams};
+use stereolink_stereo::wta::{
+    levels_to_disparity, luma_samples_into, Levels, Samples, WtaMatcher, WtaParams, NO_DISPARITY,
+};
 
 /// What the receiver did with one message.
 #[derive(Clone, Debug, serde::Serialize)]
@@ -51,7 +55,7 @@ pub struct BoardReceiver {
     matcher: WtaMatcher,
     params: WtaParams,
     gray: (Samples, Samples),
-    disparity: DisparityMap,
+    levels: Levels,
     screen: Screen,
     mode: Anaglyph,
     limits: Limits,
@@ -88,7 +92,7 @@ impl BoardReceiver {
                 subpixel: false,
             },
             gray: Default::default(),
-            disparity: DisparityMap::default(),
+            levels: Levels::default(),
             screen: Screen::new(),
             mode: Anaglyph::Dubois,
             limits: Limits::default(),
@@ -114,9 +118,10 @@ impl BoardReceiver {
         self.shown.then(|| self.decoder.views())
     }
 
-    /// The last disparity map computed on the board.
-    pub fn disparity(&self) -> &DisparityMap {
-        &self.disparity
+    /// The last disparity map computed on the board (a new map: the
+    /// board keeps integer disparities).
+    pub fn disparity(&self) -> DisparityMap {
+        levels_to_disparity(&self.levels)
     }
 
     /// The current screen.
@@ -174,14 +179,14 @@ impl BoardReceiver {
         let (left, right) = self.decoder.views();
         luma_samples_into(left, self.params.gray_bits, &mut self.gray.0);
         luma_samples_into(right, self.params.gray_bits, &mut self.gray.1);
-        if self.disparity.dims() != (w, h) {
-            self.disparity.reset(w, h, 0.0);
+        if self.levels.dims() != (w, h) {
+            self.levels.reset(w, h, 0);
         }
-        self.matcher.compute_into(
+        self.matcher.compute_levels_into(
             &self.gray.0,
             &self.gray.1,
             &self.params,
-            &mut self.disparity,
+            &mut self.levels,
         );
         anaglyph_into(left, right, self.mode, &mut self.view);
         self.shown = true;
@@ -206,18 +211,38 @@ impl BoardReceiver {
         if !self.shown {
             return Ok(());
         }
-        let max = (self.params.min_disp + self.params.ndisp - 1) as f32;
-        let screen = self.screen.render(
+        let (min, max) = (
+            self.params.min_disp,
+            self.params.min_disp + self.params.ndisp - 1,
+        );
+        let screen = self.screen.render_levels(
             &self.view,
-            &self.disparity,
-            self.params.min_disp as f32,
-            max,
+            &self.levels,
+            NO_DISPARITY,
+            (min as u16, max as u16),
             &self.status,
         );
         match self.sink.as_mut() {
             Some(sink) => sink.show(screen, &self.status),
             None => Ok(()),
         }
+    }
+
+    /// Reads the axis and redraws the screen when its position, to the
+    /// 0.1 mm the status line shows, changed: called while waiting for
+    /// messages, the screen follows the axis as it moves and shows where
+    /// it settles.
+    pub fn follow_axis(&mut self) -> std::io::Result<()> {
+        let Some(axis) = self.axis.as_mut() else {
+            return Ok(());
+        };
+        let now = axis.position().ok();
+        let shown = |mm: Option<f64>| mm.map(|a| (a * 10.0).round() as i64);
+        if shown(now) != shown(self.status.axis_mm) {
+            self.status.axis_mm = now;
+            self.refresh()?;
+        }
+        Ok(())
     }
 
     /// Stops the axis if the watchdog expired; returns true if it did.
@@ -229,5 +254,59 @@ impl BoardReceiver {
             }
         }
         false
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use stereolink_codec::{Message, SegmentationKind, StereoFrame, View};
+    use stereolink_image::synth::{synthesize, SynthSpec};
+    use stereolink_segment::segment;
+
+    /// A report moved the axis: the status line follows it while it moves,
+    /// and the screen shows where it settled.
+    #[test]
+    fn the_screen_follows_the_axis_until_it_settles() {
+        let scene = synthesize(&SynthSpec {
+            width: 96,
+            height: 64,
+            max_disp: 16,
+            seed: 2,
+        })
+        .unwrap();
+        let method = "kmeans".parse().unwrap();
+        let view = |img| View::Indexed(segment(img, &method, 3, 1).unwrap().image);
+        let frame = StereoFrame {
+            kind: SegmentationKind::KMeans,
+            levels: 3,
+            params: String::new(),
+            thresholds: None,
+            calibration: None,
+            left: view(&scene.left),
+            right: view(&scene.right),
+        };
+        let bytes = container::encode(&Message::StereoFrame(Box::new(frame)), 1, 0);
+        let mut board = BoardReceiver::new(15, 5, std::time::Duration::from_secs(10));
+        board.axis = Some(stereolink_robot::open_axis("sim").unwrap());
+        assert!(matches!(board.handle(&bytes), Event::Frame { .. }));
+        let first = board.screen().clone();
+        board.axis.as_mut().unwrap().move_to(250.0, 50.0).unwrap();
+        let mut shown = Vec::new();
+        while board.axis.as_mut().unwrap().is_moving().unwrap() {
+            board.follow_axis().unwrap();
+            shown.push(board.status.axis_mm);
+            assert!(shown.len() < 1_000_000, "the axis never settles");
+        }
+        board.follow_axis().unwrap();
+        let settled = board.axis.as_mut().unwrap().position().unwrap();
+        let tenths = |mm: f64| (mm * 10.0).round();
+        assert_eq!(board.status.axis_mm.map(tenths), Some(tenths(settled)));
+        assert!(tenths(settled) > 2000.0, "moved to {settled} mm");
+        assert!(
+            shown.windows(2).filter(|w| w[0] != w[1]).count() > 10,
+            "the status line moved with the axis"
+        );
+        assert_ne!(board.screen(), &first);
     }
 }

@@ -23,7 +23,7 @@
 
 use std::collections::VecDeque;
 use std::io::{Read, Write};
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 use std::sync::Arc;
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
@@ -106,13 +106,13 @@ impl Config {
 #[derive(Debug, Default)]
 pub struct Counters {
     /// API frames of a type its firmware does not take.
-    pub ignored: AtomicU64,
+    pub ignored: AtomicUsize,
     /// Frames handed to the peer.
-    pub delivered: AtomicU64,
+    pub delivered: AtomicUsize,
     /// The largest payload handed to the peer.
-    pub largest: AtomicU64,
+    pub largest: AtomicUsize,
     /// Host bytes lost because the serial receive buffer was full.
-    pub overrun: AtomicU64,
+    pub overrun: AtomicUsize,
 }
 
 /// The rates and buffer of a timed radio.
@@ -231,7 +231,7 @@ impl Radio {
                 data: value.unwrap_or_default(),
             });
         }
-        let len = frame.payload().map_or(0, <[u8]>::len) as u64;
+        let len = frame.payload().map_or(0, <[u8]>::len);
         let (rx, broadcast) = self.route(frame);
         let delivered = rx.is_some();
         if let (Some(rx), Some((_, port))) = (rx, self.peer.as_mut()) {
