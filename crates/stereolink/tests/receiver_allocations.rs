@@ -58,6 +58,7 @@ fn frames_after_the_first_allocate_nothing() {
         calibration: None,
         left: view(&scene.left),
         right: view(&scene.right),
+        planes: None,
     };
     let bytes = container::encode(&Message::StereoFrame(Box::new(frame)), 1, 0);
     let mut board = BoardReceiver::new(31, 9, Duration::from_secs(10));
