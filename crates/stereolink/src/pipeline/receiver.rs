@@ -6,6 +6,10 @@
 //! the container body, every structural check) reaches the axis, and only
 //! through a [`ValidatedDistance`]; a frame that fails is reported and
 //! ignored. The WTA matcher and the screen keep their buffers between frames.
+//!
+//! With [`DisparitySource::Planes`] the board does not match: it rebuilds
+//! the map from the decoded left labels and the frame's plane table
+//! ([`super::planetable`]); a frame without a table is rejected.
 
 use std::time::Instant;
 
@@ -44,6 +48,16 @@ pub enum Event {
     Rejected(String),
 }
 
+/// Where the board's disparity map comes from.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum DisparitySource {
+    /// WTA-SAD block matching on the rebuilt pair (the paper's board).
+    #[default]
+    Wta,
+    /// The sender's plane table over the decoded left labels: no matching.
+    Planes,
+}
+
 /// The receiver and its buffers: after the first frame of a size, a frame
 /// is decoded, matched and rendered without allocating.
 pub struct BoardReceiver {
@@ -69,6 +83,8 @@ pub struct BoardReceiver {
     pub watchdog: Watchdog,
     /// Status shown on the screen.
     pub status: ScreenStatus,
+    /// Where the disparity map comes from.
+    pub source: DisparitySource,
 }
 
 impl BoardReceiver {
@@ -99,6 +115,7 @@ impl BoardReceiver {
             policy: MotionPolicy::default(),
             watchdog: Watchdog::new(watchdog),
             status: ScreenStatus::default(),
+            source: DisparitySource::default(),
         }
     }
 
@@ -172,17 +189,31 @@ impl BoardReceiver {
         }
         self.decoder.decode_rgb(frame)?;
         let (left, right) = self.decoder.views();
-        luma_samples_into(left, self.params.gray_bits, &mut self.gray.0);
-        luma_samples_into(right, self.params.gray_bits, &mut self.gray.1);
-        if self.disparity.dims() != (w, h) {
-            self.disparity.reset(w, h, 0.0);
+        match self.source {
+            DisparitySource::Wta => {
+                luma_samples_into(left, self.params.gray_bits, &mut self.gray.0);
+                luma_samples_into(right, self.params.gray_bits, &mut self.gray.1);
+                if self.disparity.dims() != (w, h) {
+                    self.disparity.reset(w, h, 0.0);
+                }
+                self.matcher.compute_into(
+                    &self.gray.0,
+                    &self.gray.1,
+                    &self.params,
+                    &mut self.disparity,
+                );
+            }
+            DisparitySource::Planes => {
+                let (Some(table), Some(labels)) =
+                    (frame.planes.as_deref(), self.decoder.left_labels(frame))
+                else {
+                    return Err(CodecError::Invalid(
+                        "the frame has no plane table (send --algo planes)".into(),
+                    ));
+                };
+                super::planetable::rebuild_into(labels, table, &mut self.disparity)?;
+            }
         }
-        self.matcher.compute_into(
-            &self.gray.0,
-            &self.gray.1,
-            &self.params,
-            &mut self.disparity,
-        );
         anaglyph_into(left, right, self.mode, &mut self.view);
         self.shown = true;
         self.status.frame_id = frame_id;
