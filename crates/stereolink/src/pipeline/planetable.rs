@@ -54,3 +54,61 @@ pub fn rebuild_into(
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::pipeline::receiver::{BoardReceiver, DisparitySource, Event};
+    use stereolink_codec::{container, Message, SegmentationKind, StereoFrame, View};
+    use stereolink_image::IndexedImage;
+
+    /// Label 0 left of x = 4, label 1 right of it; in tiles of 4 px the
+    /// segments are 0 (x < 4), 1 (x 4..8) and 2 (x 8..12, cut by the tile).
+    fn labels() -> LabelMap {
+        LabelMap::from_fn(12, 3, |x, _| u16::from(x >= 4))
+    }
+
+    #[test]
+    fn rebuilds_each_segments_plane_exactly_and_checks_the_count() {
+        let planes = [[0.5, 0.0, 1.0], [0.0, 0.25, 7.0], [-1.0, 0.0, 20.0]];
+        let table = PlaneTable::quantise(4, (0, 15), &planes);
+        let mut out = DisparityMap::default();
+        rebuild_into(&labels(), &table, &mut out).unwrap();
+        for (x, y) in [(0, 0), (3, 2), (5, 1), (9, 2), (11, 0)] {
+            let [a, b, c] = planes[x / 4];
+            let want = (a * x as f32 + b * y as f32 + c).clamp(0.0, 15.0);
+            assert_eq!(out.get(x, y), want, "({x}, {y})");
+        }
+        // Without tiles the labels have two segments, not three.
+        let untiled = PlaneTable { tile: 0, ..table };
+        assert!(rebuild_into(&labels(), &untiled, &mut out).is_err());
+        // No plane at all: invalid everywhere.
+        rebuild_into(&labels(), &PlaneTable::default(), &mut out).unwrap();
+        assert!(out.as_slice().iter().all(|d| d.is_infinite()));
+    }
+
+    #[test]
+    fn a_board_on_planes_rejects_a_frame_without_a_table_or_of_other_labels() {
+        let view = || View::Indexed(IndexedImage::new(labels(), vec![[0; 3], [9; 3]]).unwrap());
+        let frame = |planes| StereoFrame {
+            kind: SegmentationKind::KMeans,
+            levels: 2,
+            params: String::new(),
+            thresholds: None,
+            calibration: None,
+            left: view(),
+            right: view(),
+            planes,
+        };
+        let mut board = BoardReceiver::new(3, 3, std::time::Duration::from_secs(1));
+        board.source = DisparitySource::Planes;
+        let two = PlaneTable::quantise(0, (0, 3), &[[0.0, 0.0, 1.0], [0.0, 0.0, 2.0]]);
+        let five = PlaneTable::quantise(0, (0, 3), &[[0.0, 0.0, 1.0]; 5]);
+        for (planes, shown) in [(None, false), (Some(five), false), (Some(two), true)] {
+            let bytes = container::encode(&Message::StereoFrame(Box::new(frame(planes))), 1, 0);
+            let event = board.handle(&bytes);
+            assert_eq!(matches!(event, Event::Frame { .. }), shown, "{event:?}");
+        }
+        assert_eq!(board.disparity().get(11, 2), 2.0);
+    }
+}
