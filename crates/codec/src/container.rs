@@ -10,9 +10,10 @@
 
 use stereolink_image::{Calibration, IndexedImage, LabelMap, Rgb, RgbImage};
 
+use crate::planetable::PlaneTable;
 use crate::{
-    labels, rgb, CodecError, DepthReport, Limits, Message, ReportLevel, SegmentationKind,
-    StereoFrame, View,
+    labels, planetable, rgb, CodecError, DepthReport, Limits, Message, ReportLevel,
+    SegmentationKind, StereoFrame, View,
 };
 
 /// The magic bytes.
@@ -57,36 +58,36 @@ pub struct Header {
     pub body_len: u32,
 }
 
-struct Writer(Vec<u8>);
+pub(crate) struct Writer(pub(crate) Vec<u8>);
 
 impl Writer {
-    fn u8(&mut self, v: u8) {
+    pub(crate) fn u8(&mut self, v: u8) {
         self.0.push(v);
     }
-    fn u16(&mut self, v: u16) {
+    pub(crate) fn u16(&mut self, v: u16) {
         self.0.extend_from_slice(&v.to_le_bytes());
     }
-    fn u32(&mut self, v: u32) {
+    pub(crate) fn u32(&mut self, v: u32) {
         self.0.extend_from_slice(&v.to_le_bytes());
     }
-    fn f32(&mut self, v: f32) {
+    pub(crate) fn f32(&mut self, v: f32) {
         self.0.extend_from_slice(&v.to_le_bytes());
     }
-    fn f64(&mut self, v: f64) {
+    pub(crate) fn f64(&mut self, v: f64) {
         self.0.extend_from_slice(&v.to_le_bytes());
     }
-    fn bytes(&mut self, b: &[u8]) {
+    pub(crate) fn bytes(&mut self, b: &[u8]) {
         self.0.extend_from_slice(b);
     }
 }
 
-struct Reader<'a> {
-    data: &'a [u8],
-    pos: usize,
+pub(crate) struct Reader<'a> {
+    pub(crate) data: &'a [u8],
+    pub(crate) pos: usize,
 }
 
 impl<'a> Reader<'a> {
-    fn take(&mut self, n: usize, what: &'static str) -> Result<&'a [u8], CodecError> {
+    pub(crate) fn take(&mut self, n: usize, what: &'static str) -> Result<&'a [u8], CodecError> {
         let end = self
             .pos
             .checked_add(n)
@@ -96,32 +97,32 @@ impl<'a> Reader<'a> {
         self.pos = end;
         Ok(s)
     }
-    fn u8(&mut self, what: &'static str) -> Result<u8, CodecError> {
+    pub(crate) fn u8(&mut self, what: &'static str) -> Result<u8, CodecError> {
         Ok(self.take(1, what)?[0])
     }
-    fn u16(&mut self, what: &'static str) -> Result<u16, CodecError> {
+    pub(crate) fn u16(&mut self, what: &'static str) -> Result<u16, CodecError> {
         Ok(u16::from_le_bytes(
             self.take(2, what)?.try_into().expect("2 bytes"),
         ))
     }
-    fn u32(&mut self, what: &'static str) -> Result<u32, CodecError> {
+    pub(crate) fn u32(&mut self, what: &'static str) -> Result<u32, CodecError> {
         Ok(u32::from_le_bytes(
             self.take(4, what)?.try_into().expect("4 bytes"),
         ))
     }
-    fn f32(&mut self, what: &'static str) -> Result<f32, CodecError> {
+    pub(crate) fn f32(&mut self, what: &'static str) -> Result<f32, CodecError> {
         Ok(f32::from_le_bytes(
             self.take(4, what)?.try_into().expect("4 bytes"),
         ))
     }
-    fn f64(&mut self, what: &'static str) -> Result<f64, CodecError> {
+    pub(crate) fn f64(&mut self, what: &'static str) -> Result<f64, CodecError> {
         Ok(f64::from_le_bytes(
             self.take(8, what)?.try_into().expect("8 bytes"),
         ))
     }
 }
 
-fn check(what: &'static str, value: usize, max: usize) -> Result<(), CodecError> {
+pub(crate) fn check(what: &'static str, value: usize, max: usize) -> Result<(), CodecError> {
     if value > max {
         Err(CodecError::TooLarge {
             what,
@@ -210,6 +211,9 @@ fn encode_frame(w: &mut Writer, f: &StereoFrame, mode: labels::Mode) {
         View::Rgb(_) => None,
     };
     encode_view(w, &f.right, reference, mode);
+    if let Some(t) = &f.planes {
+        t.encode(w);
+    }
 }
 
 fn encode_view(w: &mut Writer, view: &View, reference: Option<&IndexedImage>, mode: labels::Mode) {
@@ -422,6 +426,9 @@ pub struct FrameRef<'a> {
     pub left: ViewRef<'a>,
     /// Right view.
     pub right: ViewRef<'a>,
+    /// The plane table section, if the frame has one (boxed: most frames
+    /// have none).
+    pub planes: Option<Box<PlaneTable>>,
 }
 
 /// One coded view: how it is coded, its palette and its payload.
@@ -498,6 +505,12 @@ fn parse_frame<'a>(r: &mut Reader<'a>, limits: &Limits) -> Result<FrameRef<'a>, 
             "the left view is coded conditioned (on nothing)".into(),
         ));
     }
+    let planes = parse_sections(r, w * h)?;
+    if planes.is_some() && left.coding == coding::RGB {
+        return Err(CodecError::Invalid(
+            "a plane table without a left label map".into(),
+        ));
+    }
     Ok(FrameRef {
         width: w,
         height: h,
@@ -508,7 +521,27 @@ fn parse_frame<'a>(r: &mut Reader<'a>, limits: &Limits) -> Result<FrameRef<'a>, 
         calibration,
         left,
         right,
+        planes,
     })
+}
+
+/// The sections after the right view, to the end of the body: each a tag,
+/// a version, a length and that many bytes. A plane table of this version
+/// is parsed (at most one); other sections are skipped.
+fn parse_sections(r: &mut Reader, pixels: usize) -> Result<Option<Box<PlaneTable>>, CodecError> {
+    let mut planes = None;
+    while r.pos < r.data.len() {
+        let (tag, version) = (r.u8("section")?, r.u8("section")?);
+        let len = r.u32("section")? as usize;
+        let content = r.take(len, "section")?;
+        if (tag, version) == (planetable::TAG, planetable::VERSION) {
+            if planes.is_some() {
+                return Err(CodecError::Invalid("two plane tables".into()));
+            }
+            planes = Some(Box::new(PlaneTable::parse(content, pixels)?));
+        }
+    }
+    Ok(planes)
 }
 
 fn parse_view<'a>(r: &mut Reader<'a>, limits: &Limits) -> Result<ViewRef<'a>, CodecError> {
@@ -556,6 +589,7 @@ impl FrameRef<'_> {
             calibration: self.calibration,
             left: view(&self.left, d.labels.0, d.rgb.0)?,
             right: view(&self.right, d.labels.1, d.rgb.1)?,
+            planes: self.planes.as_deref().cloned(),
         })
     }
 }
@@ -589,6 +623,12 @@ impl FrameDecoder {
             }
         }
         Ok(())
+    }
+
+    /// The left label map of the last frame decoded, if its left view is
+    /// indexed (what a plane table's segments are the components of).
+    pub fn left_labels(&self, frame: &FrameRef) -> Option<&LabelMap> {
+        (frame.left.coding != coding::RGB).then_some(&self.labels.0)
     }
 
     /// The views of the last frame [`decode_rgb`](Self::decode_rgb) decoded.
@@ -721,6 +761,7 @@ mod tests {
             }),
             left: View::Indexed(left),
             right: View::Indexed(right),
+            planes: None,
         }
     }
 
@@ -824,6 +865,59 @@ mod tests {
         ));
     }
 
+    /// [`frame`] with a plane table of five segments (the container does
+    /// not count the components; the receiver checks them).
+    fn with_planes(w: usize, h: usize) -> StereoFrame {
+        let per: Vec<[f32; 3]> = (0..5).map(|s| [0.5, -0.25, s as f32]).collect();
+        StereoFrame {
+            planes: Some(PlaneTable::quantise(0, (0, 15), &per)),
+            ..frame(w, h)
+        }
+    }
+
+    #[test]
+    fn plane_tables_round_trip_and_unknown_sections_are_skipped() {
+        let l = Limits::default();
+        let m = Message::StereoFrame(Box::new(with_planes(21, 9)));
+        let bytes = encode(&m, 3, 4);
+        assert_eq!(decode(&bytes, &l).unwrap().1, m);
+        // Without the table, the frame is the plain frame's bytes: the
+        // section is appended, so a decoder before sections sees trailing
+        // bytes and refuses the frame.
+        let plain = encode(&Message::StereoFrame(Box::new(frame(21, 9))), 3, 4);
+        assert_eq!(&bytes[HEADER_LEN..plain.len()], &plain[HEADER_LEN..]);
+        let mut body = bytes[HEADER_LEN..].to_vec();
+        // An unknown section (tag 9) and a plane table of version 2 are skipped.
+        body.extend([9, 1, 2, 0, 0, 0, 0xAA, 0xBB, 1, 2, 0, 0, 0, 0]);
+        let reframe = |body: &[u8]| {
+            let mut out = bytes[..HEADER_LEN].to_vec();
+            out[20..24].copy_from_slice(&(body.len() as u32).to_le_bytes());
+            out[24..28].copy_from_slice(&crc32fast::hash(body).to_le_bytes());
+            out.extend_from_slice(body);
+            out
+        };
+        assert_eq!(decode(&reframe(&body), &l).unwrap().1, m);
+        // A second table, a truncated section and a table on an RGB left
+        // view are errors.
+        let section = &bytes[plain.len()..];
+        let mut two = body.clone();
+        two.extend_from_slice(section);
+        assert!(matches!(
+            decode(&reframe(&two), &l),
+            Err(CodecError::Invalid(_))
+        ));
+        assert!(matches!(
+            decode(&reframe(&body[..body.len() - 1]), &l),
+            Err(CodecError::Truncated(_))
+        ));
+        let rgb = StereoFrame {
+            left: View::Rgb(RgbImage::new(21, 9, [1, 2, 3])),
+            ..with_planes(21, 9)
+        };
+        let rgb = encode(&Message::StereoFrame(Box::new(rgb)), 1, 1);
+        assert!(matches!(decode(&rgb, &l), Err(CodecError::Invalid(_))));
+    }
+
     /// Pins the wire format: a depth report's exact bytes (checked independently
     /// with Python's `struct` and `zlib.crc32`).
     #[test]
@@ -857,7 +951,7 @@ mod tests {
             flips in proptest::collection::vec((any::<usize>(), any::<u8>()), 1..8),
             cut in any::<usize>(),
         ) {
-            let f = frame(21, 9);
+            let f = with_planes(21, 9);
             let mut bytes = encode(&Message::StereoFrame(Box::new(f)), 1, 2);
             for (at, x) in flips {
                 let i = HEADER_LEN + at % (bytes.len() - HEADER_LEN);

@@ -13,7 +13,8 @@
 //! * [`container`] frames [`Message`]s ([`StereoFrame`], [`DepthReport`],
 //!   [`Message::Control`]) with a header (magic, version, type, frame id,
 //!   timestamp, body length, CRC-32). The byte layout is in
-//!   `docs/wire-format.md`.
+//!   `docs/wire-format.md`. A frame may carry a [`planetable`]: the
+//!   sender's disparity as planes over the left view's segments.
 //!
 //! Decoding any byte string gives either the exact message or a
 //! [`CodecError`]: sizes declared in the data are checked against [`Limits`]
@@ -37,6 +38,7 @@ pub mod channels;
 pub mod container;
 pub mod labels;
 pub mod mixer;
+pub mod planetable;
 pub mod rangecoder;
 pub mod rgb;
 
@@ -216,6 +218,8 @@ pub struct StereoFrame {
     pub left: View,
     /// Right view (coded conditioned on the left when both are indexed).
     pub right: View,
+    /// The sender's disparity as planes over the left view's segments.
+    pub planes: Option<planetable::PlaneTable>,
 }
 
 /// One depth level of a report.

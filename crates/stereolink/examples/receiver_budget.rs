@@ -44,6 +44,7 @@ fn main() {
         calibration: None,
         left: View::Indexed(l.image),
         right: View::Indexed(r.image),
+        planes: None,
     };
     let bytes = container::encode(&Message::StereoFrame(Box::new(frame)), 1, 0);
     let mut board = BoardReceiver::new(31, 9, Duration::from_secs(10));

@@ -22,7 +22,17 @@ fn number_after(text: &str, word: &str) -> f64 {
     rest.split(' ').next().unwrap().parse().unwrap()
 }
 
-fn run_pair(rx_link: String, tx_link: String) {
+/// Where the board's disparity comes from in [`run_pair`].
+#[derive(Clone, Copy, PartialEq)]
+enum Board {
+    /// WTA on the rebuilt pair.
+    Wta,
+    /// The sender's plane table (`send --algo planes`, `receive
+    /// --disparity planes`): the board's map must be the sender's.
+    Planes,
+}
+
+fn run_pair(rx_link: String, tx_link: String, board: Board) {
     let dir = tempfile::tempdir().unwrap();
     let scene = dir.path().join("scene");
     synth(&scene);
@@ -41,6 +51,9 @@ fn run_pair(rx_link: String, tx_link: String) {
         "--timeout-s",
         "60",
     ]);
+    if board == Board::Planes {
+        rx_args.extend(strings(&["--disparity", "planes"]));
+    }
     rx_args.extend(strings(&[
         "--display",
         &format!("png:{}", shots.display()),
@@ -74,6 +87,9 @@ fn run_pair(rx_link: String, tx_link: String) {
         "--levels",
         "4",
     ]));
+    if board == Board::Planes {
+        tx_args.extend(strings(&["--algo", "planes"]));
+    }
     let tx = spawn(&tx_args);
     let sent = finish(tx, "send");
     let got = finish(rx, "receive");
@@ -81,6 +97,20 @@ fn run_pair(rx_link: String, tx_link: String) {
         let a = io::read_rgb(saved.join(format!("sent-{side}.png"))).unwrap();
         let b = io::read_rgb(saved.join(format!("received-{side}.png"))).unwrap();
         assert_eq!(a, b, "{side} view differs");
+    }
+    let pfm = |name: &str| stereolink_image::pfm::read(saved.join(name)).unwrap();
+    let (sent_map, board_map) = (pfm("sent-disparity.pfm"), pfm("received-disparity.pfm"));
+    if board == Board::Planes {
+        // The plane table rebuilt the sender's map on the board, bit for bit.
+        assert_eq!(sent_map, board_map, "the board's planes map differs");
+        let valid = board_map
+            .as_slice()
+            .iter()
+            .filter(|d| d.is_finite())
+            .count();
+        assert!(valid * 10 > board_map.as_slice().len() * 9, "{valid} valid");
+    } else {
+        assert_eq!(board_map.dims(), sent_map.dims());
     }
     assert!(shots.join("screen-00001.png").is_file());
     assert_eq!(
@@ -103,6 +133,19 @@ fn send_and_receive_over_udp() {
     run_pair(
         format!("udp:127.0.0.1:{b}?peer=127.0.0.1:{a}"),
         format!("udp:127.0.0.1:{a}?peer=127.0.0.1:{b}"),
+        Board::Wta,
+    );
+}
+
+/// `send --algo planes` and `receive --disparity planes` over UDP: the
+/// frame carries the plane table and the board rebuilds the sender's map.
+#[test]
+fn planes_over_udp_rebuild_the_senders_map() {
+    let (a, b) = (free_port(), free_port());
+    run_pair(
+        format!("udp:127.0.0.1:{b}?peer=127.0.0.1:{a}"),
+        format!("udp:127.0.0.1:{a}?peer=127.0.0.1:{b}"),
+        Board::Planes,
     );
 }
 
@@ -113,6 +156,7 @@ fn send_and_receive_over_a_pty_pair() {
     run_pair(
         format!("serial:{}?baud=115200&api=2", radio.b),
         format!("serial:{}?baud=115200&api=2", radio.a),
+        Board::Wta,
     );
 }
 
@@ -127,6 +171,7 @@ fn send_and_receive_over_two_emulated_zigbee_radios() {
     run_pair(
         format!("serial:{}?baud=115200&api=2&dest=0x{a:016X}", radio.b),
         format!("serial:{}?baud=115200&api=2&dest=0x{b:016X}", radio.a),
+        Board::Wta,
     );
     let count = |i: usize, c: fn(&common::xbee::Counters) -> &std::sync::atomic::AtomicUsize| {
         c(&radio.counters[i]).load(std::sync::atomic::Ordering::Relaxed)
@@ -154,6 +199,7 @@ fn paced_by_transmit_status_the_zigbee_radios_buffer_never_overruns() {
     run_pair(
         format!("serial:{}?baud=115200&api=2&dest=0x{a:016X}", radio.b),
         format!("serial:{}?baud=115200&api=2&dest=0x{b:016X}", radio.a),
+        Board::Wta,
     );
     let overrun = |i: usize| radio.counters[i].overrun.load(Ordering::Relaxed);
     assert!(radio.counters[0].delivered.load(Ordering::Relaxed) > 10);

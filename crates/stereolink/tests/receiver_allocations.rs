@@ -71,6 +71,7 @@ fn frames_after_the_first_allocate_nothing() {
         calibration: None,
         left: view(&scene.left),
         right: view(&scene.right),
+        planes: None,
     };
     let bytes = container::encode(&Message::StereoFrame(Box::new(frame)), 1, 0);
     // The receiver's own peak: from what the sender's side left live.

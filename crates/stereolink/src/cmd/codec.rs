@@ -63,6 +63,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
             calibration: None,
             left: View::Rgb(left.clone()),
             right: View::Rgb(right.clone()),
+            planes: None,
         };
         (f, None)
     } else {
@@ -80,6 +81,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
             calibration: None,
             left: View::Indexed(sl.image),
             right: View::Indexed(sr.image),
+            planes: None,
         };
         (f, Some(psnr))
     };
@@ -243,6 +245,7 @@ pub fn run_bench(args: BenchArgs, out: &super::Output) -> anyhow::Result<()> {
         calibration: None,
         left: View::Indexed(l.clone()),
         right: View::Indexed(r.clone()),
+        planes: None,
     };
     let msg = Message::StereoFrame(Box::new(frame));
     let bytes = container::encode_with(&msg, 1, 0, mode);

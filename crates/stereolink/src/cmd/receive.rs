@@ -11,7 +11,7 @@ use stereolink_robot::open_axis;
 use stereolink_robot::policy::MotionPolicy;
 
 use super::keygen::KeyArgs;
-use crate::pipeline::receiver::{BoardReceiver, Event};
+use crate::pipeline::receiver::{BoardReceiver, DisparitySource, Event};
 
 /// The longest wait for a message before the screen looks at the axis.
 const POLL: Duration = Duration::from_millis(200);
@@ -36,10 +36,16 @@ pub struct Args {
     /// Matcher on the board (only wta, as the paper's ARM board).
     #[arg(long = "match", default_value = "wta")]
     pub matcher: String,
+    /// Where the board's disparity comes from: wta matches the rebuilt
+    /// pair; planes rebuilds it from the left labels and the frame's plane
+    /// table, without matching (the sender must run `--algo planes`).
+    #[arg(long, value_enum, default_value_t = DisparitySource::Wta)]
+    pub disparity: DisparitySource,
     /// Largest disparity the board searches.
     #[arg(long, default_value_t = 32)]
     pub max_disp: usize,
-    /// Also write each received pair (received-left.png, received-right.png) here.
+    /// Also write each received pair (received-left.png, received-right.png)
+    /// and the board's disparity map (received-disparity.pfm) here.
     #[arg(long)]
     pub save: Option<std::path::PathBuf>,
     /// Stop after this many frames, each with its depth report (0: run until
@@ -86,6 +92,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         eps.push(ep);
     }
     let mut board = BoardReceiver::new(args.max_disp, 9, Duration::from_secs(args.watchdog_s));
+    board.source = args.disparity;
     board.policy = MotionPolicy {
         standoff_mm: args.standoff_mm,
         min_mm: 0.0,
@@ -123,6 +130,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
                 .with_context(|| format!("cannot create {}", dir.display()))?;
             stereolink_image::io::write_rgb(dir.join("received-left.png"), l)?;
             stereolink_image::io::write_rgb(dir.join("received-right.png"), r)?;
+            stereolink_image::pfm::write(dir.join("received-disparity.pfm"), &board.disparity())?;
         }
         if board.check_watchdog() {
             eprintln!(

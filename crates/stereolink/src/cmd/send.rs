@@ -103,7 +103,8 @@ pub struct Args {
     /// Target region x,y,w,h (default: the central ninth of the image).
     #[arg(long)]
     pub roi: Option<Roi>,
-    /// Also write the segmented views as sent (sent-left.png, sent-right.png) here.
+    /// Also write the segmented views as sent (sent-left.png, sent-right.png)
+    /// and the sender's disparity map (sent-disparity.pfm) here.
     #[arg(long)]
     pub save: Option<PathBuf>,
     /// Give up on a message (and stop) when it is not acknowledged within
@@ -451,6 +452,7 @@ impl Sender {
                 .with_context(|| format!("cannot create {}", dir.display()))?;
             io::write_rgb(dir.join("sent-left.png"), &p.sent.0)?;
             io::write_rgb(dir.join("sent-right.png"), &p.sent.1)?;
+            stereolink_image::pfm::write(dir.join("sent-disparity.pfm"), &p.disparity)?;
         }
         // The report first: it goes ahead of the frame still in flight.
         self.uplink.report(frame_id, p.report_bytes.clone())?;

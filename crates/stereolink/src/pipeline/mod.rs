@@ -5,10 +5,12 @@
 //! arriving in a camera folder ([`watch`]), and the calibration of a raw
 //! pair ([`sensor`]: rectification maps and depth from `P1`/`P2`), the
 //! sender's link in its own thread ([`uplink`]: reports ahead of frames), and
-//! the segments of the plane matcher ([`planes`]).
+//! the segments of the plane matcher ([`planes`]) and its plane table over
+//! the radio ([`planetable`]).
 
 pub mod demo;
 pub mod planes;
+pub mod planetable;
 pub mod receiver;
 pub mod sender;
 pub mod sensor;

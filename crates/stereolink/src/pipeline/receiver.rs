@@ -8,6 +8,10 @@
 //! ignored. The WTA matcher and the screen keep their buffers between frames,
 //! and the disparities stay integers from the matcher to the screen (the
 //! board has no FPU).
+//!
+//! With [`DisparitySource::Planes`] the board does not match: it rebuilds
+//! the map from the decoded left labels and the frame's plane table
+//! ([`super::planetable`]); a frame without a table is rejected.
 
 use std::time::Instant;
 
@@ -48,6 +52,16 @@ pub enum Event {
     Rejected(String),
 }
 
+/// Where the board's disparity map comes from.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum DisparitySource {
+    /// WTA-SAD block matching on the rebuilt pair (the paper's board).
+    #[default]
+    Wta,
+    /// The sender's plane table over the decoded left labels: no matching.
+    Planes,
+}
+
 /// The receiver and its buffers: after the first frame of a size, a frame
 /// is decoded, matched and rendered without allocating.
 pub struct BoardReceiver {
@@ -56,6 +70,8 @@ pub struct BoardReceiver {
     params: WtaParams,
     gray: (Samples, Samples),
     levels: Levels,
+    /// The map rebuilt from a plane table ([`DisparitySource::Planes`]).
+    planes: DisparityMap,
     screen: Screen,
     mode: Anaglyph,
     limits: Limits,
@@ -73,6 +89,8 @@ pub struct BoardReceiver {
     pub watchdog: Watchdog,
     /// Status shown on the screen.
     pub status: ScreenStatus,
+    /// Where the disparity map comes from.
+    pub source: DisparitySource,
 }
 
 impl BoardReceiver {
@@ -93,6 +111,7 @@ impl BoardReceiver {
             },
             gray: Default::default(),
             levels: Levels::default(),
+            planes: DisparityMap::default(),
             screen: Screen::new(),
             mode: Anaglyph::Dubois,
             limits: Limits::default(),
@@ -103,6 +122,7 @@ impl BoardReceiver {
             policy: MotionPolicy::default(),
             watchdog: Watchdog::new(watchdog),
             status: ScreenStatus::default(),
+            source: DisparitySource::default(),
         }
     }
 
@@ -121,7 +141,10 @@ impl BoardReceiver {
     /// The last disparity map computed on the board (a new map: the
     /// board keeps integer disparities).
     pub fn disparity(&self) -> DisparityMap {
-        levels_to_disparity(&self.levels)
+        match self.source {
+            DisparitySource::Wta => levels_to_disparity(&self.levels),
+            DisparitySource::Planes => self.planes.clone(),
+        }
     }
 
     /// The current screen.
@@ -177,17 +200,31 @@ impl BoardReceiver {
         }
         self.decoder.decode_rgb(frame)?;
         let (left, right) = self.decoder.views();
-        luma_samples_into(left, self.params.gray_bits, &mut self.gray.0);
-        luma_samples_into(right, self.params.gray_bits, &mut self.gray.1);
-        if self.levels.dims() != (w, h) {
-            self.levels.reset(w, h, 0);
+        match self.source {
+            DisparitySource::Wta => {
+                luma_samples_into(left, self.params.gray_bits, &mut self.gray.0);
+                luma_samples_into(right, self.params.gray_bits, &mut self.gray.1);
+                if self.levels.dims() != (w, h) {
+                    self.levels.reset(w, h, 0);
+                }
+                self.matcher.compute_levels_into(
+                    &self.gray.0,
+                    &self.gray.1,
+                    &self.params,
+                    &mut self.levels,
+                );
+            }
+            DisparitySource::Planes => {
+                let (Some(table), Some(labels)) =
+                    (frame.planes.as_deref(), self.decoder.left_labels(frame))
+                else {
+                    return Err(CodecError::Invalid(
+                        "the frame has no plane table (send --algo planes)".into(),
+                    ));
+                };
+                super::planetable::rebuild_into(labels, table, &mut self.planes)?;
+            }
         }
-        self.matcher.compute_levels_into(
-            &self.gray.0,
-            &self.gray.1,
-            &self.params,
-            &mut self.levels,
-        );
         anaglyph_into(left, right, self.mode, &mut self.view);
         self.shown = true;
         self.status.frame_id = frame_id;
@@ -215,13 +252,22 @@ impl BoardReceiver {
             self.params.min_disp,
             self.params.min_disp + self.params.ndisp - 1,
         );
-        let screen = self.screen.render_levels(
-            &self.view,
-            &self.levels,
-            NO_DISPARITY,
-            (min as u16, max as u16),
-            &self.status,
-        );
+        let screen = match self.source {
+            DisparitySource::Wta => self.screen.render_levels(
+                &self.view,
+                &self.levels,
+                NO_DISPARITY,
+                (min as u16, max as u16),
+                &self.status,
+            ),
+            DisparitySource::Planes => self.screen.render(
+                &self.view,
+                &self.planes,
+                min as f32,
+                max as f32,
+                &self.status,
+            ),
+        };
         match self.sink.as_mut() {
             Some(sink) => sink.show(screen, &self.status),
             None => Ok(()),
@@ -285,6 +331,7 @@ mod tests {
             calibration: None,
             left: view(&scene.left),
             right: view(&scene.right),
+            planes: None,
         };
         let bytes = container::encode(&Message::StereoFrame(Box::new(frame)), 1, 0);
         let mut board = BoardReceiver::new(15, 5, std::time::Duration::from_secs(10));

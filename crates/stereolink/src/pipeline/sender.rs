@@ -16,13 +16,17 @@ use std::time::Instant;
 
 use anyhow::Context;
 use stereolink_codec::{
-    container, labels, DepthReport, Message, ReportLevel, SegmentationKind, StereoFrame, View,
+    container, labels, planetable::PlaneTable, DepthReport, Message, ReportLevel, SegmentationKind,
+    StereoFrame, View,
 };
 use stereolink_image::{metrics::psnr_rgb, Calibration, DisparityMap, LabelMap, RgbImage};
 use stereolink_segment::carry::{carry_over, NOTHING};
 use stereolink_segment::{segment, Method, Segmentation};
 use stereolink_stereo::depth::{depth_levels, depth_of, metric, region_distance, LevelSpec, Roi};
+use stereolink_stereo::planes::match_planes;
 use stereolink_stereo::{Algorithm, MatchSpec, Matcher};
+
+use super::planetable;
 
 /// What the sender does with a pair.
 #[derive(Clone, Debug)]
@@ -115,7 +119,25 @@ pub fn segment_pair(
     Ok((sl, sr))
 }
 
-/// Segments, encodes, matches and reports.
+/// The sender's disparity on the original pair. The plane matcher fits its
+/// planes to the transmitted left labels; its map is then the one its
+/// plane table rebuilds, the very map a receiver rebuilds from the frame.
+fn match_pair(
+    (left, right): (&RgbImage, &RgbImage),
+    left_labels: &LabelMap,
+    spec: &MatchSpec,
+) -> anyhow::Result<(DisparityMap, Option<PlaneTable>)> {
+    if spec.algorithm != Algorithm::Planes {
+        return Ok((Matcher::new().compute(left, right, spec)?, None));
+    }
+    let matched = match_planes(left, right, left_labels, spec)?;
+    let table = planetable::table_of(&matched, spec)?;
+    let mut disparity = DisparityMap::default();
+    planetable::rebuild_into(left_labels, &table, &mut disparity)?;
+    Ok((disparity, Some(table)))
+}
+
+/// Segments, matches, encodes and reports.
 pub fn prepare(
     left: &RgbImage,
     right: &RgbImage,
@@ -138,13 +160,13 @@ pub fn prepare(
     )?;
     let seg_ms = t.elapsed().as_secs_f64() * 1e3;
     let sent = (sl.to_rgb(), sr.to_rgb());
-    // The plane matcher fits its planes to the transmitted left labels.
-    let planes_labels =
-        (cfg.matcher.algorithm == Algorithm::Planes).then(|| sl.image.labels().clone());
     let psnr_db = (
         psnr_rgb(left, &sent.0)?.overall,
         psnr_rgb(right, &sent.1)?.overall,
     );
+    let t = Instant::now();
+    let (disparity, planes) = match_pair((left, right), sl.image.labels(), &cfg.matcher)?;
+    let match_ms = t.elapsed().as_secs_f64() * 1e3;
     let t = Instant::now();
     let frame = StereoFrame {
         kind: SegmentationKind::from_name(cfg.method.name()).unwrap_or(SegmentationKind::None),
@@ -154,6 +176,7 @@ pub fn prepare(
         calibration: Some(*calib),
         left: View::Indexed(sl.image),
         right: View::Indexed(sr.image),
+        planes,
     };
     let timestamp = std::time::SystemTime::now()
         .duration_since(std::time::UNIX_EPOCH)
@@ -161,10 +184,6 @@ pub fn prepare(
     let frame_bytes =
         container::encode(&Message::StereoFrame(Box::new(frame)), frame_id, timestamp);
     let enc_ms = t.elapsed().as_secs_f64() * 1e3;
-    let t = Instant::now();
-    let disparity =
-        Matcher::new().compute_segmented(left, right, planes_labels.as_ref(), &cfg.matcher)?;
-    let match_ms = t.elapsed().as_secs_f64() * 1e3;
     let (w, h) = left.dims();
     let roi = cfg.roi.unwrap_or_else(|| default_roi(w, h));
     let distance = region_distance(&disparity, roi, calib).ok().flatten();

@@ -151,6 +151,7 @@ pub fn scene_report(scene: &Scene, dir: &Path, out: &Path) -> anyhow::Result<Sce
             calibration: None,
             left: View::Indexed(sl.image),
             right: View::Indexed(sr.image),
+            planes: None,
         };
         let coded_bytes = container::encode(&Message::StereoFrame(Box::new(frame)), 0, 0).len();
         save(&format!("seg-{}", method.name()), &l)?;
