@@ -5,11 +5,28 @@
 
 mod common;
 
-use std::process::Command;
 use std::time::{Duration, Instant};
 
 use common::xbee::{Cable, Firmware, RadioLink};
-use common::{finish, free_port, spawn, synth};
+use common::{finish, free_port, spawn, strings, synth};
+
+/// `send` of the scene's pair with a small disparity range and k-means,
+/// after `args` (the link and the options of the test).
+fn send_scene(scene: &std::path::Path, args: &[&str]) -> std::process::Child {
+    let mut all = strings(&["send"]);
+    all.extend(strings(args));
+    all.extend(strings(&[
+        "--left",
+        scene.join("left.png").to_str().unwrap(),
+        "--right",
+        scene.join("right.png").to_str().unwrap(),
+        "--max-disp",
+        "23",
+        "--method",
+        "kmeans",
+    ]));
+    spawn(&all)
+}
 
 fn link_test(link: &str, role: &str, count: &str, size: &str) -> std::process::Child {
     spawn(&[
@@ -85,26 +102,17 @@ fn send_to_nobody_says_what_to_check_and_fails_at_its_deadline() {
     synth(&scene);
     let (a, nobody) = (free_port(), free_port());
     let start = Instant::now();
-    let out = Command::new(env!("CARGO_BIN_EXE_stereolink"))
-        .args([
-            "send",
+    let out = send_scene(
+        &scene,
+        &[
             "--link",
             &format!("udp:127.0.0.1:{a}?peer=127.0.0.1:{nobody}"),
-        ])
-        .arg("--left")
-        .arg(scene.join("left.png"))
-        .arg("--right")
-        .arg(scene.join("right.png"))
-        .args([
-            "--max-disp",
-            "23",
-            "--method",
-            "kmeans",
             "--deadline-s",
             "6",
-        ])
-        .output()
-        .unwrap();
+        ],
+    )
+    .wait_with_output()
+    .unwrap();
     let elapsed = start.elapsed();
     let (stdout, stderr) = (
         String::from_utf8_lossy(&out.stdout),
@@ -146,23 +154,9 @@ fn api_mode_over_a_direct_cable_says_what_is_wrong_on_both_ends() {
     let link = |path: &str| format!("serial:{path}?api=2&radio=802.15.4&dest=0x0002");
     let rx = spawn(&["receive", "--link", &link(&cable.b), "--timeout-s", "8"]);
     let start = Instant::now();
-    let tx = spawn(&[
-        "send",
-        "--link",
-        &link(&cable.a),
-        "--left",
-        scene.join("left.png").to_str().unwrap(),
-        "--right",
-        scene.join("right.png").to_str().unwrap(),
-        "--max-disp",
-        "23",
-        "--method",
-        "kmeans",
-        "--deadline-s",
-        "6",
-    ])
-    .wait_with_output()
-    .unwrap();
+    let tx = send_scene(&scene, &["--link", &link(&cable.a), "--deadline-s", "6"])
+        .wait_with_output()
+        .unwrap();
     assert!(
         start.elapsed() < Duration::from_secs(20),
         "{:?}",
@@ -193,25 +187,20 @@ fn reports_take_their_own_link_with_report_link() {
     let ports: Vec<u16> = (0..4).map(|_| free_port()).collect();
     let link = |me: u16, peer: u16| format!("udp:127.0.0.1:{me}?peer=127.0.0.1:{peer}");
     let send = |report_link: String| {
-        spawn(&[
-            "send",
-            "--link",
-            &link(ports[0], ports[1]),
-            "--report-link",
-            &report_link,
-            "--left",
-            scene.join("left.png").to_str().unwrap(),
-            "--right",
-            scene.join("right.png").to_str().unwrap(),
-            "--max-disp",
-            "23",
-            "--method",
-            "kmeans",
-            "--repeat",
-            "2",
-            "--deadline-s",
-            "3",
-        ])
+        let primary = link(ports[0], ports[1]);
+        send_scene(
+            &scene,
+            &[
+                "--link",
+                &primary,
+                "--report-link",
+                &report_link,
+                "--repeat",
+                "2",
+                "--deadline-s",
+                "3",
+            ],
+        )
     };
     let rx = spawn(&[
         "receive",
