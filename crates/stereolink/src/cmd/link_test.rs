@@ -280,9 +280,9 @@ fn sweep_sealed(config: SimConfig, args: &Args, out: &super::Output) -> anyhow::
     bar.finish_and_clear();
     out.emit(&rows, || {
         let mut s = format!(
-            "{} B message over simulated XBee 802.15.4 at {} baud, {} seeds per loss, with and without keys\n \
+            "{} B message over simulated XBee {} at {} baud, {} seeds per loss, with and without keys\n \
              loss  delivered  goodput kb/s: no keys  keys  loss of goodput  handshake ms: median  max\n",
-            args.size, config.baud, seeds
+            args.size, config.radio, config.baud, seeds
         );
         for r in &rows {
             s += &format!(
