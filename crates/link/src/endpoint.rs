@@ -564,14 +564,18 @@ impl Endpoint {
 
     /// Sends the ACKs held longer than [`HOLD_MAX`].
     fn release_overdue(&mut self) -> Result<(), LinkError> {
-        let overdue: Vec<Vec<u8>> = (self.inbox.iter_mut().map(|(_, _, h)| h))
-            .chain(self.opened.iter_mut().map(|(_, h)| h))
-            .chain(self.handed.iter_mut())
-            .filter(|h| !h.1.is_empty() && h.2.elapsed() >= HOLD_MAX)
-            .map(|h| std::mem::take(&mut h.1))
-            .collect();
-        for ack in overdue {
-            self.send_ack(&ack)?;
+        let Endpoint {
+            inbox,
+            opened,
+            handed,
+            transport,
+            ..
+        } = self;
+        let held = (inbox.iter_mut().map(|(_, _, h)| h))
+            .chain(opened.iter_mut().map(|(_, h)| h))
+            .chain(handed.iter_mut());
+        for h in held.filter(|h| !h.1.is_empty() && h.2.elapsed() >= HOLD_MAX) {
+            transport.send(&std::mem::take(&mut h.1))?;
         }
         Ok(())
     }
