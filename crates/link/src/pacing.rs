@@ -126,6 +126,11 @@ impl Pacing {
         }
     }
 
+    /// The parameters in force.
+    pub fn config(&self) -> PacingConfig {
+        self.cfg
+    }
+
     /// What was counted so far.
     pub fn counters(&self) -> &PacingCounters {
         &self.counters

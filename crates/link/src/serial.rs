@@ -222,7 +222,7 @@ impl<P: Read + Write + Send> Serial<P> {
     /// Forgets requests whose status is overdue, saying so the first time.
     fn expire(&mut self) {
         if self.pacing.expire(self.now()) > 0 {
-            let timeout = Duration::from_micros(PacingConfig::default().status_timeout);
+            let timeout = Duration::from_micros(self.pacing.config().status_timeout);
             self.say_once(Notice::NoStatus { timeout });
         }
     }
