@@ -454,14 +454,15 @@ impl Sender {
             io::write_rgb(dir.join("sent-right.png"), &p.sent.1)?;
             stereolink_image::pfm::write(dir.join("sent-disparity.pfm"), &p.disparity)?;
         }
+        let (frame_bytes, report_bytes) = (p.frame_bytes.len(), p.report_bytes.len());
         // The report first: it goes ahead of the frame still in flight.
-        self.uplink.report(frame_id, p.report_bytes.clone())?;
-        self.uplink.frame(frame_id, p.frame_bytes.clone())?;
+        self.uplink.report(frame_id, p.report_bytes)?;
+        self.uplink.frame(frame_id, p.frame_bytes)?;
         let (segment_ms, encode_ms, match_ms) = p.times_ms;
         let sent = Sent {
             frame_id,
-            frame_bytes: p.frame_bytes.len(),
-            report_bytes: p.report_bytes.len(),
+            frame_bytes,
+            report_bytes,
             distance_m: p.report.target_distance_m,
             seconds: 0.0,
             report_seconds: 0.0,
