@@ -14,39 +14,21 @@
 
 use std::time::Duration;
 
-use stereolink::pipeline::receiver::{BoardReceiver, Event};
-use stereolink_codec::{container, Message, SegmentationKind, StereoFrame, View};
-use stereolink_image::synth::{synthesize, SynthSpec};
-use stereolink_segment::segment;
+use stereolink::pipeline::receiver::{synthetic_frame, BoardReceiver, Event};
+use stereolink_image::synth::SynthSpec;
 
 fn main() {
     let frames: u32 = std::env::args()
         .nth(1)
         .and_then(|a| a.parse().ok())
         .unwrap_or(1);
-    let scene = synthesize(&SynthSpec {
+    let bytes = synthetic_frame(&SynthSpec {
         width: 480,
         height: 272,
         max_disp: 32,
         seed: 1,
     })
-    .expect("valid spec");
-    let method = "kmeans".parse().expect("known method");
-    let (l, r) = (
-        segment(&scene.left, &method, 3, 1).expect("segments"),
-        segment(&scene.right, &method, 3, 1).expect("segments"),
-    );
-    let frame = StereoFrame {
-        kind: SegmentationKind::KMeans,
-        levels: 3,
-        params: String::new(),
-        thresholds: None,
-        calibration: None,
-        left: View::Indexed(l.image),
-        right: View::Indexed(r.image),
-        planes: None,
-    };
-    let bytes = container::encode(&Message::StereoFrame(Box::new(frame)), 1, 0);
+    .expect("a synthetic frame");
     let mut board = BoardReceiver::new(31, 9, Duration::from_secs(10));
     if std::env::args().nth(2).as_deref() == Some("portable") {
         board = board.portable_kernel();

@@ -8,10 +8,8 @@ use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Duration;
 
-use stereolink::pipeline::receiver::{BoardReceiver, Event};
-use stereolink_codec::{container, Message, SegmentationKind, StereoFrame, View};
-use stereolink_image::synth::{synthesize, SynthSpec};
-use stereolink_segment::segment;
+use stereolink::pipeline::receiver::{synthetic_frame, BoardReceiver, Event};
+use stereolink_image::synth::SynthSpec;
 
 struct Counting;
 
@@ -54,26 +52,13 @@ static ALLOCATOR: Counting = Counting;
 
 #[test]
 fn frames_after_the_first_allocate_nothing() {
-    let scene = synthesize(&SynthSpec {
+    let bytes = synthetic_frame(&SynthSpec {
         width: 480,
         height: 272,
         max_disp: 32,
         seed: 4,
     })
     .unwrap();
-    let method = "kmeans".parse().unwrap();
-    let view = |img| View::Indexed(segment(img, &method, 3, 1).unwrap().image);
-    let frame = StereoFrame {
-        kind: SegmentationKind::KMeans,
-        levels: 3,
-        params: "seed=1".into(),
-        thresholds: None,
-        calibration: None,
-        left: view(&scene.left),
-        right: view(&scene.right),
-        planes: None,
-    };
-    let bytes = container::encode(&Message::StereoFrame(Box::new(frame)), 1, 0);
     // The receiver's own peak: from what the sender's side left live.
     let base = LIVE.load(Ordering::Relaxed);
     PEAK.store(base, Ordering::Relaxed);

@@ -18,11 +18,13 @@ use std::time::Instant;
 use std::fmt::Write;
 
 use stereolink_codec::container::{self, Body, FrameDecoder, FrameRef};
-use stereolink_codec::{CodecError, Limits};
+use stereolink_codec::{CodecError, Limits, Message, SegmentationKind, StereoFrame, View};
 use stereolink_display::{anaglyph_into, Anaglyph, Screen, ScreenStatus, Sink};
+use stereolink_image::synth::{synthesize, SynthSpec};
 use stereolink_image::{DisparityMap, RgbImage};
 use stereolink_robot::policy::{MotionPolicy, ValidatedDistance, Watchdog};
 use stereolink_robot::Axis;
+use stereolink_segment::segment;
 use stereolink_stereo::wta::{
     levels_to_disparity, luma_samples_into, Levels, Samples, WtaMatcher, WtaParams, NO_DISPARITY,
 };
@@ -303,37 +305,45 @@ impl BoardReceiver {
     }
 }
 
+/// The StereoFrame message of a synthetic scene (`synth`'s generator, its
+/// views segmented with k-means, 3 levels, seed 1): what the board's tests
+/// and its instruction budget feed the receiver.
+pub fn synthetic_frame(spec: &SynthSpec) -> anyhow::Result<Vec<u8>> {
+    let scene = synthesize(spec)?;
+    let method = "kmeans".parse()?;
+    let view = |img| anyhow::Ok(View::Indexed(segment(img, &method, 3, 1)?.image));
+    let frame = StereoFrame {
+        kind: SegmentationKind::KMeans,
+        levels: 3,
+        params: String::new(),
+        thresholds: None,
+        calibration: None,
+        left: view(&scene.left)?,
+        right: view(&scene.right)?,
+        planes: None,
+    };
+    Ok(container::encode(
+        &Message::StereoFrame(Box::new(frame)),
+        1,
+        0,
+    ))
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use stereolink_codec::{Message, SegmentationKind, StereoFrame, View};
-    use stereolink_image::synth::{synthesize, SynthSpec};
-    use stereolink_segment::segment;
 
     /// A report moved the axis: the status line follows it while it moves,
     /// and the screen shows where it settled.
     #[test]
     fn the_screen_follows_the_axis_until_it_settles() {
-        let scene = synthesize(&SynthSpec {
+        let bytes = synthetic_frame(&SynthSpec {
             width: 96,
             height: 64,
             max_disp: 16,
             seed: 2,
         })
         .unwrap();
-        let method = "kmeans".parse().unwrap();
-        let view = |img| View::Indexed(segment(img, &method, 3, 1).unwrap().image);
-        let frame = StereoFrame {
-            kind: SegmentationKind::KMeans,
-            levels: 3,
-            params: String::new(),
-            thresholds: None,
-            calibration: None,
-            left: view(&scene.left),
-            right: view(&scene.right),
-            planes: None,
-        };
-        let bytes = container::encode(&Message::StereoFrame(Box::new(frame)), 1, 0);
         let mut board = BoardReceiver::new(15, 5, std::time::Duration::from_secs(10));
         board.axis = Some(stereolink_robot::open_axis("sim").unwrap());
         assert!(matches!(board.handle(&bytes), Event::Frame { .. }));
