@@ -3,17 +3,28 @@
 //! takes the segments to transmit. See `docs/link-protocol.md`.
 //!
 //! A message is sent as `payload ‖ CRC-32`, cut into fragments that fit the
-//! link's payload limit. Every segment ends with a CRC-16, so damaged
-//! segments are dropped where they arrive.
+//! link's payload limit.
 //!
 //! ```text
-//! DATA  21 | session u32 | msg id u16 | index u16 | count u16 | fragment …  | crc16
-//! ACK   22 | session u32 | receiver u32 | msg id u16 | next u16 | bitmap u32 | crc16
-//! FAIL  23 | session u32 | msg id u16                                       | crc16
+//! DATA  31 | session u24 | msg id u8 | index u16 | fragment …              (the last fragment: 34)
+//! ACK   32 | session u24 | receiver u24 | msg id u8 | count u16 | next u16 | bitmap u32 | crc16
+//! FAIL  33 | session u24 | msg id u8                                      | crc16
 //! ```
 //!
 //! (little-endian; the type byte's high nibble is the wire version,
-//! [`WIRE_VERSION`]). Each endpoint start has its own random [`SessionId`]:
+//! [`WIRE_VERSION`]). DATA is 7 bytes of header and nothing else, so that a
+//! ZigBee radio's 84-byte payload carries 77 message bytes: it has no CRC of
+//! its own, because every transport under it checks each frame (the XBee's
+//! MAC FCS on the air and its API checksum on the UART, SLIP's CRC-16, UDP's
+//! checksum) and the message's CRC-32 covers its bytes end to end. The
+//! control segments, which are acted on as they arrive, keep a CRC-16. What
+//! a damaged DATA header that slipped past the transport can do is bounded:
+//! the sender counts a message delivered only on an ACK that names the
+//! message's fragment count, which the receiver learns only from the last
+//! fragment, so no corruption of an index or of the last-fragment mark can
+//! make a message count as delivered that the receiver did not hand up.
+//!
+//! Each endpoint start has its own random [`SessionId`]:
 //! DATA carries the sender's, an ACK echoes it and adds the receiver's own,
 //! and a FAIL names the session whose message it ends. The receiver keys
 //! reassembly and duplicate suppression by (sender session, message id), so
@@ -23,7 +34,8 @@
 //! acknowledged.
 //!
 //! An ACK says "every fragment below `next` arrived, and fragment
-//! `next + 1 + i` arrived where bit `i` is set". The sender keeps a
+//! `next + 1 + i` arrived where bit `i` is set", and `count`, the message's
+//! fragment count once the receiver knows it (0 before). The sender keeps a
 //! window of fragments in flight, retransmits a fragment when its timeout
 //! (Jacobson/Karels from measured round trips) expires or when a later
 //! fragment is acknowledged before it (a gap), and gives up at the message
@@ -41,14 +53,19 @@ use crate::crc::{crc16, crc32};
 pub type Micros = u64;
 
 /// The link segment format's version, the high nibble of every type byte.
-/// Version 1 (type bytes 0x01–0x03, a zero nibble) had no sessions; its
-/// segments are dropped as unknown.
-pub const WIRE_VERSION: u8 = 2;
+/// Version 1 (type bytes 0x01–0x03) had no sessions and version 2 (0x21–0x23)
+/// 13-byte DATA headers; their segments are dropped as unknown.
+pub const WIRE_VERSION: u8 = 3;
 const DATA: u8 = WIRE_VERSION << 4 | 1;
 const ACK: u8 = WIRE_VERSION << 4 | 2;
 const FAIL: u8 = WIRE_VERSION << 4 | 3;
+const DATA_LAST: u8 = WIRE_VERSION << 4 | 4;
 /// Bytes of a DATA segment besides the fragment.
-pub const DATA_OVERHEAD: usize = 13;
+pub const DATA_OVERHEAD: usize = 7;
+const ACK_LEN: usize = 18;
+const FAIL_LEN: usize = 7;
+/// The smallest payload a link must carry: an ACK.
+pub const MIN_MTU: usize = ACK_LEN;
 /// Peer sessions a [`Receiver`] keeps state for, and receiver sessions a
 /// [`Sender`] remembers having stopped trusting: the current one and three
 /// before it.
@@ -56,74 +73,107 @@ pub const REMEMBERED_SESSIONS: usize = 4;
 
 /// One life of an endpoint: drawn at random when it starts (from the OS
 /// RNG, by [`crate::endpoint`]), so a restarted process never continues an
-/// old one's message ids. A handshake (issue 19) may supply it instead,
-/// from its transcript; the ARQ only compares sessions for equality.
+/// old one's message ids. A handshake may supply it instead; the ARQ only
+/// compares sessions for equality. It travels as 24 bits
+/// ([`SessionId::BITS`]): with [`REMEMBERED_SESSIONS`] remembered, a
+/// restarted peer draws one of them again about once in 4 million restarts
+/// (see `docs/link-protocol.md`, "Sessions").
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
 pub struct SessionId(pub u32);
+
+impl SessionId {
+    /// Bits of a session on the wire.
+    pub const BITS: u32 = 24;
+
+    /// The session named by the low [`SessionId::BITS`] bits of `random`.
+    pub fn from_random(random: u32) -> Self {
+        SessionId(random & ((1 << Self::BITS) - 1))
+    }
+}
 
 /// A parsed segment.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum Segment<'a> {
-    /// A fragment of a message of the sender's `session`.
+    /// Fragment `index` of a message of the sender's `session`; `last`
+    /// marks the message's final fragment (so its count is `index + 1`).
     Data {
         session: SessionId,
-        msg_id: u16,
+        msg_id: u8,
         index: u16,
-        count: u16,
+        last: bool,
         fragment: &'a [u8],
     },
     /// Acknowledgement state of message `msg_id` of `session`, from the
-    /// receiver whose own session is `receiver`.
+    /// receiver whose own session is `receiver`; `count` is the message's
+    /// fragment count where the receiver knows it, else 0.
     Ack {
         session: SessionId,
         receiver: SessionId,
-        msg_id: u16,
+        msg_id: u8,
+        count: u16,
         next: u16,
         bitmap: u32,
     },
     /// Message `msg_id` of `session` is given up (by its sender, or by the
     /// receiver when it arrived corrupt).
-    Fail { session: SessionId, msg_id: u16 },
+    Fail { session: SessionId, msg_id: u8 },
+}
+
+fn u24_at(b: &[u8], i: usize) -> u32 {
+    u32::from_le_bytes([b[i], b[i + 1], b[i + 2], 0])
+}
+
+fn u16_at(b: &[u8], i: usize) -> u16 {
+    u16::from_le_bytes([b[i], b[i + 1]])
+}
+
+fn push_session(v: &mut Vec<u8>, s: SessionId) {
+    v.extend_from_slice(&s.0.to_le_bytes()[..3]);
+}
+
+/// Splits off and checks a control segment's CRC-16.
+fn checked(bytes: &[u8]) -> Option<&[u8]> {
+    let (body, crc) = bytes.split_at(bytes.len().checked_sub(2)?);
+    (crc16(body).to_le_bytes() == crc).then_some(body)
 }
 
 impl<'a> Segment<'a> {
-    /// Parses and checks a segment; `None` for damaged, unknown or other
-    /// versions' bytes.
+    /// Parses a segment (and checks a control segment's CRC-16); `None` for
+    /// damaged, unknown or other versions' bytes.
     pub fn parse(bytes: &'a [u8]) -> Option<Self> {
-        if bytes.len() < 3 {
-            return None;
-        }
-        let (body, crc) = bytes.split_at(bytes.len() - 2);
-        if crc16(body).to_le_bytes() != crc {
-            return None;
-        }
-        let u16_at = |i: usize| u16::from_le_bytes([body[i], body[i + 1]]);
-        let u32_at =
-            |i: usize| u32::from_le_bytes([body[i], body[i + 1], body[i + 2], body[i + 3]]);
-        match (body[0], body.len()) {
-            (DATA, n) if n >= DATA_OVERHEAD - 2 => Some(Segment::Data {
-                session: SessionId(u32_at(1)),
-                msg_id: u16_at(5),
-                index: u16_at(7),
-                count: u16_at(9),
-                fragment: &body[DATA_OVERHEAD - 2..],
+        let kind = *bytes.first()?;
+        match kind {
+            DATA | DATA_LAST if bytes.len() >= DATA_OVERHEAD => Some(Segment::Data {
+                session: SessionId(u24_at(bytes, 1)),
+                msg_id: bytes[4],
+                index: u16_at(bytes, 5),
+                last: kind == DATA_LAST,
+                fragment: &bytes[DATA_OVERHEAD..],
             }),
-            (ACK, 17) => Some(Segment::Ack {
-                session: SessionId(u32_at(1)),
-                receiver: SessionId(u32_at(5)),
-                msg_id: u16_at(9),
-                next: u16_at(11),
-                bitmap: u32_at(13),
-            }),
-            (FAIL, 7) => Some(Segment::Fail {
-                session: SessionId(u32_at(1)),
-                msg_id: u16_at(5),
-            }),
+            ACK if bytes.len() == ACK_LEN => {
+                let b = checked(bytes)?;
+                Some(Segment::Ack {
+                    session: SessionId(u24_at(b, 1)),
+                    receiver: SessionId(u24_at(b, 4)),
+                    msg_id: b[7],
+                    count: u16_at(b, 8),
+                    next: u16_at(b, 10),
+                    bitmap: u32::from_le_bytes([b[12], b[13], b[14], b[15]]),
+                })
+            }
+            FAIL if bytes.len() == FAIL_LEN => {
+                let b = checked(bytes)?;
+                Some(Segment::Fail {
+                    session: SessionId(u24_at(b, 1)),
+                    msg_id: b[4],
+                })
+            }
             _ => None,
         }
     }
 
-    /// Serialises the segment with its CRC-16.
+    /// Serialises the segment (a control segment with its CRC-16). Sessions
+    /// are written as their low 24 bits.
     pub fn emit(&self) -> Vec<u8> {
         let mut v = Vec::new();
         match self {
@@ -131,34 +181,37 @@ impl<'a> Segment<'a> {
                 session,
                 msg_id,
                 index,
-                count,
+                last,
                 fragment,
             } => {
-                v.push(DATA);
-                v.extend_from_slice(&session.0.to_le_bytes());
-                for x in [msg_id, index, count] {
-                    v.extend_from_slice(&x.to_le_bytes());
-                }
+                v.reserve(DATA_OVERHEAD + fragment.len());
+                v.push(if *last { DATA_LAST } else { DATA });
+                push_session(&mut v, *session);
+                v.push(*msg_id);
+                v.extend_from_slice(&index.to_le_bytes());
                 v.extend_from_slice(fragment);
+                return v;
             }
             Segment::Ack {
                 session,
                 receiver,
                 msg_id,
+                count,
                 next,
                 bitmap,
             } => {
                 v.push(ACK);
-                v.extend_from_slice(&session.0.to_le_bytes());
-                v.extend_from_slice(&receiver.0.to_le_bytes());
-                v.extend_from_slice(&msg_id.to_le_bytes());
+                push_session(&mut v, *session);
+                push_session(&mut v, *receiver);
+                v.push(*msg_id);
+                v.extend_from_slice(&count.to_le_bytes());
                 v.extend_from_slice(&next.to_le_bytes());
                 v.extend_from_slice(&bitmap.to_le_bytes());
             }
             Segment::Fail { session, msg_id } => {
                 v.push(FAIL);
-                v.extend_from_slice(&session.0.to_le_bytes());
-                v.extend_from_slice(&msg_id.to_le_bytes());
+                push_session(&mut v, *session);
+                v.push(*msg_id);
             }
         }
         let crc = crc16(&v);
@@ -278,10 +331,10 @@ pub struct Sender {
     peer: Option<SessionId>,
     /// Receiver sessions replaced by a newer one: their late ACKs are ignored.
     retired: VecDeque<SessionId>,
-    msg_id: u16,
+    msg_id: u8,
     /// Message ids go up by this much: lanes of one session share the id
     /// space, each with its own residue.
-    id_step: u16,
+    id_step: u8,
     data: Vec<u8>,
     count: usize,
     acked: Vec<bool>,
@@ -303,11 +356,11 @@ impl Sender {
     }
 
     /// Sender `lane` of `lanes` sharing `session`: its message ids are
-    /// `lane + k·lanes` (k ≥ 1), so no two lanes ever use the same id and
-    /// the receiver needs nothing new to keep their messages apart. `lanes`
-    /// is rounded up to a power of two, so ids keep their lane when they
-    /// wrap.
-    pub fn lane(cfg: Config, session: SessionId, lane: u16, lanes: u16) -> Self {
+    /// `lane + k·lanes` (k ≥ 1) modulo 256, so no two lanes ever use the
+    /// same id and the receiver needs nothing new to keep their messages
+    /// apart. `lanes` is rounded up to a power of two, so ids keep their
+    /// lane when they wrap.
+    pub fn lane(cfg: Config, session: SessionId, lane: u8, lanes: u8) -> Self {
         let lanes = lanes.max(1).next_power_of_two();
         Sender {
             cfg,
@@ -342,7 +395,7 @@ impl Sender {
     }
 
     /// Starts sending `message` at `now`.
-    pub fn start(&mut self, message: &[u8], now: Micros) -> Result<u16, ArqError> {
+    pub fn start(&mut self, message: &[u8], now: Micros) -> Result<u8, ArqError> {
         if self.state == SendState::Sending {
             return Err(ArqError::Busy);
         }
@@ -398,7 +451,7 @@ impl Sender {
             session: self.session,
             msg_id: self.msg_id,
             index: i as u16,
-            count: self.count as u16,
+            last: i + 1 == self.count,
             fragment: &self.data[i * frag..end],
         }
         .emit()
@@ -473,15 +526,16 @@ impl Sender {
         if self.state != SendState::Sending {
             return;
         }
-        let (receiver, next, bitmap) = match *seg {
+        let (receiver, count, next, bitmap) = match *seg {
             Segment::Ack {
                 session,
                 receiver,
                 msg_id,
+                count,
                 next,
                 bitmap,
             } if session == self.session && msg_id == self.msg_id => {
-                (receiver, next as usize, bitmap)
+                (receiver, count as usize, next as usize, bitmap)
             }
             Segment::Fail { session, msg_id }
                 if session == self.session && msg_id == self.msg_id =>
@@ -496,10 +550,7 @@ impl Sender {
         }
         let mut highest = None;
         let newly: Vec<usize> = (0..self.count)
-            .filter(|&i| {
-                i < next || (i > next && i - next - 1 < 32 && bitmap >> (i - next - 1) & 1 == 1)
-            })
-            .filter(|&i| !self.acked[i])
+            .filter(|&i| covers(next, bitmap, i) && !self.acked[i])
             .collect();
         for &i in &newly {
             self.acked[i] = true;
@@ -510,7 +561,25 @@ impl Sender {
             }
         }
         if self.acked.iter().all(|&a| a) {
-            self.state = SendState::Done;
+            // Delivered only when the receiver itself says it holds every
+            // fragment of a message whose count it knows: it then has checked
+            // and handed up the message.
+            if count == self.count && next == self.count {
+                self.state = SendState::Done;
+                return;
+            }
+            // It holds less than its earlier ACKs said (it dropped the
+            // partial message), or it does not know the count (the last
+            // fragment's mark was damaged): resend what this ACK does not
+            // cover, and the last fragment, which tells the count.
+            let last = self.count - 1;
+            for i in 0..self.count {
+                if !covers(next, bitmap, i) || (i == last && count != self.count) {
+                    self.acked[i] = false;
+                    self.sent_at[i] = None;
+                    self.queue.push_back(i);
+                }
+            }
             return;
         }
         // A gap below an acknowledged fragment that was sent later: resend it now.
@@ -565,20 +634,48 @@ impl Sender {
     }
 }
 
+/// Whether an ACK of `next` and `bitmap` says fragment `i` arrived.
+fn covers(next: usize, bitmap: u32, i: usize) -> bool {
+    i < next || (i > next && i - next - 1 < 32 && bitmap >> (i - next - 1) & 1 == 1)
+}
+
 struct Pending {
-    count: usize,
+    /// The fragment count, once the last fragment told it.
+    count: Option<usize>,
+    /// The fragments heard, up to the highest index heard.
     frags: Vec<Option<Vec<u8>>>,
     received: usize,
-    bytes: usize,
     since_ack: usize,
     last_seen: Micros,
 }
 
+impl Pending {
+    fn new(now: Micros) -> Self {
+        Pending {
+            count: None,
+            frags: Vec::new(),
+            received: 0,
+            since_ack: 0,
+            last_seen: now,
+        }
+    }
+
+    /// Whether fragment `index` (`last` if it is the final one) fits what
+    /// this message already told of itself: not beyond its count, and not
+    /// a second, different final fragment.
+    fn consistent(&self, index: usize, last: bool) -> bool {
+        match self.count {
+            Some(count) => index < count && (!last || index + 1 == count),
+            None => !last || index + 1 >= self.frags.len(),
+        }
+    }
+}
+
 /// What the receiver hands up.
-pub type Delivery = Result<Vec<u8>, (u16, ArqError)>;
+pub type Delivery = Result<Vec<u8>, (u8, ArqError)>;
 
 /// A message of a peer session.
-type MsgKey = (SessionId, u16);
+type MsgKey = (SessionId, u8);
 
 /// The receiving half: reassembles several messages, acknowledges, delivers.
 pub struct Receiver {
@@ -631,7 +728,11 @@ impl Receiver {
     }
 
     fn ack(&self, (session, msg_id): MsgKey, p: &Pending) -> Vec<u8> {
-        let next = p.frags.iter().position(Option::is_none).unwrap_or(p.count);
+        let next = p
+            .frags
+            .iter()
+            .position(Option::is_none)
+            .unwrap_or(p.frags.len());
         let mut bitmap = 0u32;
         for i in 0..32 {
             if p.frags.get(next + 1 + i).is_some_and(Option::is_some) {
@@ -642,6 +743,7 @@ impl Receiver {
             session,
             receiver: self.session,
             msg_id,
+            count: p.count.unwrap_or(0) as u16,
             next: next as u16,
             bitmap,
         }
@@ -664,17 +766,11 @@ impl Receiver {
                 session,
                 msg_id,
                 index,
-                count,
+                last,
                 fragment,
             } => {
                 self.hear(session);
-                self.on_data(
-                    (session, msg_id),
-                    index as usize,
-                    count as usize,
-                    fragment,
-                    now,
-                )
+                self.on_data((session, msg_id), index as usize, last, fragment, now)
             }
             Segment::Ack { .. } => (None, None),
         }
@@ -684,7 +780,7 @@ impl Receiver {
         &mut self,
         key: MsgKey,
         index: usize,
-        count: usize,
+        last: bool,
         fragment: &[u8],
         now: Micros,
     ) -> (Option<Vec<u8>>, Option<Delivery>) {
@@ -698,6 +794,7 @@ impl Receiver {
                         session,
                         receiver: self.session,
                         msg_id,
+                        count: c,
                         next: c,
                         bitmap: 0,
                     }
@@ -707,11 +804,7 @@ impl Receiver {
             );
         }
         let frag = self.cfg.fragment_size();
-        if index >= count
-            || count == 0
-            || fragment.len() > frag
-            || (count - 1) * frag > self.cfg.max_message + 4
-        {
+        if fragment.len() > frag || index * frag > self.cfg.max_message + 4 {
             return (None, None);
         }
         if !self.pending.contains_key(&key) {
@@ -724,38 +817,41 @@ impl Receiver {
                     .0;
                 self.pending.remove(&oldest);
             }
-            self.pending.insert(
-                key,
-                Pending {
-                    count,
-                    frags: vec![None; count],
-                    received: 0,
-                    bytes: 0,
-                    since_ack: 0,
-                    last_seen: now,
-                },
-            );
+            self.pending.insert(key, Pending::new(now));
         }
         let p = self.pending.get_mut(&key).expect("inserted");
-        if p.count != count {
-            return (None, None);
+        if !p.consistent(index, last) {
+            // Two fragments disagree on where the message ends: one of them
+            // was damaged past the transport's check, or this id is reused by
+            // a new message while an old partial one lingers. Start again
+            // from this fragment; the sender resends what is missing.
+            *p = Pending::new(now);
         }
         p.last_seen = now;
-        if p.frags[index].is_some() {
-            self.duplicates += 1;
-            let p = &self.pending[&key];
-            return (Some(self.ack(key, p)), None);
+        if last {
+            p.count = Some(index + 1);
         }
-        // A gap: the fragment before this one is missing. (Not "any earlier
-        // one": an ACK for every fragment until a hole fills drives the
-        // sender's RTO below the every-`ack_every` cadence; see the doc.)
-        let gap = index > 0 && p.frags[index - 1].is_none();
-        p.frags[index] = Some(fragment.to_vec());
-        p.received += 1;
-        p.bytes += fragment.len();
-        p.since_ack += 1;
-        if p.received < p.count {
-            let due = gap || p.since_ack >= self.cfg.ack_every;
+        if p.frags.len() <= index {
+            p.frags.resize(index + 1, None);
+        }
+        let duplicate = p.frags[index].is_some();
+        let mut gap = false;
+        if duplicate {
+            self.duplicates += 1;
+        } else {
+            // A gap: the fragment before this one is missing. (Not "any
+            // earlier one": an ACK for every fragment until a hole fills
+            // drives the sender's RTO below the every-`ack_every` cadence;
+            // see the doc.)
+            gap = index > 0 && p.frags[index - 1].is_none();
+            p.frags[index] = Some(fragment.to_vec());
+            p.received += 1;
+            p.since_ack += 1;
+        }
+        // A duplicate may still complete the message: the first copy of the
+        // last fragment may have lost its mark.
+        if Some(p.received) != p.count {
+            let due = duplicate || gap || last || p.since_ack >= self.cfg.ack_every;
             if due {
                 p.since_ack = 0;
             }
@@ -764,6 +860,7 @@ impl Receiver {
         }
         let p = self.pending.remove(&key).expect("present");
         let ack = self.ack(key, &p);
+        let count = p.frags.len() as u16;
         let mut data: Vec<u8> = p.frags.into_iter().flatten().flatten().collect();
         if data.len() < 4 {
             return (
@@ -779,7 +876,7 @@ impl Receiver {
                 Some(Err((msg_id, ArqError::Corrupt))),
             );
         }
-        self.recent.push_back((key, count as u16));
+        self.recent.push_back((key, count));
         if self.recent.len() > 64 {
             self.recent.pop_front();
         }
@@ -802,8 +899,8 @@ impl Receiver {
 mod tests {
     use super::*;
 
-    const TX: SessionId = SessionId(0x5E55_0001);
-    const RX: SessionId = SessionId(0x5E55_0002);
+    const TX: SessionId = SessionId(0x55_0001);
+    const RX: SessionId = SessionId(0x55_0002);
 
     fn cfg() -> Config {
         Config {
@@ -867,7 +964,7 @@ mod tests {
             let mut s = Sender::new(cfg(), SessionId(life));
             for k in 0..2 {
                 let msg = message(life * 2 + k, 300);
-                assert_eq!(s.start(&msg, now).unwrap(), k as u16 + 1);
+                assert_eq!(s.start(&msg, now).unwrap(), k as u8 + 1);
                 let got = drive(&mut s, &mut r, &mut now, |_| false, |_| {});
                 assert_eq!(s.state(), SendState::Done);
                 assert_eq!(got, [msg], "life {life}, message {k}");
@@ -879,17 +976,18 @@ mod tests {
     #[test]
     fn an_old_sessions_ack_never_acknowledges_a_new_message() {
         let mut s = Sender::new(cfg(), SessionId(2));
-        s.start(&[9; 50], 0).unwrap();
+        s.start(&[9; 20], 0).unwrap();
         let first = s.poll_transmit(0).unwrap();
-        let count = match Segment::parse(&first).unwrap() {
-            Segment::Data { count, .. } => count,
-            other => panic!("{other:?}"),
-        };
+        assert!(matches!(
+            Segment::parse(&first),
+            Some(Segment::Data { last: true, .. })
+        ));
         let ack = |session| Segment::Ack {
             session,
             receiver: RX,
             msg_id: 1,
-            next: count,
+            count: 1,
+            next: 1,
             bitmap: 0,
         };
         // The previous process's final ACK of its own message 1.
@@ -962,12 +1060,63 @@ mod tests {
     }
 
     #[test]
-    fn version_1_segments_are_dropped() {
-        // A version 1 DATA segment (type 0x01, no session) with a valid CRC.
-        let mut v1 = vec![0x01, 1, 0, 0, 0, 1, 0, 0xAA, 0xBB, 0xCC, 0xDD];
-        let crc = crc16(&v1);
-        v1.extend_from_slice(&crc.to_le_bytes());
-        assert_eq!(Segment::parse(&v1), None);
+    fn earlier_versions_segments_are_dropped() {
+        // A version 1 DATA segment (type 0x01, no session) and a version 2
+        // one (type 0x21, 32-bit session, count), each with a valid CRC.
+        let v1 = [0x01, 1, 0, 0, 0, 1, 0, 0xAA, 0xBB, 0xCC, 0xDD];
+        let v2 = [0x21, 1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0xAA, 0xBB];
+        for old in [&v1[..], &v2[..]] {
+            let mut seg = old.to_vec();
+            seg.extend_from_slice(&crc16(old).to_le_bytes());
+            assert_eq!(Segment::parse(&seg), None);
+        }
+    }
+
+    #[test]
+    fn a_data_header_is_seven_bytes_and_laid_out_as_documented() {
+        let seg = Segment::Data {
+            session: SessionId(0x12_3456),
+            msg_id: 0x9A,
+            index: 0x0102,
+            last: true,
+            fragment: b"xy",
+        };
+        assert_eq!(
+            seg.emit(),
+            [0x34, 0x56, 0x34, 0x12, 0x9A, 0x02, 0x01, b'x', b'y']
+        );
+        assert_eq!(DATA_OVERHEAD, 7);
+        assert_eq!(SessionId::from_random(0xFFAB_CDEF), SessionId(0xAB_CDEF));
+    }
+
+    /// The last fragment's mark damaged past the transport's check: the
+    /// receiver holds every fragment but no count, so the sender does not
+    /// count the message delivered; it resends the last fragment, whose
+    /// count completes the message.
+    #[test]
+    fn a_message_counts_delivered_only_once_the_receiver_knows_its_count() {
+        let msg = message(3, 200);
+        let (mut s, mut r) = (Sender::new(cfg(), TX), Receiver::new(cfg(), RX));
+        s.start(&msg, 0).unwrap();
+        let segs: Vec<Vec<u8>> = core::iter::from_fn(|| s.poll_transmit(0)).collect();
+        let (last, rest) = segs.split_last().unwrap();
+        for seg in rest {
+            r.on_segment(&Segment::parse(seg).unwrap(), 0);
+        }
+        let mut unmarked = last.clone();
+        unmarked[0] = DATA;
+        let mut now = 0;
+        for seg in rest.iter().chain([&unmarked]) {
+            let (ack, delivered) = r.on_segment(&Segment::parse(seg).unwrap(), now);
+            assert_eq!(delivered, None);
+            if let Some(a) = ack {
+                s.on_segment(&Segment::parse(&a).unwrap(), now + 10);
+            }
+        }
+        assert_eq!(s.state(), SendState::Sending);
+        let got = drive(&mut s, &mut r, &mut now, |_| false, |_| {});
+        assert_eq!(s.state(), SendState::Done);
+        assert_eq!(got, [msg]);
     }
 
     #[test]
@@ -984,20 +1133,35 @@ mod tests {
     }
 
     #[test]
-    fn segments_round_trip_and_damage_is_detected() {
-        let s = Segment::Data {
+    fn segments_round_trip_and_damaged_control_segments_are_dropped() {
+        let data = Segment::Data {
             session: TX,
             msg_id: 3,
             index: 1,
-            count: 2,
+            last: false,
             fragment: b"abc",
         };
-        let b = s.emit();
-        assert_eq!(Segment::parse(&b), Some(s));
-        for i in 0..b.len() {
-            let mut c = b.clone();
-            c[i] ^= 0x04;
-            assert_eq!(Segment::parse(&c), None);
+        assert_eq!(Segment::parse(&data.emit()), Some(data));
+        let ack = Segment::Ack {
+            session: TX,
+            receiver: RX,
+            msg_id: 3,
+            count: 9,
+            next: 4,
+            bitmap: 0x8000_0001,
+        };
+        let fail = Segment::Fail {
+            session: TX,
+            msg_id: 3,
+        };
+        for s in [ack, fail] {
+            let b = s.emit();
+            assert_eq!(Segment::parse(&b), Some(s));
+            for i in 0..b.len() {
+                let mut c = b.clone();
+                c[i] ^= 0x04;
+                assert_eq!(Segment::parse(&c), None);
+            }
         }
     }
 
@@ -1053,7 +1217,7 @@ mod tests {
                     let msg_id = s.start(&msg, 0).unwrap();
                     let segs: Vec<Vec<u8>> = core::iter::from_fn(|| s.poll_transmit(0)).collect();
                     let next = segs.len() as u16;
-                    s.on_segment(&Segment::Ack { session, receiver: RX, msg_id, next, bitmap: 0 }, 0);
+                    s.on_segment(&Segment::Ack { session, receiver: RX, msg_id, count: next, next, bitmap: 0 }, 0);
                     segments.extend(segs);
                     messages.push(msg);
                 }

@@ -193,7 +193,7 @@ type Held = (MsgKey, Vec<u8>, Instant);
 const HOLD_MAX: Duration = Duration::from_secs(1);
 
 /// A message of a peer session.
-type MsgKey = (SessionId, u16);
+type MsgKey = (SessionId, u8);
 
 /// Longest single wait inside the loops, so timers and peers are served.
 const TICK: Duration = Duration::from_millis(20);
@@ -609,7 +609,7 @@ fn fresh_session() -> std::io::Result<SessionId> {
     OsRng
         .try_fill_bytes(&mut id)
         .map_err(std::io::Error::other)?;
-    Ok(SessionId(u32::from_le_bytes(id)))
+    Ok(SessionId::from_random(u32::from_le_bytes(id)))
 }
 
 #[cfg(test)]

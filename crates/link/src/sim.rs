@@ -8,8 +8,10 @@
 //! turnaround; the air is shared by both directions), then the receiver's
 //! UART (RX16 0x81 adds 9 bytes, ZigBee 0x90 adds 16). A transmission
 //! attempt is lost with probability `loss`; the MAC retries `mac_retries`
-//! times. Delivered packets may get a flipped bit (`bit_error`), be
-//! duplicated (`duplicate`) or delayed past their successors (`reorder`).
+//! times. Delivered packets may get a flipped bit (`bit_error`), which the
+//! receiving end's frame check (the XBee API frame's checksum) finds and
+//! drops, unless `unchecked`; be duplicated (`duplicate`) or delayed past
+//! their successors (`reorder`).
 //!
 //! [`transfer`] runs the ARQ machines over this model in *simulated* time,
 //! so the loss sweep and thousands of randomized transfers take moments;
@@ -42,6 +44,9 @@ pub struct SimConfig {
     pub mac_retries: u32,
     /// Probability that a delivered packet has one flipped bit.
     pub bit_error: f64,
+    /// Hand packets with a flipped bit up instead of dropping them as the
+    /// receiving end's frame check does: damage that slipped past it.
+    pub unchecked: bool,
     /// Probability that a packet is delivered twice.
     pub duplicate: f64,
     /// Probability that a packet is delayed by several packet times.
@@ -61,6 +66,7 @@ impl Default for SimConfig {
             loss: 0.0,
             mac_retries: 0,
             bit_error: 0.0,
+            unchecked: false,
             duplicate: 0.0,
             reorder: 0.0,
             seed: 1,
@@ -172,6 +178,9 @@ impl Channel {
         if !bytes.is_empty() && self.rng.gen_bool(cfg.bit_error.clamp(0.0, 1.0)) {
             let bit = self.rng.gen_range(0..bytes.len() * 8);
             bytes[bit / 8] ^= 1 << (bit % 8);
+            if !cfg.unchecked {
+                return (Vec::new(), uart_done);
+            }
         }
         let mut arrive = t.max(self.uart_rx[to]) + cfg.uart_us(packet.len(), o.uart_rx);
         self.uart_rx[to] = arrive;
@@ -440,7 +449,9 @@ mod tests {
     }
 
     /// On both firmwares' models, against the bound for message bytes (each
-    /// segment carries DATA_OVERHEAD bytes of header and CRC).
+    /// segment carries DATA_OVERHEAD bytes of header); and on ZigBee against
+    /// the UART bound itself: at least 90 % of it at no loss and 75 % at
+    /// 10 % loss (issue 18's targets).
     #[test]
     fn goodput_targets_at_zero_and_ten_percent_loss() {
         let zigbee = SimConfig {
@@ -478,21 +489,27 @@ mod tests {
                 sim.radio,
                 lossy.goodput_bps
             );
+            if sim.radio == Firmware::Zigbee {
+                let uart = sim.bound_bps();
+                assert!(clean.goodput_bps >= 0.90 * uart, "{clean:?} of {uart:.0}");
+                assert!(lossy.goodput_bps >= 0.75 * uart, "{lossy:?} of {uart:.0}");
+            }
         }
     }
 
-    /// Thousands of randomized transfers: every delivered message is exact,
-    /// none is delivered twice, every failure is explicit.
-    #[test]
-    fn randomized_integrity() {
-        let (mut ok, mut failed) = (0, 0);
-        for seed in 0..1500u64 {
+    /// Randomized transfers over `sims` seeds, bit errors `unchecked` or
+    /// not: every delivered message is exact, none is delivered twice,
+    /// every failure is explicit. Returns how many were delivered.
+    fn randomized(seeds: u64, unchecked: bool) -> usize {
+        let mut ok = 0;
+        for seed in 0..seeds {
             let mut r = ChaCha8Rng::seed_from_u64(seed);
             let sim = SimConfig {
                 loss: r.gen_range(0.0..0.5),
                 bit_error: r.gen_range(0.0..0.05),
                 duplicate: r.gen_range(0.0..0.1),
                 reorder: r.gen_range(0.0..0.1),
+                unchecked,
                 seed,
                 ..SimConfig::default()
             };
@@ -508,10 +525,26 @@ mod tests {
                 ok += 1;
             } else {
                 assert!(rep.error.is_some(), "seed {seed}: silent failure");
-                failed += 1;
             }
         }
-        assert!(ok > 1400, "{ok} delivered, {failed} failed");
+        ok
+    }
+
+    /// Thousands of transfers over the radio as it is: damaged frames are
+    /// dropped by the frame check, and nearly all messages get through.
+    #[test]
+    fn randomized_integrity() {
+        let ok = randomized(1500, false);
+        assert!(ok > 1400, "{ok} of 1500 delivered");
+    }
+
+    /// DATA segments have no CRC of their own: damage that slipped past the
+    /// transport's check reaches the ARQ. It may cost the message (its
+    /// CRC-32 fails), but never delivers a wrong or second copy and never
+    /// lets the sender count as delivered what was not.
+    #[test]
+    fn damage_past_the_frame_check_is_never_delivered_nor_silent() {
+        randomized(1500, true);
     }
 
     #[test]

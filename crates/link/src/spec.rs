@@ -19,7 +19,7 @@
 use std::net::SocketAddr;
 use std::time::Duration;
 
-use crate::arq::DATA_OVERHEAD;
+use crate::arq::MIN_MTU;
 use crate::radio::{self, Address, Firmware, RadioInfo};
 use crate::sim::SimConfig;
 use crate::transport::{Fallback, Serial, SerialFraming, Transport, Udp};
@@ -80,6 +80,16 @@ fn address(v: &str) -> Result<Address, String> {
         Ok(short) if !long_hex => Address::Short(short),
         _ => Address::Long(n),
     })
+}
+
+/// A link's `mtu` must hold every segment: at least an ACK.
+fn check_mtu(kind: &str, mtu: usize) -> Result<(), String> {
+    if mtu < MIN_MTU {
+        return Err(format!(
+            "{kind}: mtu={mtu} is too small: an ACK segment takes {MIN_MTU} bytes"
+        ));
+    }
+    Ok(())
 }
 
 fn num<T: std::str::FromStr>(key: &str, v: &str) -> Result<T, String> {
@@ -160,6 +170,7 @@ impl std::str::FromStr for LinkSpec {
                 if let Some(firmware) = radio {
                     radio::check_dest(firmware, dest)?;
                 }
+                check_mtu("serial", mtu)?;
                 Ok(LinkSpec::Serial {
                     path: target.into(),
                     baud,
@@ -182,6 +193,7 @@ impl std::str::FromStr for LinkSpec {
                         _ => return Err(format!("udp: unknown option {k}")),
                     }
                 }
+                check_mtu("udp", mtu)?;
                 Ok(LinkSpec::Udp { bind, peer, mtu })
             }
             "sim" => {
@@ -206,9 +218,10 @@ impl std::str::FromStr for LinkSpec {
                     Firmware::Ieee802154 => 100,
                     Firmware::Zigbee | Firmware::DigiMesh => 84,
                 });
-                if !(0.0..=1.0).contains(&c.loss) || c.baud == 0 || c.mtu < 16 {
-                    return Err("sim: loss must be in 0..1, baud > 0, mtu >= 16".into());
+                if !(0.0..=1.0).contains(&c.loss) || c.baud == 0 {
+                    return Err("sim: loss must be in 0..1 and baud > 0".into());
                 }
+                check_mtu("sim", c.mtu)?;
                 Ok(LinkSpec::Sim { config: c, speedup })
             }
             other => Err(format!(
@@ -292,9 +305,9 @@ pub fn open(spec: &LinkSpec) -> std::io::Result<Box<dyn Transport>> {
                         ))
                     })?;
                     let np = info.max_payload.map_or(*mtu, usize::from);
-                    if np <= DATA_OVERHEAD {
+                    if np < MIN_MTU {
                         return Err(invalid(format!(
-                            "{path}: the radio's NP is {np} bytes, no room for a link segment (header {DATA_OVERHEAD} bytes); check its encryption and source-routing settings"
+                            "{path}: the radio's NP is {np} bytes, no room for the link's segments (an ACK takes {MIN_MTU}); check its encryption and source-routing settings"
                         )));
                     }
                     (firmware, (*mtu).min(np))
@@ -401,6 +414,9 @@ mod tests {
             "serial:/x?radio=lora",
             "serial:/x?radio=digimesh&dest=0x1234",
             "serial:/x?flow=xonxoff",
+            "serial:/x?mtu=17",
+            "udp:127.0.0.1:9000?mtu=10",
+            "sim:?mtu=16",
             "fallback:udp:1.2.3.4:5",
         ] {
             assert!(bad.parse::<LinkSpec>().is_err(), "{bad}");

@@ -24,7 +24,7 @@ use std::time::Duration;
 
 use common::{finish, free_port, run_ok, spawn, strings, synth};
 use serialport::{SerialPort, TTYPort};
-use stereolink_link::arq::{Segment, SessionId};
+use stereolink_link::arq::{Config, Segment, SessionId};
 use stereolink_link::crc::crc32;
 use stereolink_link::slip;
 
@@ -171,8 +171,8 @@ impl Air {
 
     /// The paired sender's messages as captured, by (session, msg id):
     /// the sealed payload, its CRC-32 stripped.
-    fn messages(&self) -> BTreeMap<(SessionId, u16), Vec<u8>> {
-        let mut frags: BTreeMap<(SessionId, u16), BTreeMap<u16, Vec<u8>>> = BTreeMap::new();
+    fn messages(&self) -> BTreeMap<(SessionId, u8), Vec<u8>> {
+        let mut frags: BTreeMap<(SessionId, u8), BTreeMap<u16, Vec<u8>>> = BTreeMap::new();
         for p in self.captured.lock().unwrap().iter() {
             if let Some(Segment::Data {
                 session,
@@ -200,16 +200,16 @@ impl Air {
 
     /// Sends `payload` to the receiver as a well-formed ARQ message: the
     /// ARQ has no secret, so an attacker can always do this.
-    fn inject(&self, session: SessionId, msg_id: u16, payload: &[u8]) {
+    fn inject(&self, session: SessionId, msg_id: u8, payload: &[u8]) {
         let mut body = payload.to_vec();
         body.extend_from_slice(&crc32(payload).to_le_bytes());
-        let chunks: Vec<&[u8]> = body.chunks(87).collect();
+        let chunks: Vec<&[u8]> = body.chunks(Config::for_mtu(100).fragment_size()).collect();
         for (i, fragment) in chunks.iter().enumerate() {
             let seg = Segment::Data {
                 session,
                 msg_id,
                 index: i as u16,
-                count: chunks.len() as u16,
+                last: i + 1 == chunks.len(),
                 fragment,
             };
             self.inject.send(seg.emit()).unwrap();
@@ -390,7 +390,7 @@ fn attacks(air: Air) {
     let sealed: Vec<&Vec<u8>> = msgs.values().skip(1).collect();
     assert_eq!(sealed.len(), 4, "two frames and two reports");
     let report = sealed[3];
-    let mut id = 1000;
+    let mut id = 100u8;
     let mut next = || {
         id += 1;
         id

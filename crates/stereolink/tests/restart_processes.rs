@@ -234,7 +234,7 @@ struct Relay {
 }
 
 impl Relay {
-    fn start(a: u16, b: u16, msg_id: u16) -> Relay {
+    fn start(a: u16, b: u16, msg_id: u8) -> Relay {
         let socket = UdpSocket::bind("127.0.0.1:0").unwrap();
         socket
             .set_read_timeout(Some(Duration::from_millis(50)))
