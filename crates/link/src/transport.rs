@@ -106,6 +106,8 @@ pub enum Notice {
     /// XBee transmit requests arrived: the other end writes API frames
     /// meant for its radio, so there is no radio between the two.
     ForeignRequests,
+    /// A fallback link moved its traffic from one link to the other.
+    Switched { from: String, to: String },
 }
 
 impl fmt::Display for Notice {
@@ -138,6 +140,7 @@ impl fmt::Display for Notice {
                 "heard XBee transmit requests on this line: the other end is wired directly, \
                  with no radio between; use api=0 on both ends, or put the radios between them",
             ),
+            Notice::Switched { from, to } => write!(f, "switching from {from} to {to}"),
         }
     }
 }
@@ -233,6 +236,7 @@ pub struct Fallback {
     last_sent: Option<Instant>,
     /// Every switch, as "primary->secondary" or "secondary->primary".
     pub switches: Vec<String>,
+    notices: Vec<Notice>,
 }
 
 impl Fallback {
@@ -249,6 +253,7 @@ impl Fallback {
             last_heard: Instant::now(),
             last_sent: None,
             switches: Vec::new(),
+            notices: Vec::new(),
         }
     }
 
@@ -262,11 +267,10 @@ impl Fallback {
             let names = ["primary", "secondary"];
             self.switches
                 .push(format!("{}->{}", names[self.active], names[to]));
-            eprintln!(
-                "link: switching from {} to {}",
-                self.links[self.active].describe(),
-                self.links[to].describe()
-            );
+            self.notices.push(Notice::Switched {
+                from: self.links[self.active].describe(),
+                to: self.links[to].describe(),
+            });
             self.active = to;
             self.last_heard = Instant::now();
         }
@@ -334,7 +338,8 @@ impl Transport for Fallback {
     }
 
     fn take_notices(&mut self) -> Vec<Notice> {
-        let mut notices = self.links[0].take_notices();
+        let mut notices = core::mem::take(&mut self.notices);
+        notices.extend(self.links[0].take_notices());
         notices.extend(self.links[1].take_notices());
         notices
     }
@@ -400,5 +405,11 @@ mod tests {
         );
         assert_eq!(fb.active(), 0);
         assert_eq!(fb.switches, vec!["secondary->primary".to_string()]);
+        let said = fb.take_notices();
+        assert!(
+            matches!(&said[..], [Notice::Switched { from, to }] if from.starts_with("udp") && to.starts_with("udp")),
+            "{said:?}"
+        );
+        assert!(fb.take_notices().is_empty(), "said once");
     }
 }
