@@ -10,7 +10,7 @@ use std::sync::atomic::Ordering;
 use std::time::Duration;
 
 use common::xbee::{Firmware, RadioLink, Timing};
-use common::{finish, free_port, spawn, strings, synth};
+use common::{finish, finish_with_stderr, free_port, spawn, strings, synth};
 use stereolink_image::io;
 
 /// The number printed right after `word` in `text`.
@@ -32,7 +32,9 @@ enum Board {
     Planes,
 }
 
-fn run_pair(rx_link: String, tx_link: String, board: Board) {
+/// Runs one `receive` and one `send` of a synthetic pair; returns what the
+/// sender said on stderr.
+fn run_pair(rx_link: String, tx_link: String, board: Board) -> String {
     let dir = tempfile::tempdir().unwrap();
     let scene = dir.path().join("scene");
     synth(&scene);
@@ -91,7 +93,7 @@ fn run_pair(rx_link: String, tx_link: String, board: Board) {
         tx_args.extend(strings(&["--algo", "planes"]));
     }
     let tx = spawn(&tx_args);
-    let sent = finish(tx, "send");
+    let (sent, said) = finish_with_stderr(tx, "send");
     let got = finish(rx, "receive");
     for side in ["left", "right"] {
         let a = io::read_rgb(saved.join(format!("sent-{side}.png"))).unwrap();
@@ -125,6 +127,7 @@ fn run_pair(rx_link: String, tx_link: String, board: Board) {
         (axis - commanded).abs() <= 0.5,
         "axis {axis} mm for {commanded} mm ({sent} / {got})"
     );
+    said
 }
 
 #[test]
@@ -204,6 +207,23 @@ fn paced_by_transmit_status_the_zigbee_radios_buffer_never_overruns() {
     let overrun = |i: usize| radio.counters[i].overrun.load(Ordering::Relaxed);
     assert!(radio.counters[0].delivered.load(Ordering::Relaxed) > 10);
     assert_eq!((overrun(0), overrun(1)), (0, 0));
+}
+
+/// The sender's radio resets mid-frame, losing the requests it held without
+/// a status: the link sends them again under fresh frame ids, says so, and
+/// the views still arrive bit for bit.
+#[test]
+fn a_radio_that_resets_mid_frame_loses_nothing() {
+    let radio = RadioLink::timed_with_reset(Firmware::Zigbee, Timing::ZIGBEE_115200, 10);
+    let (a, b) = (radio.configs[0].serial, radio.configs[1].serial);
+    let said = run_pair(
+        format!("serial:{}?baud=115200&api=2&dest=0x{a:016X}", radio.b),
+        format!("serial:{}?baud=115200&api=2&dest=0x{b:016X}", radio.a),
+        Board::Wta,
+    );
+    assert_eq!(radio.counters[0].resets.load(Ordering::Relaxed), 1);
+    assert!(said.contains("the radio reset mid-stream"), "{said}");
+    assert!(said.contains("joined network"), "{said}");
 }
 
 /// The timed emulator bites: TX requests written back to back, faster than

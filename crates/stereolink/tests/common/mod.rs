@@ -34,14 +34,16 @@ pub fn run_ok(args: &[&str]) -> String {
 
 /// Waits for a process, asserts success, returns its stdout.
 pub fn finish(child: Child, what: &str) -> String {
+    finish_with_stderr(child, what).0
+}
+
+/// As [`finish`], with what the child said on stderr.
+pub fn finish_with_stderr(child: Child, what: &str) -> (String, String) {
     let out = child.wait_with_output().unwrap();
     let text = String::from_utf8_lossy(&out.stdout).into_owned();
-    assert!(
-        out.status.success(),
-        "{what} failed: {text}{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    text
+    let said = String::from_utf8_lossy(&out.stderr).into_owned();
+    assert!(out.status.success(), "{what} failed: {text}{said}");
+    (text, said)
 }
 
 /// Owned copies of `v`, for argument lists.

@@ -19,7 +19,11 @@
 //!   request leaves it only when the one before has had its air time: a host
 //!   that writes faster than the air carries overruns the buffer, and, as
 //!   the manuals say happens with CTS ignored, the bytes that do not fit are
-//!   lost (the frame they belong to fails its checksum and is discarded).
+//!   lost (the frame they belong to fails its checksum and is discarded);
+//! * [`RadioLink::timed_with_reset`] resets the first radio once, as a
+//!   brown-out or its watchdog would: the requests it held are lost with no
+//!   status, and it tells its host with modem status 0x8A "hardware reset"
+//!   (0x00), then on Zigbee "joined network" (0x02).
 
 use std::collections::VecDeque;
 use std::io::{Read, Write};
@@ -113,6 +117,18 @@ pub struct Counters {
     pub largest: AtomicUsize,
     /// Host bytes lost because the serial receive buffer was full.
     pub overrun: AtomicUsize,
+    /// Resets.
+    pub resets: AtomicUsize,
+}
+
+/// The modem status frames a radio sends its host when it restarts: 0x8A
+/// "hardware reset" (0x00), then on ZigBee "joined network" (0x02).
+fn reset_announcements(firmware: Firmware) -> Vec<u8> {
+    let mut wire = Frame::ModemStatus { status: 0x00 }.encode(ApiMode::Escaped);
+    if firmware == Firmware::Zigbee {
+        wire.extend(Frame::ModemStatus { status: 0x02 }.encode(ApiMode::Escaped));
+    }
+    wire
 }
 
 /// The rates and buffer of a timed radio.
@@ -148,6 +164,9 @@ struct Radio {
     salt: u32,
     counters: Arc<Counters>,
     timing: Option<Timing>,
+    /// Reset (as on a brown-out or a watchdog) after taking this many
+    /// transmit requests from the host.
+    reset_after: Option<usize>,
 }
 
 impl Radio {
@@ -284,7 +303,7 @@ impl Radio {
         let mut uart_clock = Instant::now();
         let (mut partial, mut waiting) = (0usize, VecDeque::<(Frame, usize)>::new());
         let mut on_air: Option<(Frame, Instant)> = None;
-        let mut count = 0u32;
+        let (mut count, mut taken) = (0u32, 0usize);
         let mut buf = [0u8; 64];
         while !stop.load(Ordering::Relaxed) {
             let now = Instant::now();
@@ -323,7 +342,20 @@ impl Radio {
                             let _ = answer.write_all(&reply.encode(ApiMode::Escaped));
                         }
                     }
-                    Some(Ok(frame)) => waiting.push_back((frame, std::mem::take(&mut partial))),
+                    Some(Ok(frame)) => {
+                        waiting.push_back((frame, std::mem::take(&mut partial)));
+                        taken += 1;
+                        if self.reset_after == Some(taken) {
+                            // What the radio held is lost without a status;
+                            // it announces the restart, and a ZigBee router
+                            // that it joined the network again.
+                            (waiting, on_air, partial) = (VecDeque::new(), None, 0);
+                            parser = Parser::new(ApiMode::Escaped);
+                            self.counters.resets.fetch_add(1, Ordering::Relaxed);
+                            let _ = answer.write_all(&reset_announcements(self.me.firmware));
+                            break;
+                        }
+                    }
                     Some(Err(_)) => partial = 0,
                     None => {}
                 }
@@ -380,15 +412,26 @@ impl RadioLink {
     /// Two radios with `firmware`; with `corrupt_one_in = Some(n)`, about one
     /// delivered byte in n is flipped, so the link's CRCs must catch it.
     pub fn new(firmware: Firmware, corrupt_one_in: Option<u32>) -> Self {
-        Self::build(firmware, corrupt_one_in, None)
+        Self::build(firmware, corrupt_one_in, None, None)
     }
 
     /// Two radios with `firmware` and the rates and buffer of `timing`.
     pub fn timed(firmware: Firmware, timing: Timing) -> Self {
-        Self::build(firmware, None, Some(timing))
+        Self::build(firmware, None, Some(timing), None)
     }
 
-    fn build(firmware: Firmware, corrupt_one_in: Option<u32>, timing: Option<Timing>) -> Self {
+    /// As [`RadioLink::timed`], and the first radio resets once, after
+    /// taking `after` transmit requests from its host.
+    pub fn timed_with_reset(firmware: Firmware, timing: Timing, after: usize) -> Self {
+        Self::build(firmware, None, Some(timing), Some(after))
+    }
+
+    fn build(
+        firmware: Firmware,
+        corrupt_one_in: Option<u32>,
+        timing: Option<Timing>,
+        reset_after: Option<usize>,
+    ) -> Self {
         use serialport::SerialPort;
         let ((m1, s1), (m2, s2)) = (pty(), pty());
         let configs = vec![Config::new(firmware, 0), Config::new(firmware, 1)];
@@ -410,6 +453,7 @@ impl RadioLink {
                     salt: i as u32 + 1,
                     counters: Arc::clone(&counters[i]),
                     timing,
+                    reset_after: reset_after.filter(|_| i == 0),
                 };
                 let stop = stop.clone();
                 std::thread::spawn(move || radio.run(host, stop))
@@ -439,6 +483,7 @@ impl RadioLink {
             salt: 0,
             counters: Arc::clone(&counters),
             timing: None,
+            reset_after: None,
         };
         let thread = {
             let stop = stop.clone();
