@@ -887,8 +887,10 @@ mod tests {
         let plain = encode(&Message::StereoFrame(Box::new(frame(21, 9))), 3, 4);
         assert_eq!(&bytes[HEADER_LEN..plain.len()], &plain[HEADER_LEN..]);
         let mut body = bytes[HEADER_LEN..].to_vec();
-        // An unknown section (tag 9) and a plane table of version 2 are skipped.
-        body.extend([9, 1, 2, 0, 0, 0, 0xAA, 0xBB, 1, 2, 0, 0, 0, 0]);
+        // An unknown section (tag 9) and plane tables of versions 1 (the
+        // old raw indices) and 3 are skipped.
+        body.extend([9, 1, 2, 0, 0, 0, 0xAA, 0xBB]);
+        body.extend([1, 1, 0, 0, 0, 0, 1, 3, 0, 0, 0, 0]);
         let reframe = |body: &[u8]| {
             let mut out = bytes[..HEADER_LEN].to_vec();
             out[20..24].copy_from_slice(&(body.len() as u32).to_le_bytes());
