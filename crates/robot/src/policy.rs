@@ -80,6 +80,7 @@ impl MotionPolicy {
 pub struct Watchdog {
     timeout: Duration,
     last: Instant,
+    tripped: bool,
 }
 
 impl Watchdog {
@@ -88,17 +89,27 @@ impl Watchdog {
         Watchdog {
             timeout,
             last: Instant::now(),
+            tripped: false,
         }
     }
 
-    /// Records a valid report.
+    /// Records a valid report (and re-arms a tripped watchdog).
     pub fn feed(&mut self, now: Instant) {
         self.last = now;
+        self.tripped = false;
     }
 
     /// True once `timeout` passed since the last valid report.
     pub fn expired(&self, now: Instant) -> bool {
         now.duration_since(self.last) > self.timeout
+    }
+
+    /// True the first time it is found expired after a feed: the moment to
+    /// stop the axis (and say so once, not at every check).
+    pub fn trip(&mut self, now: Instant) -> bool {
+        let trips = !self.tripped && self.expired(now);
+        self.tripped |= trips;
+        trips
     }
 }
 
@@ -138,5 +149,13 @@ mod tests {
         w.feed(t0);
         assert!(!w.expired(t0 + Duration::from_millis(50)));
         assert!(w.expired(t0 + Duration::from_millis(150)));
+        assert!(!w.trip(t0 + Duration::from_millis(50)));
+        assert!(w.trip(t0 + Duration::from_millis(150)));
+        assert!(!w.trip(t0 + Duration::from_millis(200)), "trips once");
+        w.feed(t0 + Duration::from_millis(300));
+        assert!(
+            w.trip(t0 + Duration::from_millis(450)),
+            "re-armed by a feed"
+        );
     }
 }

@@ -13,7 +13,7 @@ mod live {
     use stereolink_calib::{stereo_rectify, Camera, Distortion, StereoCalibration, StereoRig};
     use stereolink_image::{io, RgbImage};
 
-    use super::common::{finish, free_port, spawn};
+    use super::common::{finish, free_port, spawn, spawn_udp_receiver};
 
     fn test_source(pattern: &str, extra: &str) -> String {
         format!(
@@ -63,24 +63,21 @@ mod live {
     fn live_send(dir: &Path, patterns: [&str; 2], extra: &[&str]) -> (RgbImage, RgbImage) {
         let (shots, saved) = (dir.join("screens"), dir.join("saved"));
         let (a, b) = (free_port(), free_port());
-        let rx = spawn(&[
-            "receive",
-            "--link",
-            &format!("udp:127.0.0.1:{b}?peer=127.0.0.1:{a}"),
-            "--robot",
-            "sim",
-            "--insecure",
-            "--frames",
-            "3",
-            "--max-disp",
-            "24",
-            "--timeout-s",
-            "60",
-            "--display",
-            &format!("png:{}", shots.display()),
-            "--save",
-            path(&saved),
-        ]);
+        let display = format!("png:{}", shots.display());
+        let rx = spawn_udp_receiver(
+            a,
+            b,
+            &[
+                "--frames",
+                "3",
+                "--timeout-s",
+                "60",
+                "--display",
+                &display,
+                "--save",
+                path(&saved),
+            ],
+        );
         std::thread::sleep(Duration::from_millis(200));
         let link = format!("udp:127.0.0.1:{a}?peer=127.0.0.1:{b}");
         let (left, right) = (test_source(patterns[0], ""), test_source(patterns[1], ""));

@@ -6,11 +6,12 @@
 
 mod common;
 
+use std::path::Path;
 use std::sync::atomic::Ordering;
 use std::time::Duration;
 
 use common::xbee::{Firmware, RadioLink, Timing};
-use common::{finish, finish_with_stderr, free_port, spawn, strings, synth};
+use common::{finish, finish_with_stderr, free_port, spawn, spawn_udp_receiver, strings, synth};
 use stereolink_image::io;
 
 /// The number printed right after `word` in `text`.
@@ -30,6 +31,21 @@ enum Board {
     /// The sender's plane table (`send --algo planes`, `receive
     /// --disparity planes`): the board's map must be the sender's.
     Planes,
+}
+
+/// `send` of the synthetic pair in `scene` over `link`, for the synthetic
+/// rig (focal length 128 px, baseline 3 cm, 23 disparities).
+fn send_args(link: &str, scene: &Path) -> Vec<String> {
+    let file = |name: &str| scene.join(name).to_str().unwrap().to_string();
+    let mut args = strings(&["send", "--link", link, "--max-disp", "23"]);
+    args.extend(strings(&["--focal-px", "128", "--baseline-m", "0.03"]));
+    args.extend([
+        "--left".into(),
+        file("left.png"),
+        "--right".into(),
+        file("right.png"),
+    ]);
+    args
 }
 
 /// Runs one `receive` and one `send` of a synthetic pair; returns what the
@@ -64,23 +80,7 @@ fn run_pair(rx_link: String, tx_link: String, board: Board) -> String {
     ]));
     let rx = spawn(&rx_args);
     std::thread::sleep(Duration::from_millis(200));
-    let mut tx_args = strings(&[
-        "send",
-        "--link",
-        &tx_link,
-        "--max-disp",
-        "23",
-        "--focal-px",
-        "128",
-        "--baseline-m",
-        "0.03",
-    ]);
-    tx_args.extend(strings(&[
-        "--left",
-        scene.join("left.png").to_str().unwrap(),
-        "--right",
-        scene.join("right.png").to_str().unwrap(),
-    ]));
+    let mut tx_args = send_args(&tx_link, &scene);
     tx_args.extend(strings(&[
         "--save",
         saved.to_str().unwrap(),
@@ -138,6 +138,45 @@ fn send_and_receive_over_udp() {
         format!("udp:127.0.0.1:{a}?peer=127.0.0.1:{b}"),
         Board::Wta,
     );
+}
+
+/// One report starts a long, slow move, then the link falls silent: the
+/// receiver's watchdog stops the axis after `--watchdog-s`, though no
+/// message arrives to wake it, and says so once.
+#[test]
+fn a_silent_link_trips_the_watchdog_and_stops_the_axis() {
+    let (a, b) = (free_port(), free_port());
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("scene");
+    synth(&scene);
+    let rx = spawn_udp_receiver(
+        a,
+        b,
+        &[
+            "--frames",
+            "0",
+            "--timeout-s",
+            "4",
+            "--watchdog-s",
+            "1",
+            "--max-speed",
+            "20",
+        ],
+    );
+    std::thread::sleep(Duration::from_millis(200));
+    let link = format!("udp:127.0.0.1:{a}?peer=127.0.0.1:{b}");
+    let sent = finish(spawn(&send_args(&link, &scene)), "send");
+    let (got, said) = finish_with_stderr(rx, "receive");
+    let commanded = (number_after(&sent, "distance ") * 1000.0).min(1000.0);
+    let axis = number_after(&got, "axis at ");
+    assert!(commanded > 200.0, "a long move: {commanded} mm");
+    // Stopped where the watchdog found it, far short of the target (without
+    // the watchdog the axis goes on to the target).
+    assert!(
+        axis > 0.0 && axis < 60.0,
+        "axis at {axis} mm of {commanded}"
+    );
+    assert_eq!(said.matches("watchdog: ").count(), 1, "{said}");
 }
 
 /// `send --algo planes` and `receive --disparity planes` over UDP: the
@@ -315,22 +354,12 @@ fn send_watches_a_camera_folder() {
     std::fs::write(camera.join("right_0.png"), b"nor this").unwrap();
     let shots = dir.path().join("screens");
     let (a, b) = (free_port(), free_port());
-    let rx = spawn(&strings(&[
-        "receive",
-        "--link",
-        &format!("udp:127.0.0.1:{b}?peer=127.0.0.1:{a}"),
-        "--robot",
-        "sim",
-        "--insecure",
-        "--frames",
-        "2",
-        "--max-disp",
-        "24",
-        "--timeout-s",
-        "60",
-        "--display",
-        &format!("png:{}", shots.display()),
-    ]));
+    let display = format!("png:{}", shots.display());
+    let rx = spawn_udp_receiver(
+        a,
+        b,
+        &["--frames", "2", "--timeout-s", "60", "--display", &display],
+    );
     std::thread::sleep(Duration::from_millis(200));
     let tx = spawn(&strings(&[
         "send",

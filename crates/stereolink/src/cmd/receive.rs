@@ -114,6 +114,14 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     while args.frames == 0 || frames < args.frames {
         // Short waits, so that the screen follows the axis while the link
         // is silent.
+        // The watchdog is checked whether or not anything arrives: a link
+        // that falls silent must stop the axis too.
+        if board.check_watchdog(Instant::now())? {
+            eprintln!(
+                "watchdog: no valid depth report for {} s, axis stopped",
+                args.watchdog_s
+            );
+        }
         let msg = match next_message(&mut eps, POLL.min(timeout)) {
             Ok(m) => m,
             Err(LinkError::Timeout) if heard.elapsed() < timeout => {
@@ -131,12 +139,6 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
             stereolink_image::io::write_rgb(dir.join("received-left.png"), l)?;
             stereolink_image::io::write_rgb(dir.join("received-right.png"), r)?;
             stereolink_image::pfm::write(dir.join("received-disparity.pfm"), &board.disparity())?;
-        }
-        if board.check_watchdog() {
-            eprintln!(
-                "watchdog: no valid depth report for {} s, axis stopped",
-                args.watchdog_s
-            );
         }
         if !out.json {
             match &event {

@@ -17,6 +17,7 @@ use std::time::Instant;
 
 use std::fmt::Write;
 
+use anyhow::Context;
 use stereolink_codec::container::{self, Body, FrameDecoder, FrameRef};
 use stereolink_codec::{CodecError, Limits, Message, SegmentationKind, StereoFrame, View};
 use stereolink_display::{anaglyph_into, Anaglyph, Screen, ScreenStatus, Sink};
@@ -293,15 +294,21 @@ impl BoardReceiver {
         Ok(())
     }
 
-    /// Stops the axis if the watchdog expired; returns true if it did.
-    pub fn check_watchdog(&mut self) -> bool {
-        if self.watchdog.expired(Instant::now()) {
-            if let Some(axis) = self.axis.as_mut() {
-                let _ = axis.stop();
-                return true;
-            }
+    /// Stops the axis when the watchdog trips at `now` (no valid report
+    /// for its timeout); returns true when it stopped it, once per silence.
+    ///
+    /// # Errors
+    /// If the axis did not take the stop.
+    pub fn check_watchdog(&mut self, now: Instant) -> anyhow::Result<bool> {
+        let Some(axis) = self.axis.as_mut() else {
+            return Ok(false);
+        };
+        if !self.watchdog.trip(now) {
+            return Ok(false);
         }
-        false
+        axis.stop()
+            .context("the watchdog could not stop the axis")?;
+        Ok(true)
     }
 }
 

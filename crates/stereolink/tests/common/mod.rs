@@ -18,6 +18,16 @@ pub fn spawn<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> Child {
         .unwrap()
 }
 
+/// Starts `receive` on UDP port `b` with its peer on port `a`, a simulated
+/// axis and no keys, matching 24 disparities; `extra` adds arguments.
+pub fn spawn_udp_receiver(a: u16, b: u16, extra: &[&str]) -> Child {
+    let link = format!("udp:127.0.0.1:{b}?peer=127.0.0.1:{a}");
+    let mut args = vec!["receive", "--link", &link, "--robot", "sim", "--insecure"];
+    args.extend(["--max-disp", "24"]);
+    args.extend(extra);
+    spawn(&args)
+}
+
 /// Runs the binary to its end, asserts success, returns its stdout.
 pub fn run_ok(args: &[&str]) -> String {
     let out = Command::new(env!("CARGO_BIN_EXE_stereolink"))
