@@ -8,9 +8,10 @@
 //!  +------+---+---+------+----------+------------------+----------+----------+------ ...
 //! ```
 
+use stereolink_image::segments::components;
 use stereolink_image::{Calibration, IndexedImage, LabelMap, Rgb, RgbImage};
 
-use crate::planetable::PlaneTable;
+use crate::planetable::CodedPlaneTable;
 use crate::{
     labels, planetable, rgb, CodecError, DepthReport, Limits, Message, ReportLevel,
     SegmentationKind, StereoFrame, View,
@@ -212,7 +213,11 @@ fn encode_frame(w: &mut Writer, f: &StereoFrame, mode: labels::Mode) {
     };
     encode_view(w, &f.right, reference, mode);
     if let Some(t) = &f.planes {
-        t.encode(w);
+        let ids = match &f.left {
+            View::Indexed(l) => Some(components(l.labels(), t.tile as usize).0),
+            View::Rgb(_) => None,
+        };
+        t.encode(w, ids.as_ref());
     }
 }
 
@@ -427,8 +432,8 @@ pub struct FrameRef<'a> {
     /// Right view.
     pub right: ViewRef<'a>,
     /// The plane table section, if the frame has one (boxed: most frames
-    /// have none).
-    pub planes: Option<Box<PlaneTable>>,
+    /// have none), its indices still coded.
+    pub planes: Option<Box<CodedPlaneTable>>,
 }
 
 /// One coded view: how it is coded, its palette and its payload.
@@ -528,7 +533,10 @@ fn parse_frame<'a>(r: &mut Reader<'a>, limits: &Limits) -> Result<FrameRef<'a>, 
 /// The sections after the right view, to the end of the body: each a tag,
 /// a version, a length and that many bytes. A plane table of this version
 /// is parsed (at most one); other sections are skipped.
-fn parse_sections(r: &mut Reader, pixels: usize) -> Result<Option<Box<PlaneTable>>, CodecError> {
+fn parse_sections(
+    r: &mut Reader,
+    pixels: usize,
+) -> Result<Option<Box<CodedPlaneTable>>, CodecError> {
     let mut planes = None;
     while r.pos < r.data.len() {
         let (tag, version) = (r.u8("section")?, r.u8("section")?);
@@ -538,7 +546,7 @@ fn parse_sections(r: &mut Reader, pixels: usize) -> Result<Option<Box<PlaneTable
             if planes.is_some() {
                 return Err(CodecError::Invalid("two plane tables".into()));
             }
-            planes = Some(Box::new(PlaneTable::parse(content, pixels)?));
+            planes = Some(Box::new(CodedPlaneTable::parse(content, pixels)?));
         }
     }
     Ok(planes)
@@ -581,6 +589,13 @@ impl FrameRef<'_> {
                 ),
             })
         };
+        let planes = match &self.planes {
+            Some(coded) => {
+                let (ids, count) = components(&d.labels.0, coded.tile() as usize);
+                Some(coded.resolve(&ids, count)?)
+            }
+            None => None,
+        };
         Ok(StereoFrame {
             kind: self.kind,
             levels: self.levels,
@@ -589,7 +604,7 @@ impl FrameRef<'_> {
             calibration: self.calibration,
             left: view(&self.left, d.labels.0, d.rgb.0)?,
             right: view(&self.right, d.labels.1, d.rgb.1)?,
-            planes: self.planes.as_deref().cloned(),
+            planes,
         })
     }
 }
@@ -865,13 +880,18 @@ mod tests {
         ));
     }
 
-    /// [`frame`] with a plane table of five segments (the container does
-    /// not count the components; the receiver checks them).
+    /// [`frame`] with a plane table: five planes over the segments of its
+    /// left labels.
     fn with_planes(w: usize, h: usize) -> StereoFrame {
-        let per: Vec<[f32; 3]> = (0..5).map(|s| [0.5, -0.25, s as f32]).collect();
+        let f = frame(w, h);
+        let View::Indexed(left) = &f.left else {
+            unreachable!("an indexed left view")
+        };
+        let (_, count) = components(left.labels(), 0);
+        let per: Vec<[f32; 3]> = (0..count).map(|s| [0.5, -0.25, (s % 5) as f32]).collect();
         StereoFrame {
-            planes: Some(PlaneTable::quantise(0, (0, 15), &per)),
-            ..frame(w, h)
+            planes: Some(crate::planetable::PlaneTable::quantise(0, (0, 15), &per)),
+            ..f
         }
     }
 

@@ -45,6 +45,7 @@ pub mod metrics;
 pub mod pfm;
 mod plane;
 pub mod scene;
+pub mod segments;
 pub mod synth;
 
 pub use error::{Error, Result};

@@ -9,6 +9,7 @@
 
 use std::collections::HashMap;
 
+use stereolink_image::segments::components;
 use stereolink_image::{LabelMap, Plane};
 
 /// The segments of a label map and their adjacency.
@@ -23,54 +24,6 @@ pub struct SegmentGraph {
     /// `edges[edge_offsets[s]..edge_offsets[s + 1]]`.
     edge_offsets: Vec<usize>,
     edges: Vec<(u32, u32)>,
-}
-
-/// The 4-connected components of `labels` within the tiles of side `tile`
-/// (0: no tiles): an id per pixel, in raster order of the components'
-/// first pixels, and the number of components.
-pub fn components(labels: &LabelMap, tile: usize) -> (Plane<u32>, usize) {
-    let tile_of = |p: usize, w: usize| match tile {
-        0 => (0, 0),
-        t => (p % w / t, p / w / t),
-    };
-    let (w, h) = labels.dims();
-    let mut ids = Plane::new(w, h, u32::MAX);
-    let mut count = 0u32;
-    let mut stack = Vec::new();
-    for start in 0..w * h {
-        if ids.as_slice()[start] != u32::MAX {
-            continue;
-        }
-        let (label, area) = (labels.as_slice()[start], tile_of(start, w));
-        ids.as_mut_slice()[start] = count;
-        stack.push(start);
-        while let Some(p) = stack.pop() {
-            let (x, y) = (p % w, p / w);
-            let mut visit = |q: usize| {
-                if ids.as_slice()[q] == u32::MAX
-                    && labels.as_slice()[q] == label
-                    && tile_of(q, w) == area
-                {
-                    ids.as_mut_slice()[q] = count;
-                    stack.push(q);
-                }
-            };
-            if x > 0 {
-                visit(p - 1);
-            }
-            if x + 1 < w {
-                visit(p + 1);
-            }
-            if y > 0 {
-                visit(p - w);
-            }
-            if y + 1 < h {
-                visit(p + w);
-            }
-        }
-        count += 1;
-    }
-    (ids, count as usize)
 }
 
 impl SegmentGraph {

@@ -1,13 +1,15 @@
 //! The plane table between sender and receiver: the sender quantises the
 //! plane matcher's planes (fitted over the transmitted left labels) into
 //! the frame's [`PlaneTable`]; the receiver rebuilds the dense map from
-//! the labels it decoded and the table, in integers, without matching.
-//! Both rebuild with [`rebuild_into`], so they hold the very same map.
+//! the labels it decoded and the table ([`rebuild_coded_into`]: the table's
+//! indices decode against those labels' segments), in integers, without
+//! matching. Both fill the map the same way, so they hold the very same map.
 
-use stereolink_codec::planetable::{PlaneTable, FRACTION_BITS};
+use stereolink_codec::planetable::{CodedPlaneTable, PlaneTable, FRACTION_BITS};
 use stereolink_codec::CodecError;
-use stereolink_image::{DisparityMap, LabelMap};
-use stereolink_stereo::planes::{graph, PlaneMap};
+use stereolink_image::segments::components;
+use stereolink_image::{DisparityMap, LabelMap, Plane};
+use stereolink_stereo::planes::PlaneMap;
 use stereolink_stereo::MatchSpec;
 
 /// The plane table of `matched` (matched over the segments of the
@@ -42,9 +44,30 @@ pub fn rebuild_into(
     table: &PlaneTable,
     out: &mut DisparityMap,
 ) -> Result<(), CodecError> {
-    let (ids, segments) = graph::components(labels, table.tile as usize);
+    let (ids, segments) = components(labels, table.tile as usize);
     table.check_segments(segments)?;
-    let (w, h) = labels.dims();
+    fill(&ids, table, out);
+    Ok(())
+}
+
+/// The receiver's [`rebuild_into`]: decodes a frame's table against the
+/// segments of the left `labels` it decoded, then rebuilds.
+///
+/// # Errors
+/// If the table does not belong to these labels or does not decode.
+pub fn rebuild_coded_into(
+    labels: &LabelMap,
+    coded: &CodedPlaneTable,
+    out: &mut DisparityMap,
+) -> Result<(), CodecError> {
+    let (ids, segments) = components(labels, coded.tile() as usize);
+    fill(&ids, &coded.resolve(&ids, segments)?, out);
+    Ok(())
+}
+
+/// Each pixel of `ids` its segment's plane of `table`.
+fn fill(ids: &Plane<u32>, table: &PlaneTable, out: &mut DisparityMap) {
+    let (w, h) = ids.dims();
     out.reset(w, h, f32::INFINITY);
     let scale = 1.0 / (1u32 << FRACTION_BITS) as f32;
     for (p, (&s, d)) in ids.as_slice().iter().zip(out.as_mut_slice()).enumerate() {
@@ -52,7 +75,6 @@ pub fn rebuild_into(
             *d = fixed as f32 * scale;
         }
     }
-    Ok(())
 }
 
 #[cfg(test)]

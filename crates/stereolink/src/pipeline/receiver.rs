@@ -225,7 +225,7 @@ impl BoardReceiver {
                         "the frame has no plane table (send --algo planes)".into(),
                     ));
                 };
-                super::planetable::rebuild_into(labels, table, &mut self.planes)?;
+                super::planetable::rebuild_coded_into(labels, table, &mut self.planes)?;
             }
         }
         anaglyph_into(left, right, self.mode, &mut self.view);
