@@ -317,12 +317,15 @@ fn weight_plane(
     (dx, dy): (isize, isize),
     table: &[u16; WEIGHT_INDEX + 1],
 ) -> Vec<u16> {
-    let mut quantized = vec![0u16; wp * hp];
+    // Written once, row by row, zeros included (no separate clearing pass).
+    let mut quantized = Vec::with_capacity(wp * hp);
     let mut diffs = Vec::new();
     let xs = (-dx).max(0) as usize..(wp as isize - dx.max(0)).max(0) as usize;
     for y in 0..hp {
         let yo = y as isize + dy;
+        let row_end = quantized.len() + wp;
         if yo < 0 || yo >= hp as isize || xs.is_empty() {
+            quantized.resize(row_end, 0);
             continue;
         }
         let n = xs.len();
@@ -341,9 +344,9 @@ fn weight_plane(
                 + u16::from(b.0.abs_diff(*b.1))
                 + u16::from(c.0.abs_diff(*c.1))
         }));
-        for (q, &d) in quantized[at..at + n].iter_mut().zip(&diffs) {
-            *q = table[usize::from(d) & WEIGHT_INDEX];
-        }
+        quantized.resize(quantized.len() + xs.start, 0);
+        quantized.extend(diffs.iter().map(|&d| table[usize::from(d) & WEIGHT_INDEX]));
+        quantized.resize(row_end, 0);
     }
     quantized
 }
