@@ -398,35 +398,56 @@ fn filter_row(job: &MapJob, y: usize, row: &mut [f32], scratch: &mut RowScratch)
         let bins = &job.bin_pad[centre.wrapping_add_signed(sample.offset)..][..w];
         candidate_sums(q, bins, candidates, invalid, sums);
     }
-    let hard = &mut scratch.hard;
-    hard.clear();
+    // Which of `c`, `c − 1`, `c + 1` is the median for certain, for the
+    // whole row at once (branch-free selects, so that it vectorises); a
+    // window without valid samples keeps the pixel's bin. The pixels that
+    // none settles (`HARD`) are listed.
+    const HARD: u16 = u16::MAX;
     let slack = weights.slack;
-    for x in 0..w {
-        let c = candidates[x];
-        let (below, at, total) = (sums.below[x], sums.at[x], sums.total[x]);
-        let (at_lower, at_upper) = (sums.at_lower[x], sums.at_upper[x]);
-        // Without valid samples the pixel stays as it is.
-        if sums.count[x] == 0 {
-            continue;
-        }
-        let median = if c == invalid {
-            // No valid pixel in the row.
-            hard.push(x);
-            continue;
-        } else if keeps_candidate(below, at, total, slack) {
+    let medians = &mut scratch.medians;
+    medians.resize(w, 0);
+    let s = &*sums;
+    let lanes = (s.below.iter().zip(&s.at).zip(&s.total))
+        .zip(s.at_lower.iter().zip(&s.at_upper).zip(&s.count))
+        .zip(candidates.iter().zip(own));
+    for (m, ((((&below, &at), &total), ((&at_lower, &at_upper), &count)), (&c, &b))) in
+        medians.iter_mut().zip(lanes)
+    {
+        // `c` is `invalid` only in a row without valid pixels.
+        let known = c != invalid;
+        let at_c = known & keeps_candidate(below, at, total, slack);
+        let lower = below.wrapping_sub(at_lower);
+        let at_lower = known & (c > 0) & keeps_candidate(lower, at_lower, total, slack);
+        let upper = below.wrapping_add(at);
+        let at_upper =
+            (c.wrapping_add(1) < invalid) & keeps_candidate(upper, at_upper, total, slack);
+        let pick = if at_c {
             c
-        } else if c > 0 && keeps_candidate(below - at_lower, at_lower, total, slack) {
-            c - 1
-        } else if c + 1 < invalid && keeps_candidate(below + at, at_upper, total, slack) {
-            c + 1
+        } else if at_lower {
+            c.wrapping_sub(1)
         } else {
-            hard.push(x);
-            continue;
+            c.wrapping_add(1)
         };
-        if median != own[x] {
-            row[x] = lo + f32::from(median);
-        }
+        let pick = if at_c | at_lower | at_upper {
+            pick
+        } else {
+            HARD
+        };
+        *m = if count == 0 { b } else { pick };
     }
+    for ((d, &m), &b) in row.iter_mut().zip(medians.iter()).zip(own) {
+        // `HARD` and `invalid` are above every valid bin.
+        let take = (m != b) & (m < invalid);
+        *d = if take { lo + f32::from(m) } else { *d };
+    }
+    let hard = &mut scratch.hard;
+    hard.resize(w, 0);
+    let mut n = 0;
+    for (x, &m) in medians.iter().enumerate() {
+        hard[n] = x;
+        n += usize::from(m == HARD);
+    }
+    hard.truncate(n);
     if !hard.is_empty() && scratch.histogram.hist.len() != GROUP * (usize::from(invalid) + 1) {
         scratch.histogram.reset(invalid);
     }
@@ -639,6 +660,8 @@ struct RowScratch {
     candidates: Vec<u16>,
     /// Their [`candidate_sums`].
     sums: Sums,
+    /// The bin each pixel of the row takes, as the fast test settles it.
+    medians: Vec<u16>,
     /// The pixels that the fast test does not settle.
     hard: Vec<usize>,
     /// For [`exact_medians`].
