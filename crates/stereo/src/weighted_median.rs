@@ -1,8 +1,8 @@
 //! Colour-weighted median refinement (a joint bilateral median, as in
 //! Ma et al., "Constant time weighted median filtering for stereo
-//! matching and beyond", ICCV 2013, with a plain histogram for the pixels
-//! that a vectorised test of one candidate bin does not settle; see
-//! [`WeightedMedianGuide::filter`]).
+//! matching and beyond", ICCV 2013). A vectorised integer test settles
+//! most pixels exactly; a histogram of the definition's `f32` weights
+//! settles the rest (see [`WeightedMedianGuide::filter`]).
 //!
 //! Each pixel takes the weighted median of the valid disparities of a
 //! window, a neighbour `q` of the centre `p` weighing
@@ -77,6 +77,9 @@ impl WeightedMedian {
     }
 }
 
+/// `2²³`: a whole `x` in `0..2²³` is the low mantissa bits of `x + MAGIC`.
+const MAGIC: f32 = 8_388_608.0;
+
 /// Largest summed RGB difference.
 const MAX_DIFF: usize = 3 * 255;
 
@@ -108,22 +111,55 @@ pub struct WeightedMedianGuide {
     p: WeightedMedian,
     dims: (usize, usize),
     /// The colour planes apart and border-replicated by `radius` on every
-    /// side, so that the samples at one offset from a row's pixels are one
-    /// slice and the colour differences of a whole row vectorise.
+    /// side, so that the pairs at one offset along a row are two slices.
     planes: [Vec<u8>; 3],
-    weight: Box<WeightTable>,
+    table: Box<WeightTable>,
+    /// The window's samples in order.
+    samples: Vec<Sample>,
+    /// The weights of every pixel's samples.
+    weights: Weights,
     /// Whether the kernels run with AVX2 (same results either way).
     avx2: bool,
 }
 
+/// One sample of the window, for the pixel at padded index `P` (the grid
+/// border-replicated by `radius` on every side): its position is
+/// `P + offset`, and its weights are at `P + shift` in plane `plane` of
+/// [`Weights`].
+#[derive(Clone, Copy, Debug)]
+struct Sample {
+    offset: isize,
+    plane: usize,
+    shift: isize,
+}
+
+/// The weights `w` of the guide's pairs of pixels as integers `q`, the
+/// table's `Q·w` rounded, for the fast test, computed once per guide (the
+/// refinement filters twice with one guide). `Q` is `65535 / n` for `n`
+/// samples (2621 for the default 25), so that a window's sum fits a
+/// `u16`.
+///
+/// The weight of a pair of pixels does not depend on which is the centre,
+/// so the offsets `o` and `−o` share a plane: plane `o` holds, at padded
+/// index `P`, the weight of `P` and `P + o`, and the sample `−o` of the
+/// pixel `P` reads it at `P − o` (the padded colours replicate the border
+/// as the definition clamps its samples). A symmetric window needs about
+/// half as many planes as samples.
+struct Weights {
+    quantized: Vec<Vec<u16>>,
+    /// A bound on `|Σ q − Q·Σ w|` over any set of a window's samples, in
+    /// units of `q`: `n` times the largest error of one weight, rounded up.
+    slack: u32,
+}
+
 impl WeightedMedianGuide {
-    /// The padded colour planes and the weight table for `p`.
+    /// The weights of the guide's pairs for `p`.
     pub fn new(guide: &RgbImage, p: &WeightedMedian) -> Self {
         Self::with_avx2(guide, p, crate::wta::avx2_available())
     }
 
-    /// [`Self::new`] with the AVX2 kernel (`avx2`, only if the CPU has it)
-    /// or the portable one.
+    /// [`Self::new`] with the AVX2 kernels (`avx2`, only if the CPU has it)
+    /// or the portable ones.
     fn with_avx2(guide: &RgbImage, p: &WeightedMedian, avx2: bool) -> Self {
         let dims = guide.dims();
         let plane = |k: usize| {
@@ -131,11 +167,60 @@ impl WeightedMedianGuide {
                 row.iter_mut().zip(src).for_each(|(o, c)| *o = c[k]);
             })
         };
+        let planes = [plane(0), plane(1), plane(2)];
+        let table: Box<WeightTable> =
+            Box::new(std::array::from_fn(|i| (-(i as f32) / p.sigma_color).exp()));
+        let (r, step) = (p.radius as isize, p.step);
+        let wp = dims.0 as isize + 2 * r;
+        let offsets: Vec<(isize, isize)> = (-r..=r)
+            .step_by(step)
+            .flat_map(|dy| (-r..=r).step_by(step).map(move |dx| (dx, dy)))
+            .collect();
+        // A plane per offset whose mirror has none yet.
+        let mut computed: Vec<(isize, isize)> = Vec::new();
+        let samples = offsets
+            .iter()
+            .map(|&(dx, dy)| {
+                let offset = dy * wp + dx;
+                if let Some(j) = computed.iter().position(|&o| o == (-dx, -dy)) {
+                    Sample {
+                        offset,
+                        plane: j,
+                        shift: offset,
+                    }
+                } else {
+                    computed.push((dx, dy));
+                    Sample {
+                        offset,
+                        plane: computed.len() - 1,
+                        shift: 0,
+                    }
+                }
+            })
+            .collect::<Vec<_>>();
+        let n = samples.len();
+        let scale = (65535 / n) as f32;
+        // The largest error of one quantized weight, over every difference.
+        let error = table[..=MAX_DIFF]
+            .iter()
+            .map(|&w| (f64::from(quantize(w, scale)) - f64::from(scale) * f64::from(w)).abs())
+            .fold(0f64, f64::max);
+        // At most 2¹⁶ + 1 (beyond, nothing would pass the test anyway).
+        let slack = (n as f64 * error).ceil().min(65536.0) as u32 + 1;
+        let padded_dims = (dims.0 + 2 * p.radius, dims.1 + 2 * p.radius);
+        let qtable: Box<[u16; WEIGHT_INDEX + 1]> =
+            Box::new(std::array::from_fn(|d| quantize(table[d], scale)));
+        let quantized = computed
+            .par_iter()
+            .map(|&o| with_avx2(avx2, || weight_plane(&planes, padded_dims, o, &qtable)))
+            .collect();
         WeightedMedianGuide {
             p: *p,
             dims,
-            planes: [plane(0), plane(1), plane(2)],
-            weight: Box::new(std::array::from_fn(|i| (-(i as f32) / p.sigma_color).exp())),
+            planes,
+            table,
+            samples,
+            weights: Weights { quantized, slack },
             avx2,
         }
     }
@@ -143,27 +228,23 @@ impl WeightedMedianGuide {
     /// The weighted median of `map` (see [`weighted_median`]).
     ///
     /// Disparities are binned to whole pixels. Most pixels need no
-    /// histogram:
-    /// - windows whose valid samples all lie in one bin (or none valid;
-    ///   most of a smooth map) are settled from per-pixel bin ranges;
-    /// - for the others, one vectorised pass over the row sums, per pixel,
-    ///   the weights of the samples below, in and above a candidate bin:
-    ///   the pixel's own, or for an invalid pixel its left neighbour's. The
-    ///   candidate is the median when the weight below it is less than
-    ///   half the total and the weight up to it at least half; where that
-    ///   holds by a margin of `total / 1024`, far beyond the rounding of
-    ///   either way of summing (each within `(n − 1)·2⁻²⁴·total` for `n` ≤
-    ///   961 terms, Higham, "Accuracy and Stability of Numerical
-    ///   Algorithms", §4.2), the pixel keeps its value (or a hole takes the
-    ///   candidate's), exactly as the histogram would decide;
-    /// - only the rest (pixels near a disparity or colour edge, and holes
-    ///   unlike their left neighbour) build a histogram of their window.
+    /// histogram: one vectorised pass over a row sums, per pixel, the
+    /// quantized weights ([`Weights`]) of its valid samples below, in and
+    /// at any bin for a candidate bin `c` (the pixel's own, or for an
+    /// invalid pixel its left neighbour's), and in the bins `c − 1` and
+    /// `c + 1`. That gives the same sums for `c ± 1`; where one of the
+    /// three is the median by a margin that covers the quantization (see
+    /// [`keeps_candidate`]), the pixel takes it (keeping its own value if
+    /// it is its own bin), exactly as the histogram would decide. A window
+    /// without valid samples leaves the pixel as it is. Only the rest
+    /// (pixels at a disparity edge, holes unlike their left neighbour, and
+    /// near ties) go through the definition ([`exact_medians`]).
     ///
     /// # Panics
     /// If `map` is not the guide's size.
     pub fn filter(&self, map: &DisparityMap) -> DisparityMap {
         assert_eq!(map.dims(), self.dims);
-        let (w, h) = self.dims;
+        let w = self.dims.0;
         // The smallest and largest valid values, by rows in parallel
         // (branch-free selects, so that the loop vectorises).
         let extremes = |(a, b): (f32, f32), (c, d): (f32, f32)| (a.min(c), b.max(d));
@@ -191,25 +272,15 @@ impl WeightedMedianGuide {
             // Not a disparity map of any image this crate matches: left as is.
             return map.clone();
         }
-        let (r, step) = (self.p.radius, self.p.step);
+        let r = self.p.radius;
         // Invalid pixels go to the extra bin `bins`, which never counts.
         let invalid = bins as u16;
         let bin_pad = pad(map.as_slice(), self.dims, r, |row, src| {
             with_avx2(self.avx2, || bin_row(row, src, lo, invalid))
         });
-        let wp = w + 2 * r;
-        let (span_lo, span_hi) = sample_spans(&bin_pad, (w, h), (r, step), invalid, self.avx2);
-        // The window's samples, as offsets from its top-left corner in the padded images.
-        let n = 2 * r + 1;
-        let samples: Vec<usize> = (0..n)
-            .step_by(step)
-            .flat_map(|dy| (0..n).step_by(step).map(move |dx| dy * wp + dx))
-            .collect();
         let job = MapJob {
             guide: self,
             bin_pad: &bin_pad,
-            spans: (&span_lo, &span_hi),
-            samples: &samples,
             lo,
             invalid,
         };
@@ -218,57 +289,96 @@ impl WeightedMedianGuide {
             .par_chunks_mut(w)
             .enumerate()
             .for_each_init(RowScratch::default, |scratch, (y, row)| {
-                with_avx2(self.avx2, || filter_row(&job, y, row, scratch))
+                #[cfg(target_arch = "x86_64")]
+                if self.avx2 {
+                    // SAFETY: `avx2` only when the CPU has it.
+                    return unsafe { filter_row_avx2(&job, y, row, scratch) };
+                }
+                filter_row(&job, y, row, scratch)
             });
         out
     }
+}
+
+/// The integer weight `q ≈ scale · w` of a weight `w` in `[0, 1]`, rounded
+/// (the whole number as the low mantissa bits of `x + 2²³`, [`MAGIC`]: a
+/// float-to-integer cast would not vectorise).
+#[inline(always)]
+fn quantize(w: f32, scale: f32) -> u16 {
+    ((w * scale + 0.5).floor() + MAGIC).to_bits() as u16
+}
+
+/// The quantized weights of the pairs `P`, `P + o` over the padded grid
+/// (`(wp, hp)`; 0 where `P + o` is off it, never read).
+#[inline(always)]
+fn weight_plane(
+    planes: &[Vec<u8>; 3],
+    (wp, hp): (usize, usize),
+    (dx, dy): (isize, isize),
+    table: &[u16; WEIGHT_INDEX + 1],
+) -> Vec<u16> {
+    // Written once, row by row, zeros included (no separate clearing pass).
+    let mut quantized = Vec::with_capacity(wp * hp);
+    let mut diffs = Vec::new();
+    let xs = (-dx).max(0) as usize..(wp as isize - dx.max(0)).max(0) as usize;
+    for y in 0..hp {
+        let yo = y as isize + dy;
+        let row_end = quantized.len() + wp;
+        if yo < 0 || yo >= hp as isize || xs.is_empty() {
+            quantized.resize(row_end, 0);
+            continue;
+        }
+        let n = xs.len();
+        let at = y * wp + xs.start;
+        let to = (yo * wp as isize + xs.start as isize + dx) as usize;
+        let [p0, p1, p2] = planes.each_ref().map(|p| (&p[at..at + n], &p[to..to + n]));
+        let pairs =
+            p0.0.iter()
+                .zip(p0.1)
+                .zip(p1.0.iter().zip(p1.1))
+                .zip(p2.0.iter().zip(p2.1));
+        // The differences vectorise; the look-ups are one load each.
+        diffs.clear();
+        diffs.extend(pairs.map(|((a, b), c)| {
+            u16::from(a.0.abs_diff(*a.1))
+                + u16::from(b.0.abs_diff(*b.1))
+                + u16::from(c.0.abs_diff(*c.1))
+        }));
+        quantized.resize(quantized.len() + xs.start, 0);
+        quantized.extend(diffs.iter().map(|&d| table[usize::from(d) & WEIGHT_INDEX]));
+        quantized.resize(row_end, 0);
+    }
+    quantized
 }
 
 /// What [`filter_row`] reads for the whole map.
 struct MapJob<'a> {
     guide: &'a WeightedMedianGuide,
     bin_pad: &'a [u16],
-    /// [`sample_spans`].
-    spans: (&'a [u16], &'a [u16]),
-    samples: &'a [usize],
     /// The disparity of bin 0.
     lo: f32,
     /// The bin of invalid pixels, one past the last valid one.
     invalid: u16,
 }
 
+/// [`filter_row`] compiled for AVX2 (a function of its own: LLVM does not
+/// always inline a closure this large into [`with_avx2`]'s).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn filter_row_avx2(job: &MapJob, y: usize, row: &mut [f32], scratch: &mut RowScratch) {
+    filter_row(job, y, row, scratch)
+}
+
 /// [`WeightedMedianGuide::filter`] for row `y` of the output, `row` (a
 /// copy of the map's).
 #[inline(always)]
 fn filter_row(job: &MapJob, y: usize, row: &mut [f32], scratch: &mut RowScratch) {
-    let (w, r) = (row.len(), job.guide.p.radius);
+    let guide = job.guide;
+    let (w, r) = (row.len(), guide.p.radius);
     let wp = w + 2 * r;
     let (lo, invalid) = (job.lo, job.invalid);
     let centre = (y + r) * wp + r;
     let own = &job.bin_pad[centre..centre + w];
-    let spans = (
-        &job.spans.0[y * w..(y + 1) * w],
-        &job.spans.1[y * w..(y + 1) * w],
-    );
-    // Windows of one bin (or none valid) are settled at once.
-    let todo = &mut scratch.todo;
-    todo.clear();
-    for (x, d) in row.iter_mut().enumerate() {
-        let (a, b) = (spans.0[x], spans.1[x]);
-        if a < b {
-            todo.push(x);
-        } else if a == b && own[x] != a {
-            *d = lo + a as f32;
-        }
-    }
-    let (Some(&x0), Some(&last)) = (todo.first(), todo.last()) else {
-        return;
-    };
-    let sums = &mut scratch.sums;
-    sums.iter_mut().for_each(|s| {
-        s.clear();
-        s.resize(last + 1 - x0, 0.0);
-    });
     // The bin tested: a valid pixel's own; for an invalid one, that of the
     // nearest valid pixel to its left (else the row's first valid one),
     // the likeliest value of a hole amid one surface.
@@ -276,211 +386,286 @@ fn filter_row(job: &MapJob, y: usize, row: &mut [f32], scratch: &mut RowScratch)
     candidates.clear();
     let first_valid = own.iter().copied().find(|&b| b != invalid);
     let mut left = first_valid.unwrap_or(invalid);
-    candidates.extend(own[..=last].iter().map(|&b| {
+    candidates.extend(own.iter().map(|&b| {
         left = if b != invalid { b } else { left };
         left
     }));
-    let sum_job = SumJob {
-        candidates: &candidates[x0..],
-        planes: &job.guide.planes,
-        weight: &job.guide.weight,
-        bin_pad: job.bin_pad,
-        samples: job.samples,
-        at: y * wp + x0,
-        centre: centre + x0,
-        invalid,
-    };
-    own_bin_sums(&sum_job, sums, (&mut scratch.diffs, &mut scratch.weights));
-    // The test for the whole run at once (it vectorises), then the pixels
-    // to do that fail it.
-    let keeps = &mut scratch.keeps;
-    keeps.clear();
-    let [below, at, above] = sums.each_ref();
-    keeps.extend(
-        below
-            .iter()
-            .zip(at)
-            .zip(above)
-            .zip(&candidates[x0..])
-            .map(|(((&b, &e), &a), &c)| c != invalid && keeps_own_bin(b, e, a)),
-    );
-    let hard = &mut scratch.hard;
-    hard.clear();
-    for &x in todo.iter() {
-        if !keeps[x - x0] {
-            hard.push(x);
-        } else if own[x] == invalid {
-            // A hole whose window's median is the candidate bin.
-            row[x] = lo + candidates[x] as f32;
-        }
+    let sums = &mut scratch.sums;
+    sums.clear(w);
+    let weights = &guide.weights;
+    for sample in &guide.samples {
+        let q = &weights.quantized[sample.plane][centre.wrapping_add_signed(sample.shift)..][..w];
+        let bins = &job.bin_pad[centre.wrapping_add_signed(sample.offset)..][..w];
+        candidate_sums(q, bins, candidates, invalid, sums);
     }
-    let histogram_job = HistogramJob {
-        bin_pad: job.bin_pad,
-        samples: job.samples,
-        weights: &scratch.weights,
-        corner: y * wp,
-        x0,
-        spans,
-        stride: invalid as usize + 1,
-    };
+    // Which of `c`, `c − 1`, `c + 1` is the median for certain, for the
+    // whole row at once (branch-free selects, so that it vectorises); a
+    // window without valid samples keeps the pixel's bin. The pixels that
+    // none settles (`HARD`) are listed.
+    const HARD: u16 = u16::MAX;
+    let slack = weights.slack;
+    let medians = &mut scratch.medians;
+    medians.resize(w, 0);
+    let s = &*sums;
+    let lanes = (s.below.iter().zip(&s.at).zip(&s.total))
+        .zip(s.at_lower.iter().zip(&s.at_upper).zip(&s.count))
+        .zip(candidates.iter().zip(own));
+    for (m, ((((&below, &at), &total), ((&at_lower, &at_upper), &count)), (&c, &b))) in
+        medians.iter_mut().zip(lanes)
+    {
+        // `c` is `invalid` only in a row without valid pixels.
+        let known = c != invalid;
+        let at_c = known & keeps_candidate(below, at, total, slack);
+        let lower = below.wrapping_sub(at_lower);
+        let at_lower = known & (c > 0) & keeps_candidate(lower, at_lower, total, slack);
+        let upper = below.wrapping_add(at);
+        let at_upper =
+            (c.wrapping_add(1) < invalid) & keeps_candidate(upper, at_upper, total, slack);
+        let pick = if at_c {
+            c
+        } else if at_lower {
+            c.wrapping_sub(1)
+        } else {
+            c.wrapping_add(1)
+        };
+        let pick = if at_c | at_lower | at_upper {
+            pick
+        } else {
+            HARD
+        };
+        *m = if count == 0 { b } else { pick };
+    }
+    for ((d, &m), &b) in row.iter_mut().zip(medians.iter()).zip(own) {
+        // `HARD` and `invalid` are above every valid bin.
+        let take = (m != b) & (m < invalid);
+        *d = if take { lo + f32::from(m) } else { *d };
+    }
+    let hard = &mut scratch.hard;
+    hard.resize(w, 0);
+    let mut n = 0;
+    for (x, &m) in medians.iter().enumerate() {
+        hard[n] = x;
+        n += usize::from(m == HARD);
+    }
+    hard.truncate(n);
+    if !hard.is_empty() && scratch.histogram.hist.len() != GROUP * (usize::from(invalid) + 1) {
+        scratch.histogram.reset(invalid);
+    }
     for group in hard.chunks(GROUP) {
-        let medians = histogram_medians(&histogram_job, group, &mut scratch.hist);
+        let ps: [usize; GROUP] =
+            std::array::from_fn(|k| centre + group.get(k).copied().unwrap_or(0));
+        let medians = exact_medians(job, &ps[..group.len()], &mut scratch.histogram);
         for (&x, median) in group.iter().zip(medians) {
-            if own[x] as usize != median {
-                row[x] = lo + median as f32;
+            if let Some(m) = median.filter(|&m| m != own[x]) {
+                row[x] = lo + f32::from(m);
             }
         }
     }
 }
 
-/// The weighted median bins of the pixels `xs` (at most [`GROUP`]) of a
-/// row: for each, the first bin where the cumulative weight reaches half
-/// the total, its histogram summed bin by bin in sample order, from the
-/// weights [`own_bin_sums`] left. The pixels' histograms are filled side by
-/// side, so that the additions to one bin (often sample after sample) are
-/// not one chain of dependent stores and loads.
-#[inline(always)]
-fn histogram_medians(job: &HistogramJob, xs: &[usize], hist: &mut Vec<f32>) -> [usize; GROUP] {
-    let stride = job.stride;
-    let run = job.weights.len() / job.samples.len();
-    hist.clear();
-    hist.resize(xs.len() * stride, 0.0);
-    for (&o, weights) in job.samples.iter().zip(job.weights.chunks_exact(run)) {
-        let at = job.corner + o;
-        for (&x, h) in xs.iter().zip(hist.chunks_exact_mut(stride)) {
-            h[job.bin_pad[at + x] as usize] += weights[x - job.x0];
+/// Per pixel of a row, the quantized weights of its valid samples below,
+/// in and at any bin for its candidate bin `c`, in the bins `c − 1` and
+/// `c + 1`, and the number of valid samples (apart, so that the additions
+/// vectorise).
+#[derive(Default)]
+struct Sums {
+    below: Vec<u16>,
+    at: Vec<u16>,
+    total: Vec<u16>,
+    at_lower: Vec<u16>,
+    at_upper: Vec<u16>,
+    count: Vec<u16>,
+}
+
+impl Sums {
+    fn clear(&mut self, w: usize) {
+        for v in [
+            &mut self.below,
+            &mut self.at,
+            &mut self.total,
+            &mut self.at_lower,
+            &mut self.at_upper,
+            &mut self.count,
+        ] {
+            v.clear();
+            v.resize(w, 0);
         }
     }
-    let mut medians = [0; GROUP];
-    for ((m, &x), h) in medians.iter_mut().zip(xs).zip(hist.chunks_exact(stride)) {
-        // The valid samples' bins are a..=b; invalid ones went to the last bin.
-        let (a, b) = (job.spans.0[x] as usize, job.spans.1[x] as usize);
-        let h = &h[a..=b];
-        let total: f32 = h.iter().sum();
+}
+
+/// Adds the quantized weights `q` of one sample offset to the [`Sums`] of a
+/// row's pixels. Branch-free selects on `u16` lanes, so that it vectorises.
+#[inline(always)]
+fn candidate_sums(q: &[u16], bins: &[u16], candidates: &[u16], invalid: u16, s: &mut Sums) {
+    let n = s.below.len();
+    let (q, bins, candidates) = (&q[..n], &bins[..n], &candidates[..n]);
+    let (at, total) = (&mut s.at[..n], &mut s.total[..n]);
+    let (at_lower, at_upper, count) = (
+        &mut s.at_lower[..n],
+        &mut s.at_upper[..n],
+        &mut s.count[..n],
+    );
+    for (x, below) in s.below.iter_mut().enumerate() {
+        let (q, b, c) = (q[x], bins[x], candidates[x]);
+        let valid = b != invalid;
+        *below = below.wrapping_add(if b < c { q } else { 0 });
+        at[x] = at[x].wrapping_add(if b == c { q } else { 0 });
+        total[x] = total[x].wrapping_add(if valid { q } else { 0 });
+        at_lower[x] = at_lower[x].wrapping_add(if b.wrapping_add(1) == c { q } else { 0 });
+        at_upper[x] = at_upper[x].wrapping_add(if b == c.wrapping_add(1) { q } else { 0 });
+        count[x] = count[x].wrapping_add(u16::from(valid));
+    }
+}
+
+/// Whether the candidate bin is the window's weighted median for certain,
+/// given the quantized weights (`q ≈ Q·w`, each sum within `slack` of `Q`
+/// times the exact one) of the valid samples below and in it and of all
+/// valid samples.
+///
+/// The definition sums `f32` weights, a histogram bin per sample in
+/// sample order and then the bins in order; each of its sums is within
+/// `(n − 1)·2⁻²⁴ < 2⁻¹⁴` (for `n` ≤ 961 samples) of the exact one
+/// (Higham, "Accuracy and Stability of Numerical Algorithms", §4.2). With
+/// `B`, `A`, `T` the exact sums below, in and in all bins (times `Q`), the
+/// candidate is the median when the sum below is under half the total and
+/// the sum up to it at least half:
+/// - `2·below + 3·slack + total/1024 < total` gives
+///   `2·(B + slack)·(1 + 2⁻¹²) < T`, so `B·(1 + 2⁻¹⁴) < T·(1 − 2⁻¹⁴)/2`;
+/// - `2·(below + at) > total + 4·slack + total/1024` gives
+///   `2·(B + A)·(1 − 2⁻¹⁴) ≥ T·(1 + 2⁻¹⁴)` the same way.
+///
+/// In `u32`: `total`, `below + at` ≤ 65535 and `slack` ≤ 2¹⁶ + 1, so no term
+/// reaches 2³².
+#[inline(always)]
+fn keeps_candidate(below: u16, at: u16, total: u16, slack: u32) -> bool {
+    let (b, a, t) = (u32::from(below), u32::from(at), u32::from(total));
+    (1024 * (2 * b + 3 * slack) + t < 1024 * t) & (2048 * (b + a) > 1024 * (t + 4 * slack) + t)
+}
+
+/// The weighted median bins of the windows of the pixels at padded
+/// indices `ps` (at most [`GROUP`]), by the definition: the `f32` weights
+/// of the valid samples summed per bin in sample order, then the bins in
+/// ascending order, and the first bin where the running sum reaches half
+/// the total; `None` without valid samples.
+///
+/// Each pixel's bins are a dense histogram (`hist`, zero on entry and on
+/// return), with a bit per bin that occurs (in a register when they span
+/// less than 64, else in `occurs`, zero on entry and return), so that only
+/// those are summed: an empty bin adds `+0.0`, which changes no sum. The
+/// running sums are kept (`running`); the last is the total, summed the
+/// same way. The pixels' histograms are filled side by side, so that the
+/// additions to one bin (often sample after sample) are not one chain of
+/// dependent stores and loads.
+#[inline(always)]
+fn exact_medians(job: &MapJob, ps: &[usize], h: &mut Histogram) -> [Option<u16>; GROUP] {
+    let guide = job.guide;
+    let invalid = job.invalid;
+    let stride = usize::from(invalid) + 1;
+    let n = guide.samples.len();
+    h.bins.resize(GROUP * n, 0);
+    let [r, g, b] = &guide.planes;
+    let centres: [[u8; 3]; GROUP] = std::array::from_fn(|k| {
+        let p = ps.get(k).copied().unwrap_or(ps[0]);
+        [r[p], g[p], b[p]]
+    });
+    let mut first = [invalid; GROUP];
+    let mut last = [0u16; GROUP];
+    for (i, sample) in guide.samples.iter().enumerate() {
+        for (k, &p) in ps.iter().enumerate() {
+            let q = p.wrapping_add_signed(sample.offset);
+            let bin = job.bin_pad[q];
+            let c = &centres[k];
+            let diff = usize::from(c[0].abs_diff(r[q]))
+                + usize::from(c[1].abs_diff(g[q]))
+                + usize::from(c[2].abs_diff(b[q]));
+            // The invalid bin takes its samples too, and is cleared below.
+            h.hist[k * stride + usize::from(bin)] += guide.table[diff & WEIGHT_INDEX];
+            h.bins[k * n + i] = bin;
+            first[k] = first[k].min(bin);
+            last[k] = last[k].max(if bin != invalid { bin } else { 0 });
+        }
+    }
+    let mut medians = [None; GROUP];
+    for k in 0..ps.len() {
+        let hist = &mut h.hist[k * stride..(k + 1) * stride];
+        hist[usize::from(invalid)] = 0.0;
+        let (first, last) = (first[k], last[k]);
+        if first == invalid {
+            continue;
+        }
+        let bins = &h.bins[k * n..(k + 1) * n];
+        h.running.clear();
         let mut acc = 0f32;
-        *m = b;
-        for (k, v) in h.iter().enumerate() {
-            acc += v;
-            if acc >= total / 2.0 {
-                *m = a + k;
-                break;
+        if last - first < 64 {
+            // The bins that occur as the bits of one register.
+            let mut bits = 0u64;
+            for &bin in bins {
+                bits |= u64::from(bin != invalid) << ((bin - first) & 63);
+            }
+            while bits != 0 {
+                let bin = usize::from(first) + bits.trailing_zeros() as usize;
+                bits &= bits - 1;
+                acc += std::mem::take(&mut hist[bin]);
+                h.running.push((bin as u16, acc));
+            }
+        } else {
+            for &bin in bins {
+                h.occurs[usize::from(bin >> 6)] |= 1 << (bin & 63);
+            }
+            h.occurs[usize::from(invalid >> 6)] &= !(1 << (invalid & 63));
+            for word in usize::from(first >> 6)..=usize::from(last >> 6) {
+                let mut bits = std::mem::take(&mut h.occurs[word]);
+                while bits != 0 {
+                    let bin = word * 64 + bits.trailing_zeros() as usize;
+                    bits &= bits - 1;
+                    acc += std::mem::take(&mut hist[bin]);
+                    h.running.push((bin as u16, acc));
+                }
             }
         }
+        let total = acc;
+        let median = h.running.iter().find(|&&(_, acc)| acc >= total / 2.0);
+        medians[k] = Some(median.map_or(last, |&(bin, _)| bin));
     }
     medians
 }
 
-/// Pixels whose histograms [`histogram_medians`] fills together.
-const GROUP: usize = 4;
+/// Pixels whose histograms [`exact_medians`] fills together.
+const GROUP: usize = 8;
 
-/// What [`histogram_medians`] reads for a row.
-struct HistogramJob<'a> {
-    bin_pad: &'a [u16],
-    samples: &'a [usize],
-    /// The weights of the run from `x0` at each sample offset, one after the other.
-    weights: &'a [f32],
-    /// The row's window corner in the padded images.
-    corner: usize,
-    x0: usize,
-    /// The row's valid sample bins, smallest and largest.
-    spans: (&'a [u16], &'a [u16]),
-    /// Bins per histogram, the invalid one included.
-    stride: usize,
+/// The scratch of [`exact_medians`], for bins `0..=invalid`.
+#[derive(Default)]
+struct Histogram {
+    hist: Vec<f32>,
+    bins: Vec<u16>,
+    occurs: Vec<u64>,
+    running: Vec<(u16, f32)>,
 }
 
-/// Whether a pixel's own bin is its window's weighted median for certain,
-/// given the summed weights of the valid samples below, in and above it:
-/// the weight below is less than half the total and the weight up to the
-/// bin more than half, both by `total / 1024` (see
-/// [`WeightedMedianGuide::filter`]). Totals too small for that relative
-/// bound (below 2⁻⁶⁰, near the subnormals) never qualify.
-#[inline]
-fn keeps_own_bin(below: f32, at: f32, above: f32) -> bool {
-    let total = below + at + above;
-    let (half, margin) = (total / 2.0, total / 1024.0);
-    (total >= f32::powi(2.0, -60)) & (below < half - margin) & (below + at > half + margin)
-}
-
-/// The colour differences of a run's samples at one offset, and their
-/// weights at every offset.
-type Buffers<'a> = (&'a mut Vec<u16>, &'a mut Vec<f32>);
-
-/// What [`own_bin_sums`] reads for a run of a row's pixels.
-struct SumJob<'a> {
-    planes: &'a [Vec<u8>; 3],
-    weight: &'a WeightTable,
-    bin_pad: &'a [u16],
-    samples: &'a [usize],
-    /// The first pixel's window corner in the padded images.
-    at: usize,
-    /// The first pixel itself there.
-    centre: usize,
-    /// The bin tested for each pixel of the run.
-    candidates: &'a [u16],
-    /// The bin of invalid pixels.
-    invalid: u16,
-}
-
-/// For a run of `sums[0].len()` pixels, the summed weights of each one's
-/// valid samples below, in and above its own bin (`sums[0..3]`), added in
-/// sample order, one sample offset at a time for the whole run (each pixel
-/// is a lane: the same arithmetic with or without AVX2). The loops are
-/// split so that all but the table look-up vectorise; a sample outside a
-/// sum adds `+0.0` (a bit-mask select, which LLVM keeps branch-free).
-#[inline(always)]
-fn own_bin_sums(job: &SumJob, sums: &mut [Vec<f32>; 3], (diffs, weights): Buffers) {
-    let [below, at, above] = sums;
-    let n = below.len();
-    let (at, above) = (&mut at[..n], &mut above[..n]);
-    diffs.resize(n, 0);
-    weights.resize(n * job.samples.len(), 0.0);
-    let centres = job
-        .planes
-        .each_ref()
-        .map(|p| &p[job.centre..job.centre + n]);
-    let own = &job.candidates[..n];
-    let masked =
-        |wt: f32, keep: bool| f32::from_bits(wt.to_bits() & u32::from(keep).wrapping_neg());
-    for (&o, weights) in job.samples.iter().zip(weights.chunks_exact_mut(n)) {
-        let q = job.at + o;
-        let qs = job.planes.each_ref().map(|p| &p[q..q + n]);
-        for (x, dv) in diffs.iter_mut().enumerate() {
-            *dv = centres[0][x].abs_diff(qs[0][x]) as u16
-                + centres[1][x].abs_diff(qs[1][x]) as u16
-                + centres[2][x].abs_diff(qs[2][x]) as u16;
-        }
-        for (wt, &dv) in weights.iter_mut().zip(diffs.iter()) {
-            *wt = job.weight[dv as usize & WEIGHT_INDEX];
-        }
-        let bin_q = &job.bin_pad[q..q + n];
-        for x in 0..n {
-            let (b, c, wt) = (bin_q[x], own[x], weights[x]);
-            below[x] += masked(wt, b < c);
-            at[x] += masked(wt, b == c);
-            above[x] += masked(wt, b > c && b != job.invalid);
-        }
+impl Histogram {
+    /// Room for the bins `0..=invalid`, all empty.
+    fn reset(&mut self, invalid: u16) {
+        let n = usize::from(invalid) + 1;
+        self.hist.clear();
+        self.hist.resize(GROUP * n, 0.0);
+        self.occurs.clear();
+        self.occurs.resize(n.div_ceil(64), 0);
     }
 }
 
 /// Per-row buffers of [`WeightedMedianGuide::filter`].
 #[derive(Default)]
 struct RowScratch {
-    /// The row's pixels whose samples span several bins.
-    todo: Vec<usize>,
-    /// Their [`own_bin_sums`], from the first to the last.
-    sums: [Vec<f32>; 3],
-    /// The run's colour differences at one sample offset.
-    diffs: Vec<u16>,
-    /// Their weights, at every sample offset.
-    weights: Vec<f32>,
-    /// The bins tested for the row's pixels up to the run's end.
+    /// The bins tested for the row's pixels.
     candidates: Vec<u16>,
-    /// Whether each pixel of the run takes its candidate bin for certain.
-    keeps: Vec<bool>,
-    /// The pixels to do that may not.
+    /// Their [`candidate_sums`].
+    sums: Sums,
+    /// The bin each pixel of the row takes, as the fast test settles it.
+    medians: Vec<u16>,
+    /// The pixels that the fast test does not settle.
     hard: Vec<usize>,
-    /// The histograms of a [`GROUP`] of them.
-    hist: Vec<f32>,
+    /// For [`exact_medians`].
+    histogram: Histogram,
 }
 
 /// Runs `f` compiled for AVX2 if `avx2` (only when the CPU has it), as is
@@ -532,82 +717,12 @@ fn pad<S: Sync, T: Copy + Default + Send>(
 #[inline(always)]
 fn bin_row(out: &mut [u16], src: &[f32], lo: f32, invalid: u16) {
     for (o, &d) in out.iter_mut().zip(src) {
-        // A non-finite `d` saturates the cast and is replaced.
-        let bin = (d.round() - lo) as u16;
+        // A whole number in 0..=65535 as the low mantissa bits of `x + 2²³`
+        // (a saturating cast would not vectorise); a non-finite `d` gives
+        // some bin and is replaced.
+        let bin = ((d.round() - lo).clamp(0.0, 65535.0) + MAGIC).to_bits() as u16;
         *o = if d.is_finite() { bin } else { invalid };
     }
-}
-
-/// `lo` and `hi` become the smallest bin and the largest valid bin (0 for
-/// none) of each column of `rows`.
-#[inline(always)]
-fn min_max_down<'a>(
-    lo: &mut [u16],
-    hi: &mut [u16],
-    rows: impl Iterator<Item = &'a [u16]>,
-    invalid: u16,
-) {
-    for q in rows {
-        for ((a, b), &q) in lo.iter_mut().zip(hi.iter_mut()).zip(q) {
-            *a = (*a).min(q);
-            *b = (*b).max(if q < invalid { q } else { 0 });
-        }
-    }
-}
-
-/// `lo` and `hi` become the smallest and largest of `down` at the columns
-/// `x + dx` for each `dx` of `offsets`.
-#[inline(always)]
-fn min_max_across(
-    lo: &mut [u16],
-    hi: &mut [u16],
-    (down_lo, down_hi): (&[u16], &[u16]),
-    offsets: impl Iterator<Item = usize>,
-) {
-    for dx in offsets {
-        let (qa, qb) = (&down_lo[dx..], &down_hi[dx..]);
-        for (((a, b), &qa), &qb) in lo.iter_mut().zip(hi.iter_mut()).zip(qa).zip(qb) {
-            *a = (*a).min(qa);
-            *b = (*b).max(qb);
-        }
-    }
-}
-
-/// For every pixel, the smallest and the largest valid bin among its
-/// window's samples (`invalid`, above every valid bin, and 0 when there is
-/// none), from separable passes over the border-padded bins, whole rows at
-/// a time (`u16` min and max are SSE4.1 instructions: with AVX2 if `avx2`).
-fn sample_spans(
-    bin_pad: &[u16],
-    (w, h): (usize, usize),
-    (r, step): (usize, usize),
-    invalid: u16,
-    avx2: bool,
-) -> (Vec<u16>, Vec<u16>) {
-    let wp = w + 2 * r;
-    let offsets = || (0..=2 * r).step_by(step);
-    // Down the window's sampled rows, for every padded column.
-    let (mut down_lo, mut down_hi) = (vec![invalid; wp * h], vec![0u16; wp * h]);
-    down_lo
-        .par_chunks_mut(wp)
-        .zip(down_hi.par_chunks_mut(wp))
-        .enumerate()
-        .for_each(|(y, (lo, hi))| {
-            let rows = offsets().map(|dy| &bin_pad[(y + dy) * wp..(y + dy + 1) * wp]);
-            with_avx2(avx2, || min_max_down(lo, hi, rows, invalid))
-        });
-    let (mut span_lo, mut span_hi) = (vec![invalid; w * h], vec![0u16; w * h]);
-    span_lo
-        .par_chunks_mut(w)
-        .zip(span_hi.par_chunks_mut(w))
-        .enumerate()
-        .for_each(|(y, (lo, hi))| {
-            let (down_lo, down_hi) = (&down_lo[y * wp..], &down_hi[y * wp..]);
-            with_avx2(avx2, || {
-                min_max_across(lo, hi, (down_lo, down_hi), offsets())
-            })
-        });
-    (span_lo, span_hi)
 }
 
 #[cfg(test)]
@@ -737,6 +852,66 @@ mod tests {
             proptest::prop_assert_eq!(bits(&weighted_median(&map, &guide, &p)), want.clone());
             let portable = WeightedMedianGuide::with_avx2(&guide, &p, false);
             proptest::prop_assert_eq!(bits(&portable.filter(&map)), want);
+        }
+
+        #[test]
+        /// Smooth colours and disparities (most pixels settled by the fast
+        /// test on `c`, `c − 1` or `c + 1`), with steps of either and holes
+        /// in runs, over ranges of more than 64 bins, the default window
+        /// and large ones (down to `Q` = 68 for 961 samples): as defined.
+        fn equals_the_definition_on_smooth_maps(
+            w in 1usize..48, h in 1usize..40, seed in proptest::prelude::any::<u64>(),
+            radius in 1usize..16, step in 1usize..5, sigma in 5f32..80.0, span in 1f32..200.0,
+        ) {
+            let mut s = seed | 1;
+            let mut next = move || { s ^= s << 13; s ^= s >> 7; s ^= s << 17; s };
+            let edge = (seed % 29) as usize;
+            let guide = RgbImage::from_fn(w, h, |x, y| {
+                let n = (next() % 9) as u8;
+                if x < edge { [40 + n, 90 + (y as u8 & 15), 30] } else { [200 - n, 60, 120 + n] }
+            });
+            let hole = |x: usize, y: usize| (x / 3 + y * 5 + seed as usize) % 7 == 0;
+            let map = DisparityMap::from_fn(w, h, |x, y| {
+                if hole(x, y) {
+                    return f32::INFINITY;
+                }
+                let slant = span * (x + y) as f32 / (w + h) as f32;
+                let jitter = (next() % 3) as f32 - 1.0;
+                let base = if x + 2 < edge { 2.0 * span } else { 0.0 };
+                base + slant.round() + jitter + if (x ^ y) & 4 == 0 { 0.5 } else { 0.0 }
+            });
+            let p = WeightedMedian { radius, sigma_color: sigma, step: step.min(radius) };
+            let bits = |m: &DisparityMap| m.as_slice().iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+            let want = bits(&naive(&map, &guide, &p));
+            proptest::prop_assert_eq!(bits(&weighted_median(&map, &guide, &p)), want.clone());
+            let portable = WeightedMedianGuide::with_avx2(&guide, &p, false);
+            proptest::prop_assert_eq!(bits(&portable.filter(&map)), want);
+        }
+    }
+
+    #[test]
+    fn the_quantized_weights_are_within_the_slack() {
+        for (radius, step, sigma) in [(8, 4, 50.0), (15, 1, 5.0), (3, 1, 200.0)] {
+            let p = WeightedMedian {
+                radius,
+                sigma_color: sigma,
+                step,
+            };
+            let guide = RgbImage::from_fn(40, 30, |x, y| {
+                [(x * 6) as u8, (y * 8) as u8, ((x * y) % 256) as u8]
+            });
+            let g = WeightedMedianGuide::new(&guide, &p);
+            let n = g.samples.len();
+            let scale = (65535 / n) as f32;
+            // Every weight of the table, quantized, is within slack / n of Q·w.
+            let table: Vec<f32> = (0..=MAX_DIFF)
+                .map(|i| (-(i as f32) / sigma).exp())
+                .collect();
+            for &w in &table {
+                let err = (f64::from(quantize(w, scale)) - f64::from(scale) * f64::from(w)).abs();
+                assert!(err * n as f64 <= f64::from(g.weights.slack), "{p:?}: {err}");
+            }
+            assert!(n * usize::from(quantize(1.0, scale)) <= 65535);
         }
     }
 
