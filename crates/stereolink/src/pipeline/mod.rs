@@ -16,3 +16,7 @@ pub mod sender;
 pub mod sensor;
 pub mod uplink;
 pub mod watch;
+
+// The MQTT gateway never goes into the board's build (no rumqttc on ARM).
+#[cfg(all(feature = "gateway", not(target_arch = "arm")))]
+pub mod gateway;
