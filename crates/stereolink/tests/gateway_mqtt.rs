@@ -780,3 +780,89 @@ fn killed_station_goes_offline_and_killed_gateway_leaves_its_will() {
     cam2.stop();
     let _ = std::io::stderr().flush();
 }
+
+/// CPU time (user + system) of process `pid`, seconds.
+fn cpu_s(pid: u32) -> f64 {
+    let stat = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap();
+    let fields: Vec<&str> = stat
+        .rsplit_once(')')
+        .unwrap()
+        .1
+        .split_whitespace()
+        .collect();
+    // utime and stime are fields 14 and 15 (1-based), in clock ticks (100 Hz).
+    let ticks: f64 = fields[11].parse::<f64>().unwrap() + fields[12].parse::<f64>().unwrap();
+    ticks / 100.0
+}
+
+/// A measurement, not a test (run by hand, `--ignored`): 16 stations, each
+/// paced at 115200 baud (10.56 kB of messages a second, the UART bound),
+/// a frame and its depth report back to back, through one gateway with its
+/// default settings (or those of STEREOLINK_GATEWAY_ARGS). Prints the gateway's CPU share of one core and the
+/// latency from a report's reassembly to the subscriber. The frame is
+/// Cones (450x375, k-means 3 levels, 14 kB) when STEREOLINK_DATA is set,
+/// else a synthetic 480x272 scene.
+#[test]
+#[ignore]
+fn measure_sixteen_paced_stations() {
+    let Some(broker) = Broker::start() else {
+        return;
+    };
+    let names: Vec<String> = (1..=16).map(|i| format!("cam{i}")).collect();
+    let names: Vec<&str> = names.iter().map(String::as_str).collect();
+    let sub = Subscriber::start(&broker, "viewer", "measure", &["stereolink/+/depth"], false);
+    // More gateway options from the environment, e.g. "--images-every-s 0".
+    let extra = std::env::var("STEREOLINK_GATEWAY_ARGS").unwrap_or_default();
+    let extra: Vec<&str> = extra.split_whitespace().collect();
+    let (gw, specs) = Gateway::start(&broker, &names, &extra);
+    let frame = std::env::var("STEREOLINK_DATA").ok().map(|d| {
+        let dir = tempfile::tempdir().unwrap();
+        let out = dir.path().join("cones.slf");
+        let cones = Path::new(&d).join("cones");
+        let ok = Command::new(env!("CARGO_BIN_EXE_stereolink"))
+            .arg("encode")
+            .args([cones.join("left.png"), cones.join("right.png")])
+            .arg("-o")
+            .arg(&out)
+            .args(["--method", "kmeans", "--levels", "3"])
+            .stdout(Stdio::null())
+            .status()
+            .unwrap();
+        assert!(ok.success());
+        Arc::new(std::fs::read(out).unwrap())
+    });
+    let sims: Vec<SimStation> = specs
+        .iter()
+        .map(|s| {
+            let mut c = SimConfig::new(s.parse().unwrap(), 100_000, Duration::ZERO);
+            c.frame_every = 1;
+            c.bytes_per_s = 115_200.0 * 0.733 / 8.0; // 84.5 kb/s
+            c.frame = frame.clone();
+            c.scene.width = 480;
+            c.scene.height = 272;
+            c.scene.max_disp = 32;
+            SimStation::start(c).unwrap()
+        })
+        .collect();
+    std::thread::sleep(Duration::from_secs(5));
+    let (cpu0, t0, n0) = (cpu_s(gw.child.id()), Instant::now(), sub.all().len());
+    std::thread::sleep(Duration::from_secs(30));
+    let (cpu1, secs) = (cpu_s(gw.child.id()), t0.elapsed().as_secs_f64());
+    let got = sub.all();
+    let reports: Vec<&Got> = got[n0..].iter().collect();
+    let after = |f: &str| -> Vec<f64> {
+        reports
+            .iter()
+            .map(|g| (g.at_us as f64 - json(g)[f].as_f64().unwrap()) / 1e3)
+            .collect()
+    };
+    eprintln!(
+        "16 stations, {:.1} reports/s: gateway CPU {:.1} % of one core; latency median {:.2} ms \
+         from reassembly, {:.2} ms from the station's stamp",
+        reports.len() as f64 / secs,
+        (cpu1 - cpu0) / secs * 100.0,
+        median(after("received_us")),
+        median(after("time_us")),
+    );
+    drop(sims);
+}

@@ -48,8 +48,9 @@ pub struct Args {
     #[arg(long, default_value_t = 32)]
     pub max_disp: usize,
     /// Rebuild and publish the images of at most one frame per station
-    /// this often (seconds; 0: every frame).
-    #[arg(long, default_value_t = 0.0)]
+    /// this often (seconds; 0: every frame). Rebuilding (decode, match,
+    /// three PNGs) is most of the gateway's work.
+    #[arg(long, default_value_t = 10.0)]
     pub images_every_s: f64,
     /// How often each station's link statistics go out, seconds.
     #[arg(long, default_value_t = 5.0)]
@@ -107,6 +108,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         };
         stations.push(StationConfig {
             link: super::link_spec(spec).with_context(|| format!("station {name}"))?,
+            link_text: spec.to_string(),
             name,
             keys,
             max_disp: args.max_disp,

@@ -121,7 +121,6 @@ impl Command {
     pub fn decode(body: &[u8]) -> Result<(Command, u32), String> {
         let (&[ver, code], rest) = body
             .split_first_chunk::<2>()
-            .map(|(h, r)| (h, r))
             .ok_or("control body: truncated")?;
         if ver != CONTROL_VERSION {
             return Err(format!("control body: version {ver} is not supported"));

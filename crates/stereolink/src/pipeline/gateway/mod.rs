@@ -535,6 +535,16 @@ impl Bridge {
         let command = parsed.and_then(|v| Command::from_json(&v));
         self.commands += 1;
         match command {
+            // A command waits for no station that cannot take it now.
+            Ok(_) if !self.seen[i].online => {
+                let r = json!({"status": "error", "error": "the station is offline", "transaction": transaction});
+                self.push(
+                    self.station_topic(i, "response"),
+                    Self::json(&r),
+                    "response",
+                    connected,
+                );
+            }
             Ok(command) => {
                 let req = Request {
                     command,

@@ -31,6 +31,9 @@ pub struct SimConfig {
     pub frame_every: u32,
     /// The synthetic scene of the frames.
     pub scene: SynthSpec,
+    /// A frame message to send instead of the synthetic scene's (an
+    /// encoded pair, e.g. `stereolink encode`'s output).
+    pub frame: Option<Arc<Vec<u8>>>,
     /// Time between reports.
     pub interval: Duration,
     /// Pace the link to this many message bytes a second (0: unpaced).
@@ -52,6 +55,7 @@ impl SimConfig {
                 max_disp: 16,
                 seed: 3,
             },
+            frame: None,
             interval,
             bytes_per_s: 0.0,
         }
@@ -86,7 +90,9 @@ pub struct SimStation {
 impl SimStation {
     /// Starts the station's thread.
     pub fn start(cfg: SimConfig) -> anyhow::Result<SimStation> {
-        let frame = if cfg.frame_every > 0 {
+        let frame = if let Some(f) = &cfg.frame {
+            f.to_vec()
+        } else if cfg.frame_every > 0 {
             synthetic_frame(&cfg.scene)?
         } else {
             Vec::new()
@@ -213,7 +219,15 @@ fn run(
         if stopping && idle {
             break;
         }
-        if !stopping && next_id < end_id && !busy[0] && now >= next_at && now >= link_free {
+        // The frame that goes with a report goes before the next report.
+        let frame_due = frame_wanted && !frame.is_empty();
+        if !stopping
+            && !frame_due
+            && next_id < end_id
+            && !busy[0]
+            && now >= next_at
+            && now >= link_free
+        {
             let msg = report(next_id);
             pace(msg.len(), &mut link_free);
             ep.submit(Lane::Urgent, &msg)?;

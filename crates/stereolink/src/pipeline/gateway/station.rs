@@ -29,6 +29,8 @@ pub struct StationConfig {
     pub name: String,
     /// Its link (one UDP peer or radio address).
     pub link: LinkSpec,
+    /// The link as the user wrote it (for `bridge/stations`).
+    pub link_text: String,
     /// The link keys (this gateway's private key, the station's public key).
     pub keys: Option<Keys>,
     /// Largest disparity the gateway searches when it rebuilds a frame.
