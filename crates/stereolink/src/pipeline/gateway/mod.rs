@@ -304,11 +304,7 @@ impl Bridge {
             prefix: cfg.prefix.trim_end_matches('/').to_string(),
             broker: cfg.broker.clone(),
             names: cfg.stations.iter().map(|s| s.name.clone()).collect(),
-            links: cfg
-                .stations
-                .iter()
-                .map(|s| format!("{:?}", s.link))
-                .collect(),
+            links: cfg.stations.iter().map(|s| s.link_text.clone()).collect(),
             secured: cfg.stations.iter().map(|s| s.keys.is_some()).collect(),
             seen: cfg.stations.iter().map(|_| Seen::default()).collect(),
             offline_after: cfg.offline_after,

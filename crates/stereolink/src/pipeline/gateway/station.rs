@@ -15,6 +15,7 @@ use stereolink_display::{anaglyph_into, Anaglyph};
 use stereolink_image::colormap::colorize;
 use stereolink_image::io::encode_png_rgb;
 use stereolink_image::RgbImage;
+use stereolink_link::arq::Config;
 use stereolink_link::endpoint::{Endpoint, Lane, LinkError};
 use stereolink_link::secure::{Keys, SecureConfig};
 use stereolink_link::spec::{self, LinkSpec};
@@ -100,7 +101,7 @@ pub fn unix_us() -> u64 {
 }
 
 /// The longest a command waits for the station's link before it fails.
-const COMMAND_DEADLINE: Duration = Duration::from_secs(10);
+const COMMAND_DEADLINE: Duration = Duration::from_secs(5);
 
 /// Counters behind `<station>/link`.
 #[derive(Default)]
@@ -133,7 +134,14 @@ pub fn run(
             text,
         });
     };
-    let mut ep = match spec::open(&cfg.link).and_then(Endpoint::new) {
+    // A command that the station does not take within the deadline fails
+    // (and frees the lane for the next one); receiving is unchanged.
+    let open = |t: Box<dyn stereolink_link::transport::Transport>| {
+        let mut arq = Config::for_mtu(t.mtu());
+        arq.deadline = COMMAND_DEADLINE.as_micros() as u64;
+        Endpoint::with_config(t, arq)
+    };
+    let mut ep = match spec::open(&cfg.link).and_then(open) {
         Ok(ep) => ep,
         Err(e) => return say(format!("cannot open its link: {e}")),
     };
@@ -180,7 +188,7 @@ pub fn run(
                     .map(|_| req.at.elapsed())
                     .map_err(|e| format!("not delivered: {e}"));
                 st.done(req, r);
-            } else if req.at.elapsed() > COMMAND_DEADLINE {
+            } else if req.at.elapsed() > COMMAND_DEADLINE * 3 {
                 // The ARQ deadline ends it first; this is a backstop.
                 let req = in_flight.take().expect("a command in flight");
                 st.done(req, Err("not delivered in time".into()));
