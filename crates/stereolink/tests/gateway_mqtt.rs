@@ -320,19 +320,17 @@ impl Gateway {
             args.push(format!("{n}=udp:127.0.0.1:{g}?peer=127.0.0.1:{s}"));
             station_specs.push(format!("udp:127.0.0.1:{s}?peer=127.0.0.1:{g}"));
         }
-        args.extend(
-            [
-                "--mqtt",
-                &broker.url("gateway"),
-                "--stats-every-s",
-                "1",
-                "--health-every-s",
-                "1",
-                "--max-disp",
-                "16",
-            ]
-            .map(String::from),
-        );
+        args.extend(["--mqtt".into(), broker.url("gateway")]);
+        // Defaults for the tests, unless `extra` sets them.
+        for (flag, value) in [
+            ("--stats-every-s", "1"),
+            ("--health-every-s", "1"),
+            ("--max-disp", "16"),
+        ] {
+            if !extra.contains(&flag) {
+                args.extend([flag.into(), value.into()]);
+            }
+        }
         args.extend(extra.iter().map(|s| s.to_string()));
         let log = broker.dir.path().join("gateway.log");
         let child = Command::new(env!("CARGO_BIN_EXE_stereolink"))
@@ -596,6 +594,79 @@ fn broker_restart_mid_soak_loses_no_report() {
     let health: Value = serde_json::from_str(&health).unwrap();
     assert_eq!(health["dropped_total"], 0, "{health}");
     assert!(gw.log().contains("reconnected"), "{}", gw.log());
+    for s in sims {
+        s.stop();
+    }
+}
+
+/// The broker stays away while a station sends more than the queue holds:
+/// the oldest reports are dropped and counted in `bridge/health`, the rest
+/// arrive once the broker is back.
+#[test]
+fn broker_away_longer_than_the_queue_drops_the_oldest_and_counts_them() {
+    let Some(mut broker) = Broker::start() else {
+        return;
+    };
+    let sub = Subscriber::start(
+        &broker,
+        "viewer",
+        "queue-sub",
+        &["stereolink/+/depth"],
+        true,
+    );
+    let (_gw, specs) = Gateway::start(
+        &broker,
+        &["cam1"],
+        &["--queue", "20", "--stats-every-s", "60"],
+    );
+    let state = Subscriber::start(
+        &broker,
+        "viewer",
+        "queue-state",
+        &["stereolink/bridge/state"],
+        false,
+    );
+    state.wait_for("bridge/state online", Duration::from_secs(10), |g| {
+        g.iter().any(|g| g.payload == b"online")
+    });
+    drop(state);
+    broker.stop();
+    let sims = stations(&specs, 60, Duration::from_millis(5));
+    wait_finished(&sims, Duration::from_secs(20));
+    broker.run();
+    let fresh = Subscriber::start(
+        &broker,
+        "viewer",
+        "queue-after",
+        &["stereolink/bridge/health"],
+        false,
+    );
+    fresh.wait_for("drops in bridge/health", Duration::from_secs(10), |g| {
+        g.iter()
+            .any(|g| json(g)["dropped"]["depth"].as_u64() > Some(0))
+    });
+    let health = json(
+        fresh
+            .all()
+            .iter()
+            .rev()
+            .find(|g| json(g)["dropped"]["depth"].as_u64() > Some(0))
+            .unwrap(),
+    );
+    let dropped = health["dropped"]["depth"].as_u64().unwrap() as usize;
+    sub.wait_for("the queued reports", Duration::from_secs(5), |g| {
+        g.iter().filter(|g| !g.dup).count() + dropped >= 60
+    });
+    std::thread::sleep(Duration::from_millis(300));
+    let mut ids = depth_ids(&sub.all()).remove("cam1").unwrap_or_default();
+    ids.sort_unstable();
+    eprintln!(
+        "queue 20: {} reports arrived, {dropped} dropped and counted",
+        ids.len()
+    );
+    assert_eq!(ids.len() + dropped, 60, "{ids:?}, {health}");
+    // The oldest went: what arrived is the newest, in one run.
+    assert_eq!(ids, ((60 - ids.len() as u32 + 1)..=60).collect::<Vec<_>>());
     for s in sims {
         s.stop();
     }
