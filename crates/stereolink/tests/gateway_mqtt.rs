@@ -10,7 +10,6 @@
 #![cfg(all(feature = "gateway", not(target_arch = "arm")))]
 
 use std::collections::BTreeMap;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::process::{Child, Command, Stdio};
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -804,10 +803,10 @@ fn commands_from_an_operator_stop_the_axis_and_others_are_refused() {
 }
 
 /// A killed station turns `offline` within its timeout while the other
-/// stays `online`; a killed gateway turns `bridge/state` `offline` (its
+/// stays `online`, and comes back `online` when it restarts; a killed gateway turns `bridge/state` `offline` (its
 /// last will).
 #[test]
-fn killed_station_goes_offline_and_killed_gateway_leaves_its_will() {
+fn killed_station_goes_offline_then_resumes_and_killed_gateway_leaves_its_will() {
     let Some(broker) = Broker::start() else {
         return;
     };
@@ -839,6 +838,31 @@ fn killed_station_goes_offline_and_killed_gateway_leaves_its_will() {
         sub.last("stereolink/cam2/availability").as_deref(),
         Some("online")
     );
+    // cam1 restarts (a new process: a new link session) and resumes.
+    let back_us = unix_us();
+    let mut cfg = SimConfig::new(specs[0].parse().unwrap(), 5, Duration::from_millis(20));
+    cfg.first_id = 1000;
+    let cam1 = SimStation::start(cfg).unwrap();
+    sub.wait_for(
+        "cam1 back online with its new reports",
+        Duration::from_secs(5),
+        |g| {
+            let after = |g: &&Got| g.at_us > back_us;
+            let online = g
+                .iter()
+                .filter(after)
+                .any(|g| g.topic == "stereolink/cam1/availability" && g.payload == b"online");
+            let reports = g
+                .iter()
+                .filter(after)
+                .filter(|g| g.topic == "stereolink/cam1/depth");
+            online && reports.count() == 5
+        },
+    );
+    assert!(cam1.stop().lock().unwrap().failures.is_empty());
+    // Stopped while the gateway still answers (else its last report
+    // would wait for the ARQ deadline).
+    cam2.stop();
     let gw_killed_us = unix_us();
     gw.child.kill().unwrap();
     sub.wait_for("bridge/state offline", Duration::from_secs(10), |g| {
@@ -848,8 +872,6 @@ fn killed_station_goes_offline_and_killed_gateway_leaves_its_will() {
                 && g.at_us > gw_killed_us
         })
     });
-    cam2.stop();
-    let _ = std::io::stderr().flush();
 }
 
 /// CPU time (user + system) of process `pid`, seconds.
