@@ -423,6 +423,20 @@ fn median(mut v: Vec<f64>) -> f64 {
     v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
 }
 
+/// Waits until the gateway said `online` (a subscriber of its own).
+fn wait_bridge_online(broker: &Broker) {
+    let state = Subscriber::start(
+        broker,
+        "viewer",
+        "state",
+        &["stereolink/bridge/state"],
+        false,
+    );
+    state.wait_for("bridge/state online", Duration::from_secs(10), |g| {
+        g.iter().any(|g| g.payload == b"online")
+    });
+}
+
 const FOUR: [&str; 4] = ["cam1", "cam2", "cam3", "cam4"];
 
 /// 4 stations x 100 reports (a frame with every 10th) through one
@@ -519,17 +533,7 @@ fn broker_restart_mid_soak_loses_no_report() {
         true,
     );
     let (gw, specs) = Gateway::start(&broker, &FOUR, &[]);
-    let state = Subscriber::start(
-        &broker,
-        "viewer",
-        "state-0",
-        &["stereolink/bridge/state"],
-        false,
-    );
-    state.wait_for("bridge/state online", Duration::from_secs(10), |g| {
-        g.iter().any(|g| g.payload == b"online")
-    });
-    drop(state);
+    wait_bridge_online(&broker);
     let sims = stations(&specs, 100, Duration::from_millis(25));
     std::thread::sleep(Duration::from_millis(800));
     broker.stop();
@@ -618,17 +622,7 @@ fn broker_away_longer_than_the_queue_drops_the_oldest_and_counts_them() {
         &["cam1"],
         &["--queue", "20", "--stats-every-s", "60"],
     );
-    let state = Subscriber::start(
-        &broker,
-        "viewer",
-        "queue-state",
-        &["stereolink/bridge/state"],
-        false,
-    );
-    state.wait_for("bridge/state online", Duration::from_secs(10), |g| {
-        g.iter().any(|g| g.payload == b"online")
-    });
-    drop(state);
+    wait_bridge_online(&broker);
     broker.stop();
     let sims = stations(&specs, 60, Duration::from_millis(5));
     wait_finished(&sims, Duration::from_secs(20));

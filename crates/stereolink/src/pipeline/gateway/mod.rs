@@ -370,6 +370,12 @@ impl Bridge {
         );
     }
 
+    /// Answers a command on `P/S/response`.
+    fn respond(&mut self, station: usize, r: &Value, connected: bool) {
+        let topic = self.station_topic(station, "response");
+        self.push(topic, Self::json(r), "response", connected);
+    }
+
     fn retain(&mut self, topic: String, payload: Vec<u8>, connected: bool) {
         self.outbox.push(
             Pub {
@@ -471,12 +477,7 @@ impl Bridge {
                         r["error"] = json!(e);
                     }
                 }
-                self.push(
-                    self.station_topic(station, "response"),
-                    Self::json(&r),
-                    "response",
-                    connected,
-                );
+                self.respond(station, &r, connected);
             }
             Up::Notice { station, text } => {
                 eprintln!("gateway: station {}: {text}", self.names[station])
@@ -534,12 +535,7 @@ impl Bridge {
             // A command waits for no station that cannot take it now.
             Ok(_) if !self.seen[i].online => {
                 let r = json!({"status": "error", "error": "the station is offline", "transaction": transaction});
-                self.push(
-                    self.station_topic(i, "response"),
-                    Self::json(&r),
-                    "response",
-                    connected,
-                );
+                self.respond(i, &r, connected);
             }
             Ok(command) => {
                 let req = Request {
@@ -549,22 +545,12 @@ impl Bridge {
                 };
                 if downs[i].send(req).is_err() {
                     let r = json!({"status": "error", "error": "the station's link is closed"});
-                    self.push(
-                        self.station_topic(i, "response"),
-                        Self::json(&r),
-                        "response",
-                        connected,
-                    );
+                    self.respond(i, &r, connected);
                 }
             }
             Err(e) => {
                 let r = json!({"status": "error", "error": e, "transaction": transaction});
-                self.push(
-                    self.station_topic(i, "response"),
-                    Self::json(&r),
-                    "response",
-                    connected,
-                );
+                self.respond(i, &r, connected);
             }
         }
     }
