@@ -447,8 +447,14 @@ fn soak_four_stations_every_report_arrives_once() {
     let Some(broker) = Broker::start() else {
         return;
     };
-    let sub = Subscriber::start(&broker, "viewer", "soak-sub", &["stereolink/#"], false);
-    let (gw, specs) = Gateway::start(&broker, &FOUR, &[]);
+    let sub = Subscriber::start(
+        &broker,
+        "viewer",
+        "soak-sub",
+        &["stereolink/#", "homeassistant/#"],
+        false,
+    );
+    let (gw, specs) = Gateway::start(&broker, &FOUR, &["--homeassistant", "homeassistant"]);
     sub.wait_for("bridge/state online", Duration::from_secs(10), |g| {
         g.iter()
             .any(|g| g.topic == "stereolink/bridge/state" && g.payload == b"online")
@@ -499,6 +505,12 @@ fn soak_four_stations_every_report_arrives_once() {
             assert!(!d[field].is_null(), "depth has {field}: {d}");
         }
     }
+    // Home Assistant discovery: the distance sensor reads the depth topic.
+    let sensor = sub
+        .last("homeassistant/sensor/stereolink_cam1_distance/config")
+        .unwrap();
+    let sensor: Value = serde_json::from_str(&sensor).unwrap();
+    assert_eq!(sensor["state_topic"], "stereolink/cam1/depth");
     let list: Value =
         serde_json::from_str(&sub.last("stereolink/bridge/stations").unwrap()).unwrap();
     assert_eq!(list.as_array().unwrap().len(), 4);

@@ -58,6 +58,11 @@ pub struct Args {
     /// How often bridge/health goes out, seconds.
     #[arg(long, default_value_t = 10.0)]
     pub health_every_s: f64,
+    /// Announce each station to Home Assistant (MQTT discovery under this
+    /// prefix, usually `homeassistant`): distance sensor, axis-stop
+    /// button, levels number.
+    #[arg(long, value_name = "PREFIX")]
+    pub homeassistant: Option<String>,
     /// Stop after this many seconds (0: run until killed).
     #[arg(long, default_value_t = 0.0)]
     pub run_s: f64,
@@ -123,6 +128,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         offline_after: secs(args.offline_after_s, "offline-after-s")?,
         queue: args.queue,
         health_every: secs(args.health_every_s, "health-every-s")?,
+        discovery: args.homeassistant.clone(),
     };
     eprintln!(
         "gateway: {} station(s) to mqtt://{}:{} under {}/",

@@ -90,6 +90,9 @@ pub struct GatewayConfig {
     pub queue: usize,
     /// How often `bridge/health` goes out.
     pub health_every: Duration,
+    /// Home Assistant's discovery prefix (`homeassistant`), if the
+    /// stations are to be announced to it.
+    pub discovery: Option<String>,
 }
 
 /// What a gateway run did.
@@ -323,8 +326,67 @@ impl Bridge {
                 b"offline".to_vec(),
                 false,
             );
+            if let Some(d) = &cfg.discovery {
+                for (topic, config) in b.discovery(d, i) {
+                    b.retain(topic, Self::json(&config), false);
+                }
+            }
         }
         b
+    }
+
+    /// Home Assistant MQTT discovery for station `i`: its distance as a
+    /// sensor, "stop the axis" as a button, its levels as a number.
+    fn discovery(&self, prefix: &str, i: usize) -> Vec<(String, Value)> {
+        let name = &self.names[i];
+        let id = format!("{}_{name}", self.prefix.replace('/', "_"));
+        let common = json!({
+            "availability": [
+                {"topic": self.topic("bridge/state")},
+                {"topic": self.station_topic(i, "availability")},
+            ],
+            "availability_mode": "all",
+            "device": {"identifiers": [id], "name": format!("stereolink {name}"), "manufacturer": "stereolink"},
+        });
+        let entity = |kind: &str, what: &str, extra: Value| {
+            let mut c = common.clone();
+            c["unique_id"] = json!(format!("{id}_{what}"));
+            c["name"] = json!(what.replace('_', " "));
+            for (k, v) in extra.as_object().expect("an object") {
+                c[k] = v.clone();
+            }
+            (format!("{prefix}/{kind}/{id}_{what}/config"), c)
+        };
+        let set = self.station_topic(i, "set");
+        vec![
+            entity(
+                "sensor",
+                "distance",
+                json!({
+                    "state_topic": self.station_topic(i, "depth"),
+                    "value_template": "{{ value_json.distance_m }}",
+                    "unit_of_measurement": "m",
+                    "device_class": "distance",
+                }),
+            ),
+            entity(
+                "button",
+                "axis_stop",
+                json!({
+                    "command_topic": set,
+                    "payload_press": "{\"axis\":\"stop\"}",
+                }),
+            ),
+            entity(
+                "number",
+                "levels",
+                json!({
+                    "command_topic": set,
+                    "command_template": "{\"levels\": {{ value | int }}}",
+                    "min": 2, "max": 16, "step": 1,
+                }),
+            ),
+        ]
     }
 
     fn options(&self) -> MqttOptions {
