@@ -184,6 +184,10 @@ pub fn run(
             };
             if let Some((_, result)) = ended.into_iter().find(|(l, _)| *l == Lane::Urgent) {
                 let req = in_flight.take().expect("a command in flight");
+                if result.is_ok() && req.command == Command::FrameRequest {
+                    // The frame asked for is rebuilt, whatever the interval.
+                    st.last_images = None;
+                }
                 let r = result
                     .map(|_| req.at.elapsed())
                     .map_err(|e| format!("not delivered: {e}"));
