@@ -6,7 +6,8 @@
 //! pair ([`sensor`]: rectification maps and depth from `P1`/`P2`), the
 //! sender's link in its own thread ([`uplink`]: reports ahead of frames), and
 //! the segments of the plane matcher ([`planes`]) and its plane table over
-//! the radio ([`planetable`]).
+//! the radio ([`planetable`]); off the board, the MQTT gateway for many
+//! stations (`gateway`, `stereolink gateway`).
 
 pub mod demo;
 pub mod planes;
