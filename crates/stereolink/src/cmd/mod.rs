@@ -12,6 +12,8 @@ pub mod codec;
 pub mod demo;
 pub mod depth;
 pub mod eval;
+#[cfg(all(feature = "gateway", not(target_arch = "arm")))]
+pub mod gateway;
 pub mod info;
 pub mod keygen;
 pub mod link_latency;
@@ -137,6 +139,9 @@ pub enum Command {
     Receive(receive::Args),
     /// Make a device's key pair for the secure link (NAME.key, NAME.pub).
     Keygen(keygen::Args),
+    /// Bridge many stations to an MQTT broker: depth, frames, link stats, availability, commands.
+    #[cfg(all(feature = "gateway", not(target_arch = "arm")))]
+    Gateway(gateway::Args),
     /// Reproduce the paper's tables on a data folder as an HTML report.
     Report(report::Args),
     /// Time one stage alone (for comparing with other tools in one run).
@@ -165,6 +170,8 @@ impl Command {
             Command::Send(args) => send::run(*args, out),
             Command::Receive(args) => receive::run(args, out),
             Command::Keygen(args) => keygen::run(args, out),
+            #[cfg(all(feature = "gateway", not(target_arch = "arm")))]
+            Command::Gateway(args) => gateway::run(args, out),
             Command::Report(args) => report::run(args, out),
             Command::Bench(target) => bench::run(target, out),
         }

@@ -6,7 +6,8 @@
 //! pair ([`sensor`]: rectification maps and depth from `P1`/`P2`), the
 //! sender's link in its own thread ([`uplink`]: reports ahead of frames), and
 //! the segments of the plane matcher ([`planes`]) and its plane table over
-//! the radio ([`planetable`]).
+//! the radio ([`planetable`]); off the board, the MQTT gateway for many
+//! stations (`gateway`, `stereolink gateway`).
 
 pub mod demo;
 pub mod planes;
@@ -16,3 +17,7 @@ pub mod sender;
 pub mod sensor;
 pub mod uplink;
 pub mod watch;
+
+// The MQTT gateway never goes into the board's build (no rumqttc on ARM).
+#[cfg(all(feature = "gateway", not(target_arch = "arm")))]
+pub mod gateway;

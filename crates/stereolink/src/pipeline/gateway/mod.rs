@@ -1,0 +1,288 @@
+//! The fleet gateway: the receiver side for any number of stations, each
+//! on its own link (its own ARQ session and keys), bridged to an MQTT
+//! broker in the zigbee2mqtt style. `docs/mqtt.md` lists every topic and
+//! payload.
+//!
+//! One thread per station ([`station`]) owns its endpoint, rebuilds its
+//! frames and sends its commands down; the bridge thread ([`run`]) owns
+//! the broker connection ([`mqtt`]'s outbox): its state (`bridge`) turns
+//! the stations' events into publishes, tracks availability, and hands
+//! commands from `set` topics to the stations. Commands reach a station only over its own link, sealed
+//! when keys are given ([`command`]: a versioned Control message).
+//!
+//! [`sim`] is a simulated station (synthetic frames and reports, an axis
+//! that obeys commands) for the tests and the measurements.
+
+mod bridge;
+pub mod command;
+pub mod mqtt;
+pub mod sim;
+pub mod station;
+
+use std::collections::BTreeMap;
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::mpsc::{self, RecvTimeoutError};
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use rumqttc::{Client, Event, Packet, QoS};
+
+use bridge::Bridge;
+use station::{Request, StationConfig, Up};
+
+/// Where the broker is and who the gateway is there.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct Broker {
+    pub host: String,
+    pub port: u16,
+    /// User name and password, if the broker asks for them.
+    pub login: Option<(String, String)>,
+    pub client_id: String,
+}
+
+impl Broker {
+    /// Reads `mqtt://[USER[:PASSWORD]@]HOST[:PORT]` (`tcp://` too; port
+    /// 1883 by default). TLS (`mqtts://`) is not built in.
+    pub fn parse(url: &str) -> Result<Broker, String> {
+        let rest = url
+            .strip_prefix("mqtt://")
+            .or_else(|| url.strip_prefix("tcp://"))
+            .ok_or_else(|| format!("broker {url:?}: use mqtt://HOST:PORT (no TLS here)"))?;
+        let rest = rest.trim_end_matches('/');
+        let (login, hostport) = match rest.rsplit_once('@') {
+            Some((user, hp)) => {
+                let (u, p) = user.split_once(':').unwrap_or((user, ""));
+                (Some((u.to_string(), p.to_string())), hp)
+            }
+            None => (None, rest),
+        };
+        let (host, port) = match hostport.rsplit_once(':') {
+            Some((h, p)) => (
+                h,
+                p.parse()
+                    .map_err(|_| format!("broker {url:?}: port {p:?} is not a number"))?,
+            ),
+            None => (hostport, 1883),
+        };
+        if host.is_empty() {
+            return Err(format!("broker {url:?}: no host"));
+        }
+        Ok(Broker {
+            host: host.into(),
+            port,
+            login,
+            client_id: "stereolink-gateway".into(),
+        })
+    }
+}
+
+/// Everything the gateway needs.
+#[derive(Clone, Debug)]
+pub struct GatewayConfig {
+    pub stations: Vec<StationConfig>,
+    pub broker: Broker,
+    /// The first topic level (`stereolink`).
+    pub prefix: String,
+    /// A station silent this long is `offline`.
+    pub offline_after: Duration,
+    /// Most non-retained publishes kept while the broker is away.
+    pub queue: usize,
+    /// How often `bridge/health` goes out.
+    pub health_every: Duration,
+    /// Home Assistant's discovery prefix (`homeassistant`), if the
+    /// stations are to be announced to it.
+    pub discovery: Option<String>,
+}
+
+/// What a gateway run did.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct Summary {
+    pub published: u64,
+    pub republished: u64,
+    pub dropped: BTreeMap<&'static str, u64>,
+    pub reconnects: u64,
+    pub commands: u64,
+}
+
+/// The shortest and longest wait before reconnecting to the broker.
+const BACKOFF: (Duration, Duration) = (Duration::from_millis(100), Duration::from_secs(5));
+/// How long the bridge waits for the broker or the stations in one round.
+const ROUND: Duration = Duration::from_millis(5);
+/// `bridge/stations` goes out at most this often while it changes.
+const STATIONS_EVERY: Duration = Duration::from_secs(2);
+
+/// Runs the gateway until `stop` is set; then says `offline` and leaves.
+pub fn run(cfg: GatewayConfig, stop: Arc<AtomicBool>) -> anyhow::Result<Summary> {
+    anyhow::ensure!(
+        !cfg.stations.is_empty(),
+        "the gateway needs at least one --link"
+    );
+    let mut names = std::collections::BTreeSet::new();
+    for s in &cfg.stations {
+        anyhow::ensure!(
+            valid_level(&s.name) && s.name != "bridge",
+            "station name {:?}: use letters, digits, - and _ (and not \"bridge\")",
+            s.name
+        );
+        anyhow::ensure!(names.insert(&s.name), "station {:?} is named twice", s.name);
+    }
+    let (up_tx, up) = mpsc::channel::<Up>();
+    let mut downs = Vec::new();
+    let mut threads = Vec::new();
+    for (i, s) in cfg.stations.iter().enumerate() {
+        let (tx, rx) = mpsc::channel::<Request>();
+        downs.push(tx);
+        let (s, up_tx, stop) = (s.clone(), up_tx.clone(), stop.clone());
+        threads.push(
+            std::thread::Builder::new()
+                .name(format!("station {}", s.name))
+                .spawn(move || station::run(i, s, up_tx, rx, stop))?,
+        );
+    }
+    drop(up_tx);
+    let mut bridge = Bridge::new(&cfg);
+    let (client, mut connection) = Client::new(bridge.options(), 256);
+    let mut connected = false;
+    let (mut backoff, mut next_attempt) = (BACKOFF.0, Instant::now());
+    let mut last_health = Instant::now();
+    let mut last_stations = Instant::now() - STATIONS_EVERY;
+    let mut leaving: Option<Instant> = None;
+    loop {
+        if stop.load(Ordering::Relaxed) && leaving.is_none() {
+            leaving = Some(Instant::now());
+            bridge.leave(connected);
+        }
+        if let Some(t) = leaving {
+            let flushed = bridge.outbox.waiting() == 0 && bridge.outbox.in_flight() == 0;
+            if flushed || !connected || t.elapsed() > Duration::from_secs(2) {
+                break;
+            }
+        }
+        // The broker: events until a round passes quietly.
+        if connected || Instant::now() >= next_attempt {
+            let mut wait = ROUND;
+            for _ in 0..256 {
+                let ev = match connection.recv_timeout(wait) {
+                    Ok(ev) => ev,
+                    Err(rumqttc::RecvTimeoutError::Timeout) => break,
+                    Err(rumqttc::RecvTimeoutError::Disconnected) => {
+                        anyhow::bail!("the MQTT client stopped")
+                    }
+                };
+                wait = Duration::ZERO;
+                match ev {
+                    Ok(Event::Incoming(Packet::ConnAck(ack))) => {
+                        if ack.code != rumqttc::ConnectReturnCode::Success {
+                            eprintln!("gateway: the broker refused the connection: {:?}", ack.code);
+                            connected = false;
+                            next_attempt = Instant::now() + backoff;
+                            backoff = (backoff * 2).min(BACKOFF.1);
+                            break;
+                        }
+                        if bridge.connections > 0 {
+                            eprintln!("gateway: reconnected to the broker");
+                        }
+                        bridge.connections += 1;
+                        connected = true;
+                        backoff = BACKOFF.0;
+                        bridge.outbox.on_connack();
+                        let p = &bridge.prefix;
+                        let _ = client.try_subscribe(format!("{p}/+/set"), QoS::AtLeastOnce);
+                        let _ =
+                            client.try_subscribe(format!("{p}/bridge/request/+"), QoS::AtLeastOnce);
+                        bridge.health(connected);
+                    }
+                    Ok(Event::Incoming(Packet::PubAck(a))) => bridge.outbox.on_puback(a.pkid),
+                    Ok(Event::Incoming(Packet::Publish(p))) => {
+                        bridge.on_request(&p.topic, &p.payload, &downs, connected)
+                    }
+                    Ok(Event::Outgoing(o)) => bridge.outbox.on_outgoing(&o),
+                    Ok(Event::Incoming(_)) => {}
+                    Err(e) => {
+                        if connected {
+                            eprintln!("gateway: lost the broker ({e}); reconnecting");
+                            bridge.reconnects += 1;
+                        } else if bridge.connections == 0 && backoff == BACKOFF.0 {
+                            eprintln!("gateway: cannot reach the broker ({e}); retrying");
+                        }
+                        connected = false;
+                        bridge.outbox.on_disconnect();
+                        next_attempt = Instant::now() + backoff;
+                        backoff = (backoff * 2).min(BACKOFF.1);
+                        break;
+                    }
+                }
+            }
+        }
+        // The stations: wait here only while the broker is away.
+        let wait = if connected || leaving.is_some() {
+            Duration::ZERO
+        } else {
+            next_attempt
+                .saturating_duration_since(Instant::now())
+                .min(Duration::from_millis(50))
+        };
+        match up.recv_timeout(wait) {
+            Ok(e) => bridge.on_up(e, connected),
+            Err(RecvTimeoutError::Timeout) => {}
+            Err(RecvTimeoutError::Disconnected) if leaving.is_some() => {}
+            Err(RecvTimeoutError::Disconnected) => anyhow::bail!("every station thread ended"),
+        }
+        while let Ok(e) = up.try_recv() {
+            bridge.on_up(e, connected);
+        }
+        bridge.check_availability(connected);
+        if bridge.stations_dirty && last_stations.elapsed() >= STATIONS_EVERY {
+            last_stations = Instant::now();
+            bridge.publish_stations(connected);
+        }
+        if last_health.elapsed() >= cfg.health_every {
+            last_health = Instant::now();
+            bridge.health(connected);
+        }
+        if connected {
+            while let Some(p) = bridge.outbox.next() {
+                let p = p.clone();
+                match client.try_publish(p.topic, p.qos, p.retain, p.payload) {
+                    Ok(()) => bridge.outbox.handed(),
+                    Err(_) => break, // the client's channel is full: next round
+                }
+            }
+        }
+    }
+    let _ = client.try_disconnect();
+    let _ = connection.recv_timeout(Duration::from_millis(100));
+    for t in threads {
+        let _ = t.join();
+    }
+    Ok(Summary {
+        published: bridge.outbox.published,
+        republished: bridge.outbox.republished,
+        dropped: bridge.outbox.dropped.clone(),
+        reconnects: bridge.reconnects,
+        commands: bridge.commands,
+    })
+}
+
+/// Whether `s` can be a topic level (and a file name for its key).
+fn valid_level(s: &str) -> bool {
+    !s.is_empty()
+        && s.len() <= 64
+        && s.chars()
+            .all(|c| c.is_ascii_alphanumeric() || c == '-' || c == '_')
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn broker_urls_parse() {
+        let b = Broker::parse("mqtt://gw:s3cret@127.0.0.1:18830").unwrap();
+        assert_eq!((b.host.as_str(), b.port), ("127.0.0.1", 18830));
+        assert_eq!(b.login, Some(("gw".into(), "s3cret".into())));
+        assert_eq!(Broker::parse("tcp://broker").unwrap().port, 1883);
+        assert!(Broker::parse("mqtts://broker").is_err());
+        assert!(Broker::parse("mqtt://:1883").is_err());
+    }
+}
