@@ -829,6 +829,32 @@ mod tests {
         })
     }
 
+    /// A xorshift generator seeded with `seed`.
+    fn xorshift(seed: u64) -> impl FnMut() -> u64 {
+        let mut s = seed | 1;
+        move || {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            s
+        }
+    }
+
+    /// Both paths (AVX2 where the CPU has it, and the portable one) give
+    /// the definition's map, bit for bit.
+    fn as_defined(
+        map: &DisparityMap,
+        guide: &RgbImage,
+        p: &WeightedMedian,
+    ) -> Result<(), proptest::test_runner::TestCaseError> {
+        let bits = |m: &DisparityMap| m.as_slice().iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+        let want = bits(&naive(map, guide, p));
+        proptest::prop_assert_eq!(bits(&weighted_median(map, guide, p)), want.clone());
+        let portable = WeightedMedianGuide::with_avx2(guide, p, false);
+        proptest::prop_assert_eq!(bits(&portable.filter(map)), want);
+        Ok(())
+    }
+
     proptest::proptest! {
         #[test]
         /// Both kernels, as the definition computes it.
@@ -836,8 +862,7 @@ mod tests {
             w in 1usize..30, h in 1usize..30, seed in proptest::prelude::any::<u64>(),
             radius in 1usize..6, step in 1usize..4, sigma in 5f32..60.0,
         ) {
-            let mut s = seed | 1;
-            let mut next = move || { s ^= s << 13; s ^= s >> 7; s ^= s << 17; s };
+            let mut next = xorshift(seed);
             let guide = RgbImage::from_fn(w, h, |_, _| {
                 let v = next();
                 [v as u8 & 0xF0, (v >> 8) as u8, (v >> 16) as u8 & 0xC0]
@@ -847,11 +872,7 @@ mod tests {
                 k => 3.0 + (k % 4) as f32 + if x > w / 2 { 0.25 } else { 0.0 },
             });
             let p = WeightedMedian { radius, sigma_color: sigma, step: step.min(radius) };
-            let bits = |m: &DisparityMap| m.as_slice().iter().map(|v| v.to_bits()).collect::<Vec<_>>();
-            let want = bits(&naive(&map, &guide, &p));
-            proptest::prop_assert_eq!(bits(&weighted_median(&map, &guide, &p)), want.clone());
-            let portable = WeightedMedianGuide::with_avx2(&guide, &p, false);
-            proptest::prop_assert_eq!(bits(&portable.filter(&map)), want);
+            as_defined(&map, &guide, &p)?;
         }
 
         #[test]
@@ -863,8 +884,7 @@ mod tests {
             w in 1usize..48, h in 1usize..40, seed in proptest::prelude::any::<u64>(),
             radius in 1usize..16, step in 1usize..5, sigma in 5f32..80.0, span in 1f32..200.0,
         ) {
-            let mut s = seed | 1;
-            let mut next = move || { s ^= s << 13; s ^= s >> 7; s ^= s << 17; s };
+            let mut next = xorshift(seed);
             let edge = (seed % 29) as usize;
             let guide = RgbImage::from_fn(w, h, |x, y| {
                 let n = (next() % 9) as u8;
@@ -881,11 +901,7 @@ mod tests {
                 base + slant.round() + jitter + if (x ^ y) & 4 == 0 { 0.5 } else { 0.0 }
             });
             let p = WeightedMedian { radius, sigma_color: sigma, step: step.min(radius) };
-            let bits = |m: &DisparityMap| m.as_slice().iter().map(|v| v.to_bits()).collect::<Vec<_>>();
-            let want = bits(&naive(&map, &guide, &p));
-            proptest::prop_assert_eq!(bits(&weighted_median(&map, &guide, &p)), want.clone());
-            let portable = WeightedMedianGuide::with_avx2(&guide, &p, false);
-            proptest::prop_assert_eq!(bits(&portable.filter(&map)), want);
+            as_defined(&map, &guide, &p)?;
         }
     }
 
