@@ -372,8 +372,12 @@ impl WtaMatcher {
                     y0: i * band_rows,
                 };
                 let m = params.min_filter.max(1);
-                if kernel == Kernel::Swar && m == 1 && right_rows.is_none() {
-                    return swar::band(&job, &mut band.swar, rows);
+                if kernel == Kernel::Swar
+                    && m == 1
+                    && right_rows.is_none()
+                    && swar::band(&job, &mut band.swar, rows)
+                {
+                    return;
                 }
                 band.colsum.resize(w * nl, 0);
                 if kernel == Kernel::Swar {

@@ -85,11 +85,11 @@ impl TableSet {
         Some(s)
     }
 
-    /// The words of `slot`'s table for the lanes `start..start + 2 · n`.
+    /// The words of `slot`'s table for the lanes `start..start + 2 · NW`.
     #[inline(always)]
-    fn lanes(&self, slot: usize, tw: usize, start: usize, n: usize) -> &[u32] {
+    fn lanes<const NW: usize>(&self, slot: usize, tw: usize, start: usize) -> &[u32; NW] {
         let t = &self.words[(2 * slot + start % 2) * tw..][..tw];
-        &t[start / 2..start / 2 + n]
+        t[start / 2..][..NW].try_into().expect("NW words")
     }
 }
 
@@ -131,27 +131,42 @@ fn as_lanes(v: &[u32]) -> &[u16] {
     unsafe { std::slice::from_raw_parts(v.as_ptr().cast(), 2 * v.len()) }
 }
 
-/// Adds the absolute differences of row `y` to the column sums and
-/// subtracts those of row `leaving` when given, from the tables where the
-/// values have them, skipping columns whose rows agree.
-fn accumulate_row(job: &Job, sb: &mut SwarBand, y: usize, leaving: Option<usize>) {
+/// `v` as columns of `NW` words (a remainder left out).
+#[inline(always)]
+fn columns<const NW: usize>(v: &[u32]) -> &[[u32; NW]] {
+    // SAFETY: `[u32; NW]` has the size of NW u32 and their alignment; the
+    // length rounds down.
+    unsafe { std::slice::from_raw_parts(v.as_ptr().cast(), v.len() / NW) }
+}
+
+/// [`columns`], mutable.
+#[inline(always)]
+fn columns_mut<const NW: usize>(v: &mut [u32]) -> &mut [[u32; NW]] {
+    // SAFETY: as in `columns`, from a unique borrow.
+    unsafe { std::slice::from_raw_parts_mut(v.as_mut_ptr().cast(), v.len() / NW) }
+}
+
+/// Adds the absolute differences of row `y` to the column sums (`NW` words
+/// each) and subtracts those of row `leaving` when given, from the tables
+/// where the values have them, skipping columns whose rows agree.
+fn accumulate_row<const NW: usize>(job: &Job, sb: &mut SwarBand, y: usize, leaving: Option<usize>) {
     let w = job.left.width();
-    let nw = lanes(job.params.ndisp) / 2;
     let stride = job.stride;
     let tw = stride / 2 + 1;
     let start = |x: usize| w + job.params.min_disp - 1 - x;
     let row = |y: usize| &job.reversed[y * stride..(y + 1) * stride];
-    let left = job.left.row(y);
+    let left = &job.left.row(y)[..w];
+    let cols = columns_mut::<NW>(&mut sb.colsum);
     let Some(s) = leaving else {
-        for (x, col) in sb.colsum.chunks_exact_mut(nw).enumerate() {
-            let (l, r) = (left[x], &row(y)[start(x)..]);
+        for (x, col) in cols.iter_mut().enumerate() {
+            let (l, r) = (left[x], &row(y)[start(x)..][..2 * NW]);
             for (i, c) in col.iter_mut().enumerate() {
                 *c = c.wrapping_add(word(l.abs_diff(r[2 * i]), l.abs_diff(r[2 * i + 1])));
             }
         }
         return;
     };
-    let gone = job.left.row(s);
+    let gone = &job.left.row(s)[..w];
     let differ = &mut sb.differ;
     let mut n = 0;
     differ[0] = 0;
@@ -161,44 +176,33 @@ fn accumulate_row(job: &Job, sb: &mut SwarBand, y: usize, leaving: Option<usize>
     }
     let ring = sb.sets.len();
     let (yi, si) = (y % ring, s % ring);
-    for (x, col) in sb.colsum.chunks_exact_mut(nw).enumerate() {
+    // The slots of the last values seen (consecutive columns mostly share them).
+    let (mut last_n, mut last_o) = ((u16::MAX, None), (u16::MAX, None));
+    for (x, col) in cols.iter_mut().enumerate() {
         let (ln, lo, at) = (left[x], gone[x], start(x));
-        if ln == lo && differ[at + 2 * nw] == differ[at] {
+        if ln == lo && differ[at + 2 * NW] == differ[at] {
             continue;
         }
-        let slots = (
-            sb.sets[yi].slot(y, ln, row(y), tw),
-            sb.sets[si].slot(s, lo, row(s), tw),
-        );
-        if let (Some(a), Some(b)) = slots {
-            let tn = sb.sets[yi].lanes(a, tw, at, nw);
-            let to = sb.sets[si].lanes(b, tw, at, nw);
-            if let (Ok(c), Ok(n), Ok(o)) = (
-                <&mut [u32; 16]>::try_from(&mut *col),
-                <&[u32; 16]>::try_from(tn),
-                <&[u32; 16]>::try_from(to),
-            ) {
-                add_sub(c, n, o);
-            } else {
-                add_sub(col, tn, to);
+        if last_n.0 != ln {
+            last_n = (ln, sb.sets[yi].slot(y, ln, row(y), tw));
+        }
+        if last_o.0 != lo {
+            last_o = (lo, sb.sets[si].slot(s, lo, row(s), tw));
+        }
+        if let (Some(a), Some(b)) = (last_n.1, last_o.1) {
+            let tn = sb.sets[yi].lanes::<NW>(a, tw, at);
+            let to = sb.sets[si].lanes::<NW>(b, tw, at);
+            for i in 0..NW {
+                col[i] = col[i].wrapping_add(tn[i]).wrapping_sub(to[i]);
             }
         } else {
-            let (rn, ro) = (&row(y)[at..], &row(s)[at..]);
+            let (rn, ro) = (&row(y)[at..][..2 * NW], &row(s)[at..][..2 * NW]);
             for (i, c) in col.iter_mut().enumerate() {
                 let new = word(ln.abs_diff(rn[2 * i]), ln.abs_diff(rn[2 * i + 1]));
                 let old = word(lo.abs_diff(ro[2 * i]), lo.abs_diff(ro[2 * i + 1]));
                 *c = c.wrapping_sub(old).wrapping_add(new);
             }
         }
-    }
-}
-
-/// `c += n − o`, a word at a time.
-#[inline(always)]
-fn add_sub(c: &mut [u32], n: &[u32], o: &[u32]) {
-    let (n, o) = (&n[..c.len()], &o[..c.len()]);
-    for i in 0..c.len() {
-        c[i] = c[i].wrapping_add(n[i]).wrapping_sub(o[i]);
     }
 }
 
@@ -225,18 +229,19 @@ fn prepare(job: &Job, sb: &mut SwarBand) {
 /// `h += a − s` a word at a time, and the smallest of the first `valid`
 /// lanes (`valid ≥ 1`) with its index, the lowest index winning ties.
 #[inline(always)]
-fn slide_argmin(h: &mut [u32], a: &[u32], s: &[u32], valid: usize) -> (usize, u16) {
-    let n = h.len();
-    let (a, s) = (&a[..n], &s[..n]);
+fn slide_argmin<const NW: usize>(
+    h: &mut [u32; NW],
+    a: &[u32; NW],
+    s: &[u32; NW],
+    valid: usize,
+) -> (usize, u16) {
     let (mut best, mut k) = (u32::MAX, 0usize);
     let full = valid / 2;
-    for i in 0..full {
-        let v = h[i].wrapping_add(a[i]).wrapping_sub(s[i]);
-        h[i] = v;
-        take_word(&mut best, &mut k, v, 2 * i);
-    }
-    for i in full..n {
+    for i in 0..NW {
         h[i] = h[i].wrapping_add(a[i]).wrapping_sub(s[i]);
+        if i < full {
+            take_word(&mut best, &mut k, h[i], 2 * i);
+        }
     }
     if valid % 2 == 1 {
         let first = first_low(h[full]) << 16;
@@ -247,11 +252,15 @@ fn slide_argmin(h: &mut [u32], a: &[u32], s: &[u32], valid: usize) -> (usize, u1
     (k, (best >> 16) as u16)
 }
 
-/// [`slide_argmin`] over 16 words, every lane valid: unrolled.
+/// [`slide_argmin`] with every lane valid: unrolled.
 #[inline(always)]
-fn slide_argmin_32(h: &mut [u32; 16], a: &[u32; 16], s: &[u32; 16]) -> (usize, u16) {
+fn slide_argmin_all<const NW: usize>(
+    h: &mut [u32; NW],
+    a: &[u32; NW],
+    s: &[u32; NW],
+) -> (usize, u16) {
     let (mut best, mut k) = (u32::MAX, 0usize);
-    for i in 0..16 {
+    for i in 0..NW {
         let v = h[i].wrapping_add(a[i]).wrapping_sub(s[i]);
         h[i] = v;
         take_word(&mut best, &mut k, v, 2 * i);
@@ -288,63 +297,81 @@ fn take_word(best: &mut u32, k: &mut usize, v: u32, i: usize) {
 }
 
 /// The band loop of the SWAR kernel without a min filter and without the
-/// right view's map: as [`super::band_with`] in that setting.
-pub(super) fn band<T: Disparity>(job: &Job, sb: &mut SwarBand, out: &mut [T]) {
+/// right view's map: as [`super::band_with`] in that setting. False (and
+/// nothing done) for more than 64 disparity lanes.
+pub(super) fn band<T: Disparity>(job: &Job, sb: &mut SwarBand, out: &mut [T]) -> bool {
+    match lanes(job.params.ndisp) / 2 {
+        8 => band_words::<T, 8>(job, sb, out),
+        16 => band_words::<T, 16>(job, sb, out),
+        24 => band_words::<T, 24>(job, sb, out),
+        32 => band_words::<T, 32>(job, sb, out),
+        _ => return false,
+    }
+    true
+}
+
+/// [`band`] with `NW` words (`2 · NW` lanes) per column.
+fn band_words<T: Disparity, const NW: usize>(job: &Job, sb: &mut SwarBand, out: &mut [T]) {
     let (w, h) = job.left.dims();
     let p = job.params;
-    let (nw, r) = (lanes(p.ndisp) / 2, p.block as isize / 2);
+    let r = p.block / 2;
     debug_assert!(p.min_filter <= 1);
     let clamp_y = |y: isize| y.clamp(0, h as isize - 1) as usize;
-    let clamp_x = |x: isize| x.clamp(0, w as isize - 1) as usize;
     prepare(job, sb);
     sb.colsum.fill(0);
     let first = job.y0;
-    for dy in -r..=r {
-        accumulate_row(job, sb, clamp_y(first as isize + dy), None);
+    let ri = r as isize;
+    for dy in -ri..=ri {
+        accumulate_row::<NW>(job, sb, clamp_y(first as isize + dy), None);
     }
+    // The first pixel whose lanes are all valid disparities.
+    let all_valid = (p.ndisp == 2 * NW).then_some(p.min_disp + 2 * NW - 1);
     for (i, out_row) in out.chunks_exact_mut(w).enumerate() {
         let y = first + i;
         if i > 0 {
             let yc = y as isize;
-            accumulate_row(job, sb, clamp_y(yc + r), Some(clamp_y(yc - r - 1)));
+            accumulate_row::<NW>(job, sb, clamp_y(yc + ri), Some(clamp_y(yc - ri - 1)));
         }
-        let (colsum, hs) = (&sb.colsum, &mut sb.h);
-        let col = |x: isize| &colsum[clamp_x(x) * nw..][..nw];
+        let cols = columns::<NW>(&sb.colsum);
+        let hs: &mut [u32; NW] = sb.h.as_mut_slice().try_into().expect("NW words");
+        // The window sum at x = 0 (columns left of the image are column 0).
         hs.fill(0);
-        for dx in -r..=r {
-            for (h, &c) in hs.iter_mut().zip(col(dx)) {
+        for dx in 0..=2 * r {
+            let c = &cols[dx.saturating_sub(r).min(w - 1)];
+            for (h, &c) in hs.iter_mut().zip(c) {
                 *h = h.wrapping_add(c);
             }
         }
-        for (x, d) in out_row.iter_mut().enumerate() {
-            let xi = x as isize;
-            // Disparities d_min.. up to x (none below d_min).
-            let valid = (x + 1).saturating_sub(p.min_disp).min(p.ndisp);
-            let best = if x == 0 {
-                (valid > 0).then(|| {
-                    let c = as_lanes(hs);
-                    let k = (0..valid).min_by_key(|&k| (c[k], k)).expect("a valid lane");
-                    (k, c[k])
-                })
-            } else {
-                let (a, s) = (col(xi + r), col(xi - r - 1));
-                if valid == 32 && nw == 16 {
-                    let h16: &mut [u32; 16] = hs.as_mut_slice().try_into().expect("16 words");
-                    let (a, s) = (a.try_into().expect("16"), s.try_into().expect("16"));
-                    Some(slide_argmin_32(h16, a, s))
-                } else if valid > 0 {
-                    Some(slide_argmin(hs, a, s, valid))
-                } else {
+        let valid = |x: usize| (x + 1).saturating_sub(p.min_disp).min(p.ndisp);
+        out_row[0] = match valid(0) {
+            0 => T::NONE,
+            v => {
+                let c = as_lanes(hs);
+                let k = (0..v).min_by_key(|&k| (c[k], k)).expect("a valid lane");
+                T::winner(c, v, (k, c[k]), p)
+            }
+        };
+        // Then slide: column x + r enters, x − r − 1 leaves (clamped).
+        let fast_from = all_valid.unwrap_or(w).clamp(1, w);
+        for x in 1..fast_from {
+            let (a, s) = (&cols[(x + r).min(w - 1)], &cols[x.saturating_sub(r + 1)]);
+            out_row[x] = match valid(x) {
+                0 => {
                     for ((h, &a), &s) in hs.iter_mut().zip(a).zip(s) {
                         *h = h.wrapping_add(a).wrapping_sub(s);
                     }
-                    None
+                    T::NONE
+                }
+                v => {
+                    let best = slide_argmin(hs, a, s, v);
+                    T::winner(as_lanes(hs), v, best, p)
                 }
             };
-            *d = match best {
-                Some(best) => T::winner(as_lanes(hs), valid, best, p),
-                None => T::NONE,
-            };
+        }
+        for (x, d) in out_row.iter_mut().enumerate().skip(fast_from) {
+            let (a, s) = (&cols[(x + r).min(w - 1)], &cols[x.saturating_sub(r + 1)]);
+            let best = slide_argmin_all(hs, a, s);
+            *d = T::winner(as_lanes(hs), 2 * NW, best, p);
         }
     }
 }
