@@ -29,6 +29,9 @@ use super::{lanes, Disparity, Job};
 const SLOTS: usize = 6;
 /// No slot (in [`TableSet::slot_of`]).
 const NO_SLOT: u8 = u8::MAX;
+/// A column of a row's plan that is skipped, or updated directly.
+const SKIP: u32 = u32::MAX;
+const DIRECT: u32 = u32::MAX - 1;
 
 /// The scratch of one band for [`band`].
 #[derive(Default)]
@@ -42,6 +45,9 @@ pub(super) struct SwarBand {
     differ: Vec<u32>,
     /// The tables of the window's rows, set `y % sets.len()` for row `y`.
     sets: Vec<TableSet>,
+    /// Per column of a row: where its entering and leaving table words
+    /// start, or [`SKIP`] or [`DIRECT`].
+    plan: Vec<(u32, u32)>,
 }
 
 /// The tables of one right row, per left gray value with a slot.
@@ -83,13 +89,6 @@ impl TableSet {
         let (t0, t1) = self.words[2 * s * tw..2 * (s + 1) * tw].split_at_mut(tw);
         build_table(l, rev, t0, t1);
         Some(s)
-    }
-
-    /// The words of `slot`'s table for the lanes `start..start + 2 · NW`.
-    #[inline(always)]
-    fn lanes<const NW: usize>(&self, slot: usize, tw: usize, start: usize) -> &[u32; NW] {
-        let t = &self.words[(2 * slot + start % 2) * tw..][..tw];
-        t[start / 2..][..NW].try_into().expect("NW words")
     }
 }
 
@@ -176,26 +175,43 @@ fn accumulate_row<const NW: usize>(job: &Job, sb: &mut SwarBand, y: usize, leavi
     }
     let ring = sb.sets.len();
     let (yi, si) = (y % ring, s % ring);
-    // The slots of the last values seen (consecutive columns mostly share them).
+    // First where each column's two table words start (building the
+    // tables on first use), or that it is skipped or direct; then the
+    // updates, with the tables only read.
+    let plan = &mut sb.plan[..w];
+    // The table offsets of the last values seen (consecutive columns
+    // mostly share them).
     let (mut last_n, mut last_o) = ((u16::MAX, None), (u16::MAX, None));
-    for (x, col) in cols.iter_mut().enumerate() {
+    for (x, plan) in plan.iter_mut().enumerate() {
         let (ln, lo, at) = (left[x], gone[x], start(x));
         if ln == lo && differ[at + 2 * NW] == differ[at] {
+            *plan = (SKIP, SKIP);
             continue;
         }
         if last_n.0 != ln {
-            last_n = (ln, sb.sets[yi].slot(y, ln, row(y), tw));
+            last_n = (ln, sb.sets[yi].slot(y, ln, row(y), tw).map(|k| 2 * k * tw));
         }
         if last_o.0 != lo {
-            last_o = (lo, sb.sets[si].slot(s, lo, row(s), tw));
+            last_o = (lo, sb.sets[si].slot(s, lo, row(s), tw).map(|k| 2 * k * tw));
         }
-        if let (Some(a), Some(b)) = (last_n.1, last_o.1) {
-            let tn = sb.sets[yi].lanes::<NW>(a, tw, at);
-            let to = sb.sets[si].lanes::<NW>(b, tw, at);
+        let word_of = |base: usize| (base + at % 2 * tw + at / 2) as u32;
+        *plan = match (last_n.1, last_o.1) {
+            (Some(a), Some(b)) => (word_of(a), word_of(b)),
+            _ => (DIRECT, DIRECT),
+        };
+    }
+    let (tn, to) = (&sb.sets[yi].words, &sb.sets[si].words);
+    for (x, (col, &(a, b))) in cols.iter_mut().zip(&*plan).enumerate() {
+        if a == SKIP {
+            continue;
+        }
+        if a != DIRECT {
+            let (tn, to) = (&tn[a as usize..][..NW], &to[b as usize..][..NW]);
             for i in 0..NW {
                 col[i] = col[i].wrapping_add(tn[i]).wrapping_sub(to[i]);
             }
         } else {
+            let (ln, lo, at) = (left[x], gone[x], start(x));
             let (rn, ro) = (&row(y)[at..][..2 * NW], &row(s)[at..][..2 * NW]);
             for (i, c) in col.iter_mut().enumerate() {
                 let new = word(ln.abs_diff(rn[2 * i]), ln.abs_diff(rn[2 * i + 1]));
@@ -214,6 +230,7 @@ fn prepare(job: &Job, sb: &mut SwarBand) {
     sb.colsum.resize(w * nw, 0);
     sb.h.resize(nw, 0);
     sb.differ.resize(job.stride + 1, 0);
+    sb.plan.resize(w, (SKIP, SKIP));
     let ring = job.params.block + 1;
     sb.sets.resize_with(ring, TableSet::default);
     for set in &mut sb.sets[..ring] {
