@@ -24,6 +24,7 @@
 //! end result).
 
 use super::{lanes, Disparity, Job};
+use crate::lanes::word;
 
 /// Table slots per row: values beyond take the direct path.
 const SLOTS: usize = 6;
@@ -108,17 +109,6 @@ fn build_table(l: u16, rev: &[u16], t0: &mut [u32], t1: &mut [u32]) {
     for i in main..t0.len() {
         t0[i] = word(ad(2 * i), ad(2 * i + 1));
         t1[i] = word(ad(2 * i + 1), ad(2 * i + 2));
-    }
-}
-
-/// The word holding the lanes `first` and `second`, in memory order.
-#[inline(always)]
-fn word(first: u16, second: u16) -> u32 {
-    let (a, b) = (first as u32, second as u32);
-    if cfg!(target_endian = "little") {
-        a | b << 16
-    } else {
-        a << 16 | b
     }
 }
 
