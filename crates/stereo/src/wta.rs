@@ -66,7 +66,10 @@ pub fn levels_to_disparity(levels: &Levels) -> DisparityMap {
 /// scaled by `2^(bits − 8)` and rounded; 8 bits equal
 /// [`stereolink_image::color::luma`].
 pub fn luma_samples_into(img: &RgbImage, bits: u32, out: &mut Samples) {
-    out.reset(img.width(), img.height(), 0);
+    // Every sample is written below: a plane of the size is not cleared.
+    if out.dims() != img.dims() {
+        out.reset(img.width(), img.height(), 0);
+    }
     #[cfg(target_arch = "x86_64")]
     if avx2_available() {
         // SAFETY: the CPU has AVX2.
