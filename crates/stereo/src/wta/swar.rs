@@ -197,9 +197,7 @@ fn accumulate_row<const NW: usize>(job: &Job, sb: &mut SwarBand, y: usize, leavi
         }
         if a != DIRECT {
             let (tn, to) = (&tn[a as usize..][..NW], &to[b as usize..][..NW]);
-            for i in 0..NW {
-                col[i] = col[i].wrapping_add(tn[i]).wrapping_sub(to[i]);
-            }
+            add_sub(col, tn.try_into().expect("NW"), to.try_into().expect("NW"));
         } else {
             let (ln, lo, at) = (left[x], gone[x], start(x));
             let (rn, ro) = (&row(y)[at..][..2 * NW], &row(s)[at..][..2 * NW]);
@@ -231,6 +229,21 @@ fn prepare(job: &Job, sb: &mut SwarBand) {
         set.words.resize(2 * SLOTS * tw, 0);
     }
     sb.sets.truncate(ring);
+}
+
+/// `c += n − o`, a word at a time.
+#[inline(always)]
+fn add_sub<const NW: usize>(c: &mut [u32; NW], n: &[u32; NW], o: &[u32; NW]) {
+    #[cfg(all(target_arch = "arm", target_endian = "little"))]
+    if NW == 16 {
+        // SAFETY: the three arrays hold 16 words each; the block reads
+        // 64 bytes from `n` and `o` and reads and writes 64 at `c`.
+        unsafe { arm::add_sub_16(c.as_mut_ptr(), n.as_ptr(), o.as_ptr()) };
+        return;
+    }
+    for i in 0..NW {
+        c[i] = c[i].wrapping_add(n[i]).wrapping_sub(o[i]);
+    }
 }
 
 /// `h += a − s` a word at a time, and the smallest of the first `valid`
@@ -266,6 +279,12 @@ fn slide_argmin_all<const NW: usize>(
     a: &[u32; NW],
     s: &[u32; NW],
 ) -> (usize, u16) {
+    #[cfg(all(target_arch = "arm", target_endian = "little"))]
+    if NW == 16 {
+        // SAFETY: the three arrays hold 16 words each; the block reads 64
+        // bytes from `a` and `s` and reads and writes 64 at `h`.
+        return unsafe { arm::slide_argmin_32(h.as_mut_ptr(), a.as_ptr(), s.as_ptr()) };
+    }
     let (mut best, mut k) = (u32::MAX, 0usize);
     for i in 0..NW {
         let v = h[i].wrapping_add(a[i]).wrapping_sub(s[i]);
@@ -380,5 +399,106 @@ fn band_words<T: Disparity, const NW: usize>(job: &Job, sb: &mut SwarBand, out: 
             let best = slide_argmin_all(hs, a, s);
             *d = T::winner(as_lanes(hs), 2 * NW, best, p);
         }
+    }
+}
+
+/// The two hot loops for 16 words (32 lanes) in ARM assembly: the compiler
+/// spills and does not pair the loads, while `ldm`/`stm` move two words
+/// per instruction and the running minimum needs a mask in a register.
+/// Same arithmetic as the portable loops; the SWAR tests run them under
+/// `qemu-arm -cpu arm926` (`tools/arm926/board test`).
+#[cfg(all(target_arch = "arm", target_endian = "little"))]
+mod arm {
+    use std::arch::asm;
+
+    /// `c[i] += n[i] − o[i]` for 16 words.
+    ///
+    /// # Safety
+    /// `c`, `n` and `o` must each point to 16 valid words, `c` writable.
+    #[inline(always)]
+    pub(super) unsafe fn add_sub_16(c: *mut u32, n: *const u32, o: *const u32) {
+        // SAFETY: forwarded from the caller; the registers named are
+        // declared clobbered, the pointers are consumed.
+        unsafe {
+            asm!(
+                ".rept 8",
+                "ldm {c}, {{r4, r5}}",
+                "ldm {n}!, {{r8, r10}}",
+                "add r4, r4, r8",
+                "add r5, r5, r10",
+                "ldm {o}!, {{r8, r10}}",
+                "sub r4, r4, r8",
+                "sub r5, r5, r10",
+                "stm {c}!, {{r4, r5}}",
+                ".endr",
+                c = inout(reg) c => _,
+                n = inout(reg) n => _,
+                o = inout(reg) o => _,
+                out("r4") _,
+                out("r5") _,
+                out("r8") _,
+                out("r10") _,
+                options(nostack, preserves_flags),
+            );
+        }
+    }
+
+    /// `h[i] += a[i] − s[i]` for 16 words, and the smallest of the 32
+    /// lanes with its index (the lowest index winning ties), as
+    /// `super::slide_argmin_all`.
+    ///
+    /// # Safety
+    /// `h`, `a` and `s` must each point to 16 valid words, `h` writable.
+    #[inline(always)]
+    pub(super) unsafe fn slide_argmin_32(
+        h: *mut u32,
+        a: *const u32,
+        s: *const u32,
+    ) -> (usize, u16) {
+        let (best, k): (u32, u32);
+        // SAFETY: forwarded from the caller; the registers named are
+        // declared clobbered, the pointers are consumed. Per word: its
+        // low lane is compared shifted up (`cmp best, r4, lsl #16`), its
+        // high lane as the word itself (`best` keeps its low half zero).
+        unsafe {
+            asm!(
+                "mvn {best}, #0",
+                "mov {k}, #0",
+                ".irp j, 0, 1, 2, 3, 4, 5, 6, 7",
+                "ldm {h}, {{r4, r5}}",
+                "ldm {a}!, {{r8, r10}}",
+                "add r4, r4, r8",
+                "add r5, r5, r10",
+                "ldm {s}!, {{r8, r10}}",
+                "sub r4, r4, r8",
+                "sub r5, r5, r10",
+                "stm {h}!, {{r4, r5}}",
+                "cmp {best}, r4, lsl #16",
+                "movhi {best}, r4, lsl #16",
+                "movhi {k}, #(4 * \\j)",
+                "cmp r4, {best}",
+                "andlo {best}, r4, {mask}",
+                "movlo {k}, #(4 * \\j + 1)",
+                "cmp {best}, r5, lsl #16",
+                "movhi {best}, r5, lsl #16",
+                "movhi {k}, #(4 * \\j + 2)",
+                "cmp r5, {best}",
+                "andlo {best}, r5, {mask}",
+                "movlo {k}, #(4 * \\j + 3)",
+                ".endr",
+                h = inout(reg) h => _,
+                a = inout(reg) a => _,
+                s = inout(reg) s => _,
+                mask = in(reg) 0xFFFF_0000u32,
+                best = out(reg) best,
+                k = out(reg) k,
+                out("r4") _,
+                out("r5") _,
+                out("r8") _,
+                out("r10") _,
+                options(nostack),
+            );
+        }
+        (k as usize, (best >> 16) as u16)
     }
 }
