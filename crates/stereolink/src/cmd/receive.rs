@@ -117,6 +117,8 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         let msg = match next_message(&mut eps, POLL.min(timeout)) {
             Ok(m) => m,
             Err(LinkError::Timeout) if heard.elapsed() < timeout => {
+                // No message: the watchdog still stops the axis.
+                check_watchdog(&mut board, args.watchdog_s);
                 board.follow_axis().context("display")?;
                 continue;
             }
@@ -132,12 +134,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
             stereolink_image::io::write_rgb(dir.join("received-right.png"), r)?;
             stereolink_image::pfm::write(dir.join("received-disparity.pfm"), &board.disparity())?;
         }
-        if board.check_watchdog() {
-            eprintln!(
-                "watchdog: no valid depth report for {} s, axis stopped",
-                args.watchdog_s
-            );
-        }
+        check_watchdog(&mut board, args.watchdog_s);
         if !out.json {
             match &event {
                 Event::Frame {
@@ -207,6 +204,13 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         out.emit(&events, String::new)?;
     }
     Ok(())
+}
+
+/// Stops the axis if no valid depth report came for `secs`, and says so.
+fn check_watchdog(board: &mut BoardReceiver, secs: u64) {
+    if board.check_watchdog() {
+        eprintln!("watchdog: no valid depth report for {secs} s, axis stopped");
+    }
 }
 
 /// The next message from any of the links, waiting up to `timeout`.

@@ -89,6 +89,8 @@ pub struct BoardReceiver {
     pub policy: MotionPolicy,
     /// Stops the axis when reports stop.
     pub watchdog: Watchdog,
+    /// Whether the watchdog stopped the axis since the last valid report.
+    watchdog_fired: bool,
     /// Status shown on the screen.
     pub status: ScreenStatus,
     /// Where the disparity map comes from.
@@ -123,6 +125,7 @@ impl BoardReceiver {
             axis: None,
             policy: MotionPolicy::default(),
             watchdog: Watchdog::new(watchdog),
+            watchdog_fired: false,
             status: ScreenStatus::default(),
             source: DisparitySource::default(),
         }
@@ -175,6 +178,7 @@ impl BoardReceiver {
                 let commanded = ValidatedDistance::new(d as f64).map(|v| self.policy.plan(v));
                 if commanded.is_some() {
                     self.watchdog.feed(Instant::now());
+                    self.watchdog_fired = false;
                 }
                 if let (Some(m), Some(axis)) = (commanded, self.axis.as_mut()) {
                     if let Err(e) = axis.move_to(m.position_mm, m.speed_mm_s) {
@@ -293,15 +297,22 @@ impl BoardReceiver {
         Ok(())
     }
 
-    /// Stops the axis if the watchdog expired; returns true if it did.
+    /// Stops the axis once no valid report came for the watchdog's time;
+    /// returns true when it stopped it. Call it while waiting for messages
+    /// too: a silent link is what it guards against. It stops the axis once
+    /// per silence (a valid report re-arms it), and again while the stop
+    /// fails.
     pub fn check_watchdog(&mut self) -> bool {
-        if self.watchdog.expired(Instant::now()) {
-            if let Some(axis) = self.axis.as_mut() {
-                let _ = axis.stop();
-                return true;
-            }
+        if self.watchdog_fired || !self.watchdog.expired(Instant::now()) {
+            return false;
         }
-        false
+        match self.axis.as_mut() {
+            Some(axis) => {
+                self.watchdog_fired = axis.stop().is_ok();
+                true
+            }
+            None => false,
+        }
     }
 }
 
@@ -365,5 +376,21 @@ mod tests {
             "the status line moved with the axis"
         );
         assert_ne!(board.screen(), &first);
+    }
+
+    /// The watchdog stops a moving axis without any message arriving, once
+    /// per silence.
+    #[test]
+    fn the_watchdog_stops_the_axis_when_no_report_arrives() {
+        let mut board = BoardReceiver::new(15, 5, std::time::Duration::from_millis(1));
+        board.axis = Some(stereolink_robot::open_axis("sim").unwrap());
+        board.axis.as_mut().unwrap().move_to(250.0, 50.0).unwrap();
+        std::thread::sleep(std::time::Duration::from_millis(5));
+        assert!(
+            board.check_watchdog(),
+            "no report for longer than the watchdog"
+        );
+        assert!(!board.axis.as_mut().unwrap().is_moving().unwrap());
+        assert!(!board.check_watchdog(), "stopped once per silence");
     }
 }
