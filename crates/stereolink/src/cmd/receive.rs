@@ -170,6 +170,10 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
             }
         }
         board.status.security = security_line(&eps);
+        // What the links measure: the radio's signal where its frames
+        // carry it, and the retransmitted segments received.
+        board.status.rssi_dbm = eps.iter().find_map(|e| e.link_stats().rssi_dbm);
+        board.status.retransmitted = Some(eps.iter().map(Endpoint::duplicates).sum());
         if matches!(event, Event::Report { .. }) {
             if let Some(axis) = board.axis.as_mut() {
                 board.status.axis_mm = axis.position().ok();
