@@ -617,8 +617,11 @@ impl FrameDecoder {
                 // (labels were checked against the palette's size).
                 self.palette.clear();
                 self.palette.extend(view.palette());
-                let palette = &self.palette;
-                labels.map_into(rgb, |l| palette[l as usize]);
+                if rgb.dims() != labels.dims() {
+                    rgb.reset(labels.width(), labels.height(), [0; 3]);
+                }
+                let pixels = rgb.as_mut_slice().iter_mut().zip(labels.as_slice());
+                pixels.for_each(|(p, &l)| *p = self.palette[l as usize]);
             }
         }
         Ok(())
