@@ -451,12 +451,6 @@ impl ViewRef<'_> {
         self.palette.len() / 3
     }
 
-    /// Colour `i` of the palette.
-    fn colour(&self, i: u16) -> Rgb {
-        let c = &self.palette[3 * i as usize..3 * i as usize + 3];
-        [c[0], c[1], c[2]]
-    }
-
     /// The palette's colours.
     fn palette(&self) -> impl Iterator<Item = Rgb> + '_ {
         self.palette.chunks_exact(3).map(|c| [c[0], c[1], c[2]])
@@ -634,7 +628,15 @@ impl FrameDecoder {
             (&frame.right, &self.labels.1, &mut self.rgb.1),
         ] {
             if view.coding != coding::RGB {
-                labels.map_into(rgb, |l| view.colour(l));
+                // The palette's colours once, then one lookup per pixel
+                // (labels were checked against the palette's size).
+                self.palette.clear();
+                self.palette.extend(view.palette());
+                if rgb.dims() != labels.dims() {
+                    rgb.reset(labels.width(), labels.height(), [0; 3]);
+                }
+                let pixels = rgb.as_mut_slice().iter_mut().zip(labels.as_slice());
+                pixels.for_each(|(p, &l)| *p = self.palette[l as usize]);
             }
         }
         Ok(())
@@ -670,7 +672,11 @@ impl FrameDecoder {
                     self.rgb_decoder.decode_into(view.payload, rgb)?;
                 }
                 coding::LABELS => {
-                    labels.reset(w, h, 0);
+                    // The decoder writes every label: a map of the size is
+                    // not cleared first.
+                    if labels.dims() != (w, h) {
+                        labels.reset(w, h, 0);
+                    }
                     self.label_decoder
                         .decode_into(view.payload, &self.palette, None, labels)?;
                 }
@@ -701,7 +707,9 @@ impl FrameDecoder {
                         .0
                         .map_into(&mut self.predicted, |l| table[l as usize]);
                     let right = &mut self.labels.1;
-                    right.reset(w, h, 0);
+                    if right.dims() != (w, h) {
+                        right.reset(w, h, 0);
+                    }
                     self.label_decoder.decode_into(
                         coded,
                         &self.palette,

@@ -369,14 +369,15 @@ fn own_template(data: &[u16], w: usize, x: usize, y: usize) -> [u32; OWN_LEN] {
             g(r1 + 3),
         ]
     } else {
-        OWN.map(|(dx, dy)| {
+        // A plain loop: `array::map` is not inlined here.
+        let mut t = [NONE; OWN_LEN];
+        for (t, &(dx, dy)) in t.iter_mut().zip(&OWN) {
             let (xx, yy) = (x as isize + dx, y as isize + dy);
             if xx >= 0 && yy >= 0 && (xx as usize) < w {
-                u32::from(data[yy as usize * w + xx as usize])
-            } else {
-                NONE
+                *t = u32::from(data[yy as usize * w + xx as usize]);
             }
-        })
+        }
+        t
     }
 }
 
@@ -442,14 +443,14 @@ fn ref_template(reference: &LabelMap, xs: usize, y: usize) -> [u32; 6] {
         let g = |i: usize| u32::from(unsafe { *data.get_unchecked(i) });
         return [g(i), g(i + 1), g(i - 1), g(i + w), g(i - w), g(i + 2)];
     }
-    REF.map(|(dx, dy)| {
+    let mut t = [NONE; 6];
+    for (t, &(dx, dy)) in t.iter_mut().zip(&REF) {
         let (xx, yy) = (xs as isize + dx, y as isize + dy);
         if xx >= 0 && yy >= 0 && (xx as usize) < w && (yy as usize) < h {
-            u32::from(data[yy as usize * w + xx as usize])
-        } else {
-            NONE
+            *t = u32::from(data[yy as usize * w + xx as usize]);
         }
-    })
+    }
+    t
 }
 
 /// A context from labels themselves: `values` folded from 0 by

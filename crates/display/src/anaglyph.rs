@@ -111,7 +111,10 @@ pub fn anaglyph(left: &RgbImage, right: &RgbImage, mode: Anaglyph) -> RgbImage {
 /// If the views differ in size.
 pub fn anaglyph_into(left: &RgbImage, right: &RgbImage, mode: Anaglyph, out: &mut RgbImage) {
     assert_eq!(left.dims(), right.dims(), "views differ in size");
-    out.reset(left.width(), left.height(), [0; 3]);
+    // Every pixel is written below: an image of the size is not cleared.
+    if out.dims() != left.dims() {
+        out.reset(left.width(), left.height(), [0; 3]);
+    }
     let pixels = left.as_slice().iter().zip(right.as_slice());
     // A segmented pair has few distinct colour pairs, in long runs: the
     // previous pixel's pair is tried first, then a small direct-mapped

@@ -33,6 +33,12 @@ pub struct ScreenStatus {
     pub frame_id: u32,
     /// Share of link segments that needed no retransmission (0..1), if known.
     pub link_quality: Option<f64>,
+    /// Signal strength of the last radio frame received, dBm, where the
+    /// radio gives it.
+    pub rssi_dbm: Option<i16>,
+    /// Retransmitted segments the link received (duplicates it dropped),
+    /// if counted.
+    pub retransmitted: Option<u64>,
     /// Target distance from the depth report, metres.
     pub distance_m: Option<f64>,
     /// Axis position, millimetres.
@@ -230,10 +236,23 @@ impl Screen {
         let sy = top + PANEL_H + 6;
         text.clear();
         let _ = write!(text, "FRAME {}   LINK ", status.frame_id);
-        let _ = match status.link_quality {
-            Some(q) => write!(text, "{:.0}%", q * 100.0),
-            None => write!(text, "--"),
-        };
+        // What the link measures: quality, signal, retransmissions.
+        let before = text.len();
+        if let Some(q) = status.link_quality {
+            let _ = write!(text, "{:.0}% ", q * 100.0);
+        }
+        if let Some(r) = status.rssi_dbm {
+            let _ = write!(text, "{r} DBM ");
+        }
+        if let Some(n) = status.retransmitted {
+            let _ = write!(text, "{n} RTX ");
+        }
+        match text.len() == before {
+            true => text.push_str("--"),
+            false => {
+                text.pop();
+            }
+        }
         let _ = match status.distance_m {
             Some(d) => write!(text, "   DIST {d:.3} M"),
             None => write!(text, "   DIST --"),
@@ -320,5 +339,13 @@ mod tests {
         assert!(img.as_slice().contains(&TEXT));
         s.render(&view, &disp, 0.0, 32.0, &status);
         assert_eq!(s.image().as_slice().as_ptr(), ptr);
+        // The link's measures, where known, replace the `--`.
+        let measured = ScreenStatus {
+            rssi_dbm: Some(-45),
+            retransmitted: Some(3),
+            ..status.clone()
+        };
+        let plain = s.render(&view, &disp, 0.0, 32.0, &status).clone();
+        assert_ne!(s.render(&view, &disp, 0.0, 32.0, &measured), &plain);
     }
 }

@@ -111,6 +111,12 @@ impl Watchdog {
         self.tripped |= trips;
         trips
     }
+
+    /// Trips again at the next check while still expired (the stop did not
+    /// take).
+    pub fn rearm(&mut self) {
+        self.tripped = false;
+    }
 }
 
 #[cfg(test)]

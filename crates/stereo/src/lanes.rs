@@ -160,7 +160,7 @@ fn as_words<'a>(
 
 /// The word holding the lanes `first` and `second`, in memory order.
 #[inline(always)]
-fn word(first: u16, second: u16) -> u32 {
+pub(crate) fn word(first: u16, second: u16) -> u32 {
     let (a, b) = (first as u32, second as u32);
     if cfg!(target_endian = "little") {
         a | b << 16

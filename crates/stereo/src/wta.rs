@@ -37,6 +37,8 @@ use stereolink_image::{DisparityMap, Plane, RgbImage};
 use crate::lanes::{LaneOps, Portable, Swar, LANES};
 use crate::{MatchSpec, StereoError};
 
+mod swar;
+
 /// Gray samples of a view, [`WtaParams::gray_bits`] bits each.
 pub type Samples = Plane<u16>;
 
@@ -64,7 +66,10 @@ pub fn levels_to_disparity(levels: &Levels) -> DisparityMap {
 /// scaled by `2^(bits − 8)` and rounded; 8 bits equal
 /// [`stereolink_image::color::luma`].
 pub fn luma_samples_into(img: &RgbImage, bits: u32, out: &mut Samples) {
-    out.reset(img.width(), img.height(), 0);
+    // Every sample is written below: a plane of the size is not cleared.
+    if out.dims() != img.dims() {
+        out.reset(img.width(), img.height(), 0);
+    }
     #[cfg(target_arch = "x86_64")]
     if avx2_available() {
         // SAFETY: the CPU has AVX2.
@@ -217,6 +222,8 @@ struct Band {
     /// smallest cost seen so far and its lane (for the right view's map).
     right_best: Vec<u16>,
     right_lane: Vec<u16>,
+    /// The SWAR kernel's own scratch, in the board's setting (see [`swar`]).
+    swar: swar::SwarBand,
 }
 
 /// A WTA-SAD matcher that keeps its buffers from one frame to the next, so
@@ -367,11 +374,18 @@ impl WtaMatcher {
                     params,
                     y0: i * band_rows,
                 };
+                let m = params.min_filter.max(1);
+                if kernel == Kernel::Swar
+                    && m == 1
+                    && right_rows.is_none()
+                    && swar::band(&job, &mut band.swar, rows)
+                {
+                    return;
+                }
                 band.colsum.resize(w * nl, 0);
                 if kernel == Kernel::Swar {
                     band.differ.resize(stride + 1, 0);
                 }
-                let m = params.min_filter.max(1);
                 band.ring.resize(if m > 1 { m * w * nl } else { 0 }, 0);
                 band.vmin.resize(if m > 1 { w * nl } else { 0 }, 0);
                 band.cost.resize(nl, 0);
@@ -956,6 +970,49 @@ mod tests {
                 let mut levels = Levels::new(w, h, 0);
                 WtaMatcher::with_kernel(kernel).compute_levels_into(&left, &right, &p, &mut levels);
                 prop_assert_eq!(&levels_to_disparity(&levels), &slow, "{:?}", kernel);
+            }
+        }
+    }
+
+    /// A segmented-looking view of `levels` gray values (8 bits) in
+    /// blocks of random sizes.
+    fn levels_view(w: usize, h: usize, seed: u64, levels: u16) -> Samples {
+        let (bw, bh) = (2 + seed as usize % 9, 1 + (seed >> 8) as usize % 6);
+        Samples::from_fn(w, h, |x, y| {
+            let v = ((x / bw) as u64 * 0x9E37_79B9) ^ ((y / bh) as u64 * 0x85EB_CA6B) ^ seed;
+            let l = (v.wrapping_mul(0xC2B2_AE35) >> 13) as u16 % levels;
+            l * (255 / levels.max(2)) + (seed >> 20) as u16 % 7
+        })
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(32))]
+        /// The SWAR kernel in the board's setting (no min filter, 16 or 32
+        /// disparities, few gray levels: its column sums come from tables,
+        /// and from the direct path when a row has more values than table
+        /// slots) equals the naive definition.
+        #[test]
+        fn swar_board_setting_equals_reference(
+            w in 33usize..110, h in 1usize..30, seed in any::<u64>(), shift in 0usize..12,
+            min_disp in 0usize..3, wide in any::<bool>(), half in 0usize..8,
+            levels in 1u16..12, subpixel in any::<bool>(),
+        ) {
+            let right = levels_view(w, h, seed, levels);
+            let left = Samples::from_fn(w, h, |x, y| right.get(x.saturating_sub(shift + y % 2), y));
+            let p = WtaParams {
+                min_disp, ndisp: if wide { 32 } else { 16 }, block: 2 * half + 1, gray_bits: 8,
+                min_filter: 0, uniqueness: 0, subpixel,
+            };
+            let slow = reference(&left, &right, &p);
+            let mut matcher = WtaMatcher::with_kernel(Kernel::Swar);
+            let mut fast = DisparityMap::new(w, h, 0.0);
+            matcher.compute_into(&left, &right, &p, &mut fast);
+            let bits = |m: &DisparityMap| m.as_slice().iter().map(|v| v.to_bits()).collect::<Vec<_>>();
+            prop_assert_eq!(bits(&fast), bits(&slow));
+            if !subpixel {
+                let mut levels = Levels::new(w, h, 0);
+                matcher.compute_levels_into(&left, &right, &p, &mut levels);
+                prop_assert_eq!(&levels_to_disparity(&levels), &slow);
             }
         }
     }

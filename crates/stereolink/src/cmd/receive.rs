@@ -112,16 +112,10 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     let mut events = Vec::new();
     let (timeout, mut heard) = (Duration::from_secs(args.timeout_s), Instant::now());
     while args.frames == 0 || frames < args.frames {
-        // Short waits, so that the screen follows the axis while the link
-        // is silent.
         // The watchdog is checked whether or not anything arrives: a link
-        // that falls silent must stop the axis too.
-        if board.check_watchdog(Instant::now())? {
-            eprintln!(
-                "watchdog: no valid depth report for {} s, axis stopped",
-                args.watchdog_s
-            );
-        }
+        // that falls silent must stop the axis too. Short waits, so that it
+        // and the screen follow the axis while the link is silent.
+        check_watchdog(&mut board, args.watchdog_s);
         let msg = match next_message(&mut eps, POLL.min(timeout)) {
             Ok(m) => m,
             Err(LinkError::Timeout) if heard.elapsed() < timeout => {
@@ -175,6 +169,10 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
             }
         }
         board.status.security = security_line(&eps);
+        // What the links measure: the radio's signal where its frames
+        // carry it, and the retransmitted segments received.
+        board.status.rssi_dbm = eps.iter().find_map(|e| e.link_stats().rssi_dbm);
+        board.status.retransmitted = Some(eps.iter().map(Endpoint::duplicates).sum());
         if matches!(event, Event::Report { .. }) {
             if let Some(axis) = board.axis.as_mut() {
                 board.status.axis_mm = axis.position().ok();
@@ -209,6 +207,18 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         out.emit(&events, String::new)?;
     }
     Ok(())
+}
+
+/// Stops the axis if no valid depth report came for `secs`, and says so.
+fn check_watchdog(board: &mut BoardReceiver, secs: u64) {
+    match board.check_watchdog(Instant::now()) {
+        Ok(true) => eprintln!("watchdog: no valid depth report for {secs} s, axis stopped"),
+        Ok(false) => {}
+        Err(e) => eprintln!(
+            "watchdog: no valid depth report for {secs} s, but the axis did not take the stop \
+             ({e}); trying again"
+        ),
+    }
 }
 
 /// The next message from any of the links, waiting up to `timeout`.

@@ -17,14 +17,13 @@ use std::time::Instant;
 
 use std::fmt::Write;
 
-use anyhow::Context;
 use stereolink_codec::container::{self, Body, FrameDecoder, FrameRef};
 use stereolink_codec::{CodecError, Limits, Message, SegmentationKind, StereoFrame, View};
 use stereolink_display::{anaglyph_into, Anaglyph, Screen, ScreenStatus, Sink};
 use stereolink_image::synth::{synthesize, SynthSpec};
 use stereolink_image::{DisparityMap, RgbImage};
 use stereolink_robot::policy::{MotionPolicy, ValidatedDistance, Watchdog};
-use stereolink_robot::Axis;
+use stereolink_robot::{Axis, AxisError};
 use stereolink_segment::segment;
 use stereolink_stereo::wta::{
     levels_to_disparity, luma_samples_into, Levels, Samples, WtaMatcher, WtaParams, NO_DISPARITY,
@@ -295,19 +294,20 @@ impl BoardReceiver {
     }
 
     /// Stops the axis when the watchdog trips at `now` (no valid report
-    /// for its timeout); returns true when it stopped it, once per silence.
+    /// for its timeout); returns true when it stopped it. Call it while
+    /// waiting for messages too: a silent link is what it guards against.
+    /// It stops the axis once per silence (a valid report re-arms it).
     ///
     /// # Errors
-    /// If the axis did not take the stop.
-    pub fn check_watchdog(&mut self, now: Instant) -> anyhow::Result<bool> {
+    /// If the axis did not take the stop; the next check tries again.
+    pub fn check_watchdog(&mut self, now: Instant) -> Result<bool, AxisError> {
         let Some(axis) = self.axis.as_mut() else {
             return Ok(false);
         };
         if !self.watchdog.trip(now) {
             return Ok(false);
         }
-        axis.stop()
-            .context("the watchdog could not stop the axis")?;
+        axis.stop().inspect_err(|_| self.watchdog.rearm())?;
         Ok(true)
     }
 }
@@ -372,5 +372,24 @@ mod tests {
             "the status line moved with the axis"
         );
         assert_ne!(board.screen(), &first);
+    }
+
+    /// The watchdog stops a moving axis without any message arriving, once
+    /// per silence.
+    #[test]
+    fn the_watchdog_stops_the_axis_when_no_report_arrives() {
+        let mut board = BoardReceiver::new(15, 5, std::time::Duration::from_millis(1));
+        board.axis = Some(stereolink_robot::open_axis("sim").unwrap());
+        board.axis.as_mut().unwrap().move_to(250.0, 50.0).unwrap();
+        let later = Instant::now() + std::time::Duration::from_millis(5);
+        assert!(
+            board.check_watchdog(later).unwrap(),
+            "no report for longer than the watchdog"
+        );
+        assert!(!board.axis.as_mut().unwrap().is_moving().unwrap());
+        assert!(
+            !board.check_watchdog(later).unwrap(),
+            "stopped once per silence"
+        );
     }
 }

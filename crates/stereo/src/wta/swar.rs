@@ -1,0 +1,504 @@
+//! The band loop of the SWAR kernel for the board's setting (no min filter,
+//! no right-view map): a CPU without vector instructions (the ARM926) does
+//! per pixel and disparity only a few word operations on two `u16` lanes.
+//!
+//! - **Column sums from tables.** A segmented view's row holds few gray
+//!   values. For a value `l` of a row, the table `|l − R(j)|` over the
+//!   row's reversed right samples `j` is built once (both word alignments),
+//!   so a column's update is `colsum += new − old` read a word at a time
+//!   from two tables: a load, an add and a subtract per two lanes. Tables
+//!   live in a ring of sets, one set per row of the window, so a row's
+//!   tables built as it enters serve again when it leaves. A value without
+//!   a table slot takes the direct path (absolute differences lane by lane).
+//! - **Columns whose entering and leaving rows agree are skipped**, as in
+//!   the generic SWAR band loop: they cancel.
+//! - **The slide and the argmin are fused and unrolled** for 32 lanes: the
+//!   lane in a word's high half is compared without extracting it (a
+//!   running minimum kept in the high half of a word, low half zero), the
+//!   one in the low half by a compare with a shifted operand.
+//!
+//! Word arithmetic is exact for the same reason as [`crate::lanes::Swar`]'s:
+//! every lane's final value is a sum of absolute differences below 2^16, so
+//! the word's result is the lanes' results whatever the order of adding and
+//! subtracting (modulo 2^32, the words never borrow between lanes in the
+//! end result).
+
+use super::{lanes, Disparity, Job};
+use crate::lanes::word;
+
+/// Table slots per row: values beyond take the direct path.
+const SLOTS: usize = 6;
+/// No slot (in [`TableSet::slot_of`]).
+const NO_SLOT: u8 = u8::MAX;
+/// A column of a row's plan that is skipped, or updated directly.
+const SKIP: u32 = u32::MAX;
+const DIRECT: u32 = u32::MAX - 1;
+
+/// The scratch of one band for [`band`].
+#[derive(Default)]
+pub(super) struct SwarBand {
+    /// Column sums, `W × lanes / 2` words.
+    colsum: Vec<u32>,
+    /// The sliding window sum of the current pixel.
+    h: Vec<u32>,
+    /// As the generic band's `differ`: per reversed-row index, how many of
+    /// the entering and leaving right rows' samples before it differ.
+    differ: Vec<u32>,
+    /// The tables of the window's rows, set `y % sets.len()` for row `y`.
+    sets: Vec<TableSet>,
+    /// Per column of a row: where its entering and leaving table words
+    /// start, or [`SKIP`] or [`DIRECT`].
+    plan: Vec<(u32, u32)>,
+}
+
+/// The tables of one right row, per left gray value with a slot.
+#[derive(Default)]
+struct TableSet {
+    /// The row these tables belong to (`usize::MAX`: none).
+    owner: usize,
+    /// Per gray value, its slot or [`NO_SLOT`].
+    slot_of: Vec<u8>,
+    /// The values holding a slot, in slot order.
+    values: Vec<u16>,
+    /// Per slot, two tables of `tw` words: lanes `(2i, 2i + 1)` and
+    /// `(2i + 1, 2i + 2)` of `|l − R(j)|` at word `i`.
+    words: Vec<u32>,
+}
+
+impl TableSet {
+    /// The slot of value `l` for row `y` (its reversed right samples
+    /// `rev`), building its table if a slot is free; `None` when full.
+    #[inline(always)]
+    fn slot(&mut self, y: usize, l: u16, rev: &[u16], tw: usize) -> Option<usize> {
+        if self.owner != y {
+            for &v in &self.values {
+                self.slot_of[v as usize] = NO_SLOT;
+            }
+            self.values.clear();
+            self.owner = y;
+        }
+        let s = self.slot_of[l as usize];
+        if s != NO_SLOT {
+            return Some(s as usize);
+        }
+        let s = self.values.len();
+        if s == SLOTS {
+            return None;
+        }
+        self.slot_of[l as usize] = s as u8;
+        self.values.push(l);
+        let (t0, t1) = self.words[2 * s * tw..2 * (s + 1) * tw].split_at_mut(tw);
+        build_table(l, rev, t0, t1);
+        Some(s)
+    }
+}
+
+/// `t0[i]` = lanes `(2i, 2i + 1)` and `t1[i]` = lanes `(2i + 1, 2i + 2)` of
+/// `|l − rev[j]|` (0 past the row's end).
+fn build_table(l: u16, rev: &[u16], t0: &mut [u32], t1: &mut [u32]) {
+    let ad = |j: usize| rev.get(j).map_or(0, |&r| l.abs_diff(r));
+    // Words whose three lanes lie inside the row, then the rest.
+    let main = rev.len().saturating_sub(1) / 2;
+    let mut a = ad(0);
+    let words = t0.iter_mut().zip(t1.iter_mut());
+    for ((t0, t1), r) in words.zip(rev[1.min(rev.len())..].chunks_exact(2)) {
+        let (b, c) = (l.abs_diff(r[0]), l.abs_diff(r[1]));
+        (*t0, *t1) = (word(a, b), word(b, c));
+        a = c;
+    }
+    for i in main..t0.len() {
+        t0[i] = word(ad(2 * i), ad(2 * i + 1));
+        t1[i] = word(ad(2 * i + 1), ad(2 * i + 2));
+    }
+}
+
+/// The words of `v` as `u16` lanes in memory order.
+#[inline(always)]
+fn as_lanes(v: &[u32]) -> &[u16] {
+    // SAFETY: two u16 fit a u32 exactly, with no stricter alignment, and
+    // every bit pattern is valid for both.
+    unsafe { std::slice::from_raw_parts(v.as_ptr().cast(), 2 * v.len()) }
+}
+
+/// `v` as columns of `NW` words (a remainder left out).
+#[inline(always)]
+fn columns<const NW: usize>(v: &[u32]) -> &[[u32; NW]] {
+    // SAFETY: `[u32; NW]` has the size of NW u32 and their alignment; the
+    // length rounds down.
+    unsafe { std::slice::from_raw_parts(v.as_ptr().cast(), v.len() / NW) }
+}
+
+/// [`columns`], mutable.
+#[inline(always)]
+fn columns_mut<const NW: usize>(v: &mut [u32]) -> &mut [[u32; NW]] {
+    // SAFETY: as in `columns`, from a unique borrow.
+    unsafe { std::slice::from_raw_parts_mut(v.as_mut_ptr().cast(), v.len() / NW) }
+}
+
+/// Adds the absolute differences of row `y` to the column sums (`NW` words
+/// each) and subtracts those of row `leaving` when given, from the tables
+/// where the values have them, skipping columns whose rows agree.
+fn accumulate_row<const NW: usize>(job: &Job, sb: &mut SwarBand, y: usize, leaving: Option<usize>) {
+    let w = job.left.width();
+    let stride = job.stride;
+    let tw = stride / 2 + 1;
+    let start = |x: usize| w + job.params.min_disp - 1 - x;
+    let row = |y: usize| &job.reversed[y * stride..(y + 1) * stride];
+    let left = &job.left.row(y)[..w];
+    let cols = columns_mut::<NW>(&mut sb.colsum);
+    let Some(s) = leaving else {
+        for (x, col) in cols.iter_mut().enumerate() {
+            let (l, r) = (left[x], &row(y)[start(x)..][..2 * NW]);
+            for (i, c) in col.iter_mut().enumerate() {
+                *c = c.wrapping_add(word(l.abs_diff(r[2 * i]), l.abs_diff(r[2 * i + 1])));
+            }
+        }
+        return;
+    };
+    let gone = &job.left.row(s)[..w];
+    let differ = &mut sb.differ;
+    let mut n = 0;
+    differ[0] = 0;
+    for ((c, a), b) in differ[1..].iter_mut().zip(row(y)).zip(row(s)) {
+        n += (a != b) as u32;
+        *c = n;
+    }
+    let ring = sb.sets.len();
+    let (yi, si) = (y % ring, s % ring);
+    // First where each column's two table words start (building the
+    // tables on first use), or that it is skipped or direct; then the
+    // updates, with the tables only read.
+    let plan = &mut sb.plan[..w];
+    // The table offsets of the last values seen (consecutive columns
+    // mostly share them).
+    let (mut last_n, mut last_o) = ((u16::MAX, None), (u16::MAX, None));
+    for (x, plan) in plan.iter_mut().enumerate() {
+        let (ln, lo, at) = (left[x], gone[x], start(x));
+        if ln == lo && differ[at + 2 * NW] == differ[at] {
+            *plan = (SKIP, SKIP);
+            continue;
+        }
+        if last_n.0 != ln {
+            last_n = (ln, sb.sets[yi].slot(y, ln, row(y), tw).map(|k| 2 * k * tw));
+        }
+        if last_o.0 != lo {
+            last_o = (lo, sb.sets[si].slot(s, lo, row(s), tw).map(|k| 2 * k * tw));
+        }
+        let word_of = |base: usize| (base + at % 2 * tw + at / 2) as u32;
+        *plan = match (last_n.1, last_o.1) {
+            (Some(a), Some(b)) => (word_of(a), word_of(b)),
+            _ => (DIRECT, DIRECT),
+        };
+    }
+    let (tn, to) = (&sb.sets[yi].words, &sb.sets[si].words);
+    for (x, (col, &(a, b))) in cols.iter_mut().zip(&*plan).enumerate() {
+        if a == SKIP {
+            continue;
+        }
+        if a != DIRECT {
+            let (tn, to) = (&tn[a as usize..][..NW], &to[b as usize..][..NW]);
+            add_sub(col, tn.try_into().expect("NW"), to.try_into().expect("NW"));
+        } else {
+            let (ln, lo, at) = (left[x], gone[x], start(x));
+            let (rn, ro) = (&row(y)[at..][..2 * NW], &row(s)[at..][..2 * NW]);
+            for (i, c) in col.iter_mut().enumerate() {
+                let new = word(ln.abs_diff(rn[2 * i]), ln.abs_diff(rn[2 * i + 1]));
+                let old = word(lo.abs_diff(ro[2 * i]), lo.abs_diff(ro[2 * i + 1]));
+                *c = c.wrapping_sub(old).wrapping_add(new);
+            }
+        }
+    }
+}
+
+/// Sizes `sb` for `job` (allocating only when it grows).
+fn prepare(job: &Job, sb: &mut SwarBand) {
+    let w = job.left.width();
+    let nw = lanes(job.params.ndisp) / 2;
+    let tw = job.stride / 2 + 1;
+    sb.colsum.resize(w * nw, 0);
+    sb.h.resize(nw, 0);
+    sb.differ.resize(job.stride + 1, 0);
+    sb.plan.resize(w, (SKIP, SKIP));
+    let ring = job.params.block + 1;
+    sb.sets.resize_with(ring, TableSet::default);
+    for set in &mut sb.sets[..ring] {
+        set.owner = usize::MAX;
+        set.slot_of.clear();
+        set.slot_of.resize(1 << job.params.gray_bits, NO_SLOT);
+        set.values.clear();
+        set.words.resize(2 * SLOTS * tw, 0);
+    }
+    sb.sets.truncate(ring);
+}
+
+/// `c += n − o`, a word at a time.
+#[inline(always)]
+fn add_sub<const NW: usize>(c: &mut [u32; NW], n: &[u32; NW], o: &[u32; NW]) {
+    #[cfg(all(target_arch = "arm", target_endian = "little"))]
+    if NW == 16 {
+        // SAFETY: the three arrays hold 16 words each; the block reads
+        // 64 bytes from `n` and `o` and reads and writes 64 at `c`.
+        unsafe { arm::add_sub_16(c.as_mut_ptr(), n.as_ptr(), o.as_ptr()) };
+        return;
+    }
+    for i in 0..NW {
+        c[i] = c[i].wrapping_add(n[i]).wrapping_sub(o[i]);
+    }
+}
+
+/// `h += a − s` a word at a time, and the smallest of the first `valid`
+/// lanes (`valid ≥ 1`) with its index, the lowest index winning ties.
+#[inline(always)]
+fn slide_argmin<const NW: usize>(
+    h: &mut [u32; NW],
+    a: &[u32; NW],
+    s: &[u32; NW],
+    valid: usize,
+) -> (usize, u16) {
+    let (mut best, mut k) = (u32::MAX, 0usize);
+    let full = valid / 2;
+    for i in 0..NW {
+        h[i] = h[i].wrapping_add(a[i]).wrapping_sub(s[i]);
+        if i < full {
+            take_word(&mut best, &mut k, h[i], 2 * i);
+        }
+    }
+    if valid % 2 == 1 {
+        let first = first_low(h[full]) << 16;
+        if first < best {
+            (best, k) = (first, valid - 1);
+        }
+    }
+    (k, (best >> 16) as u16)
+}
+
+/// [`slide_argmin`] with every lane valid: unrolled.
+#[inline(always)]
+fn slide_argmin_all<const NW: usize>(
+    h: &mut [u32; NW],
+    a: &[u32; NW],
+    s: &[u32; NW],
+) -> (usize, u16) {
+    #[cfg(all(target_arch = "arm", target_endian = "little"))]
+    if NW == 16 {
+        // SAFETY: the three arrays hold 16 words each; the block reads 64
+        // bytes from `a` and `s` and reads and writes 64 at `h`.
+        return unsafe { arm::slide_argmin_32(h.as_mut_ptr(), a.as_ptr(), s.as_ptr()) };
+    }
+    let (mut best, mut k) = (u32::MAX, 0usize);
+    for i in 0..NW {
+        let v = h[i].wrapping_add(a[i]).wrapping_sub(s[i]);
+        h[i] = v;
+        take_word(&mut best, &mut k, v, 2 * i);
+    }
+    (k, (best >> 16) as u16)
+}
+
+/// The word `v` with its first lane (in memory order) in the low half.
+#[inline(always)]
+fn first_low(v: u32) -> u32 {
+    if cfg!(target_endian = "little") {
+        v
+    } else {
+        v.rotate_left(16)
+    }
+}
+
+/// Takes the lanes of word `v` (lanes `i`, `i + 1`) into the running
+/// minimum `best` (at `k`) where they are smaller.
+///
+/// `best` holds the smallest cost in its high half, the low half zero: a
+/// word's high lane is smaller exactly when the word is, and its low lane
+/// when the word shifted up is. The first lane is compared first, so
+/// `best` is below `u32::MAX` for the second.
+#[inline(always)]
+fn take_word(best: &mut u32, k: &mut usize, v: u32, i: usize) {
+    let u = first_low(v);
+    if u << 16 < *best {
+        (*best, *k) = (u << 16, i);
+    }
+    if u < *best {
+        (*best, *k) = (u & 0xFFFF_0000, i + 1);
+    }
+}
+
+/// The band loop of the SWAR kernel without a min filter and without the
+/// right view's map: as [`super::band_with`] in that setting. False (and
+/// nothing done) for more than 64 disparity lanes.
+pub(super) fn band<T: Disparity>(job: &Job, sb: &mut SwarBand, out: &mut [T]) -> bool {
+    match lanes(job.params.ndisp) / 2 {
+        8 => band_words::<T, 8>(job, sb, out),
+        16 => band_words::<T, 16>(job, sb, out),
+        24 => band_words::<T, 24>(job, sb, out),
+        32 => band_words::<T, 32>(job, sb, out),
+        _ => return false,
+    }
+    true
+}
+
+/// [`band`] with `NW` words (`2 · NW` lanes) per column.
+fn band_words<T: Disparity, const NW: usize>(job: &Job, sb: &mut SwarBand, out: &mut [T]) {
+    let (w, h) = job.left.dims();
+    let p = job.params;
+    let r = p.block / 2;
+    debug_assert!(p.min_filter <= 1);
+    let clamp_y = |y: isize| y.clamp(0, h as isize - 1) as usize;
+    prepare(job, sb);
+    sb.colsum.fill(0);
+    let first = job.y0;
+    let ri = r as isize;
+    for dy in -ri..=ri {
+        accumulate_row::<NW>(job, sb, clamp_y(first as isize + dy), None);
+    }
+    // The first pixel whose lanes are all valid disparities.
+    let all_valid = (p.ndisp == 2 * NW).then_some(p.min_disp + 2 * NW - 1);
+    for (i, out_row) in out.chunks_exact_mut(w).enumerate() {
+        let y = first + i;
+        if i > 0 {
+            let yc = y as isize;
+            accumulate_row::<NW>(job, sb, clamp_y(yc + ri), Some(clamp_y(yc - ri - 1)));
+        }
+        let cols = columns::<NW>(&sb.colsum);
+        let hs: &mut [u32; NW] = sb.h.as_mut_slice().try_into().expect("NW words");
+        // The window sum at x = 0 (columns left of the image are column 0).
+        hs.fill(0);
+        for dx in 0..=2 * r {
+            let c = &cols[dx.saturating_sub(r).min(w - 1)];
+            for (h, &c) in hs.iter_mut().zip(c) {
+                *h = h.wrapping_add(c);
+            }
+        }
+        let valid = |x: usize| (x + 1).saturating_sub(p.min_disp).min(p.ndisp);
+        out_row[0] = match valid(0) {
+            0 => T::NONE,
+            v => {
+                let c = as_lanes(hs);
+                let k = (0..v).min_by_key(|&k| (c[k], k)).expect("a valid lane");
+                T::winner(c, v, (k, c[k]), p)
+            }
+        };
+        // Then slide: column x + r enters, x − r − 1 leaves (clamped).
+        let fast_from = all_valid.unwrap_or(w).clamp(1, w);
+        for x in 1..fast_from {
+            let (a, s) = (&cols[(x + r).min(w - 1)], &cols[x.saturating_sub(r + 1)]);
+            out_row[x] = match valid(x) {
+                0 => {
+                    for ((h, &a), &s) in hs.iter_mut().zip(a).zip(s) {
+                        *h = h.wrapping_add(a).wrapping_sub(s);
+                    }
+                    T::NONE
+                }
+                v => {
+                    let best = slide_argmin(hs, a, s, v);
+                    T::winner(as_lanes(hs), v, best, p)
+                }
+            };
+        }
+        for (x, d) in out_row.iter_mut().enumerate().skip(fast_from) {
+            let (a, s) = (&cols[(x + r).min(w - 1)], &cols[x.saturating_sub(r + 1)]);
+            let best = slide_argmin_all(hs, a, s);
+            *d = T::winner(as_lanes(hs), 2 * NW, best, p);
+        }
+    }
+}
+
+/// The two hot loops for 16 words (32 lanes) in ARM assembly: the compiler
+/// spills and does not pair the loads, while `ldm`/`stm` move two words
+/// per instruction and the running minimum needs a mask in a register.
+/// Same arithmetic as the portable loops; the SWAR tests run them under
+/// `qemu-arm -cpu arm926` (`tools/arm926/board test`).
+#[cfg(all(target_arch = "arm", target_endian = "little"))]
+mod arm {
+    use std::arch::asm;
+
+    /// `c[i] += n[i] − o[i]` for 16 words.
+    ///
+    /// # Safety
+    /// `c`, `n` and `o` must each point to 16 valid words, `c` writable.
+    #[inline(always)]
+    pub(super) unsafe fn add_sub_16(c: *mut u32, n: *const u32, o: *const u32) {
+        // SAFETY: forwarded from the caller; the registers named are
+        // declared clobbered, the pointers are consumed.
+        unsafe {
+            asm!(
+                ".rept 8",
+                "ldm {c}, {{r4, r5}}",
+                "ldm {n}!, {{r8, r10}}",
+                "add r4, r4, r8",
+                "add r5, r5, r10",
+                "ldm {o}!, {{r8, r10}}",
+                "sub r4, r4, r8",
+                "sub r5, r5, r10",
+                "stm {c}!, {{r4, r5}}",
+                ".endr",
+                c = inout(reg) c => _,
+                n = inout(reg) n => _,
+                o = inout(reg) o => _,
+                out("r4") _,
+                out("r5") _,
+                out("r8") _,
+                out("r10") _,
+                options(nostack, preserves_flags),
+            );
+        }
+    }
+
+    /// `h[i] += a[i] − s[i]` for 16 words, and the smallest of the 32
+    /// lanes with its index (the lowest index winning ties), as
+    /// `super::slide_argmin_all`.
+    ///
+    /// # Safety
+    /// `h`, `a` and `s` must each point to 16 valid words, `h` writable.
+    #[inline(always)]
+    pub(super) unsafe fn slide_argmin_32(
+        h: *mut u32,
+        a: *const u32,
+        s: *const u32,
+    ) -> (usize, u16) {
+        let (best, k): (u32, u32);
+        // SAFETY: forwarded from the caller; the registers named are
+        // declared clobbered, the pointers are consumed. Per word: its
+        // low lane is compared shifted up (`cmp best, r4, lsl #16`), its
+        // high lane as the word itself (`best` keeps its low half zero).
+        unsafe {
+            asm!(
+                "mvn {best}, #0",
+                "mov {k}, #0",
+                ".irp j, 0, 1, 2, 3, 4, 5, 6, 7",
+                "ldm {h}, {{r4, r5}}",
+                "ldm {a}!, {{r8, r10}}",
+                "add r4, r4, r8",
+                "add r5, r5, r10",
+                "ldm {s}!, {{r8, r10}}",
+                "sub r4, r4, r8",
+                "sub r5, r5, r10",
+                "stm {h}!, {{r4, r5}}",
+                "cmp {best}, r4, lsl #16",
+                "movhi {best}, r4, lsl #16",
+                "movhi {k}, #(4 * \\j)",
+                "cmp r4, {best}",
+                "andlo {best}, r4, {mask}",
+                "movlo {k}, #(4 * \\j + 1)",
+                "cmp {best}, r5, lsl #16",
+                "movhi {best}, r5, lsl #16",
+                "movhi {k}, #(4 * \\j + 2)",
+                "cmp r5, {best}",
+                "andlo {best}, r5, {mask}",
+                "movlo {k}, #(4 * \\j + 3)",
+                ".endr",
+                h = inout(reg) h => _,
+                a = inout(reg) a => _,
+                s = inout(reg) s => _,
+                mask = in(reg) 0xFFFF_0000u32,
+                best = out(reg) best,
+                k = out(reg) k,
+                out("r4") _,
+                out("r5") _,
+                out("r8") _,
+                out("r10") _,
+                options(nostack),
+            );
+        }
+        (k as usize, (best >> 16) as u16)
+    }
+}
