@@ -975,7 +975,8 @@ mod tests {
     proptest! {
         /// Corrupted bodies with a correct CRC reach every body parser and
         /// the view decoders: a typed error or a message, never a panic;
-        /// the owning decode and the reusing decoder agree.
+        /// the owning decode and the reusing decoder (with the plane table
+        /// resolved against its labels, as the board does) agree.
         #[test]
         fn corrupt_bodies_are_errors_or_messages(
             flips in proptest::collection::vec((any::<usize>(), any::<u8>()), 1..8),
@@ -995,7 +996,13 @@ mod tests {
             let owned = decode(&bytes, &Limits::default());
             if let Ok((_, Body::StereoFrame(f))) = parse(&bytes, &Limits::default()) {
                 let mut decoder = FrameDecoder::default();
-                let reused = decoder.decode_rgb(&f).map(|()| decoder.views());
+                let reused = decoder.decode_rgb(&f).and_then(|()| {
+                    if let (Some(t), Some(labels)) = (&f.planes, decoder.left_labels(&f)) {
+                        let (ids, count) = components(labels, t.tile() as usize);
+                        t.resolve(&ids, count)?;
+                    }
+                    Ok(decoder.views())
+                });
                 match (&owned, reused) {
                     (Ok((_, Message::StereoFrame(m))), Ok((l, r))) => {
                         prop_assert_eq!(&m.left.to_rgb(), l);
