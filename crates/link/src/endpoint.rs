@@ -554,6 +554,17 @@ impl Endpoint {
             || self.handed.iter().any(held)
     }
 
+    /// Says that the messages handed up so far have been dealt with (shown,
+    /// acted on): their held ACKs go now, rather than at the next
+    /// [`Endpoint::recv_message`]. Call it before anything that should only
+    /// happen once the sender can count the message delivered.
+    ///
+    /// # Errors
+    /// If the transport fails.
+    pub fn dealt_with(&mut self) -> Result<(), LinkError> {
+        self.release()
+    }
+
     /// Sends the held ACKs of the messages the layer above has dealt with.
     fn release(&mut self) -> Result<(), LinkError> {
         for (_, ack, _) in std::mem::take(&mut self.handed) {

@@ -127,6 +127,12 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         };
         heard = Instant::now();
         let event = board.handle(&msg);
+        // Shown and acted on: the sender may count it delivered now, before
+        // this process says so (a process killed after saying it showed a
+        // frame has acknowledged it, and its next life is not sent it again).
+        for ep in eps.iter_mut() {
+            ep.dealt_with().context("link")?;
+        }
         if let (Some(dir), Event::Frame { .. }, Some((l, r))) = (&args.save, &event, board.pair()) {
             std::fs::create_dir_all(dir)
                 .with_context(|| format!("cannot create {}", dir.display()))?;
