@@ -577,7 +577,10 @@ impl Sender {
                 if !covers(next, bitmap, i) || (i == last && count != self.count) {
                     self.acked[i] = false;
                     self.sent_at[i] = None;
-                    self.queue.push_back(i);
+                    // An entry left from before it was acknowledged sends it already.
+                    if !self.queue.contains(&i) {
+                        self.queue.push_back(i);
+                    }
                 }
             }
             return;
