@@ -895,10 +895,17 @@ mod tests {
         let View::Indexed(left) = &f.left else {
             unreachable!("an indexed left view")
         };
-        let (_, count) = components(left.labels(), 0);
+        let (ids, count) = components(left.labels(), 0);
         let per: Vec<[f32; 3]> = (0..count).map(|s| [0.5, -0.25, (s % 5) as f32]).collect();
+        let coding = crate::planetable::TableCoding::default();
         StereoFrame {
-            planes: Some(crate::planetable::PlaneTable::quantise(0, (0, 15), &per)),
+            planes: Some(crate::planetable::PlaneTable::quantise(
+                0,
+                (0, 15),
+                coding,
+                Some(&ids),
+                &per,
+            )),
             ..f
         }
     }
@@ -916,9 +923,9 @@ mod tests {
         assert_eq!(&bytes[HEADER_LEN..plain.len()], &plain[HEADER_LEN..]);
         let mut body = bytes[HEADER_LEN..].to_vec();
         // An unknown section (tag 9) and plane tables of versions 1 (the
-        // old raw indices) and 3 are skipped.
+        // old raw indices) and 2 (every index coded) are skipped.
         body.extend([9, 1, 2, 0, 0, 0, 0xAA, 0xBB]);
-        body.extend([1, 1, 0, 0, 0, 0, 1, 3, 0, 0, 0, 0]);
+        body.extend([1, 1, 0, 0, 0, 0, 1, 2, 0, 0, 0, 0]);
         let reframe = |body: &[u8]| {
             let mut out = bytes[..HEADER_LEN].to_vec();
             out[20..24].copy_from_slice(&(body.len() as u32).to_le_bytes());

@@ -12,8 +12,12 @@
 //! needs the decoded left labels' segments: a frame's table is parsed into a
 //! [`CodedPlaneTable`] and resolved once the labels are decoded.
 //! Version 1 spent 12 raw bytes on every plane and 1–2 on every index,
-//! which made the table 37–54 % of a frame; version 2 makes it 5–10 times
-//! smaller on the Middlebury v2 scenes.
+//! which made the table 37–54 % of a frame; version 2 made it 5–10 times
+//! smaller on the Middlebury v2 scenes. Version 3 ([`TableCoding`]) codes
+//! the coefficients only to the precision the map needs and leaves the
+//! tiny segments' indices out: a segment of fewer than `implied_below`
+//! pixels takes the plane of the segment above (else left of) its first
+//! pixel, on both ends, which the plane assignment mostly gives it anyway.
 use std::collections::HashMap;
 
 use stereolink_image::Plane;
@@ -25,9 +29,9 @@ use crate::CodecError;
 /// Section tag of a plane table.
 pub const TAG: u8 = 1;
 /// Version of the plane table section this build writes and reads (1 had
-/// raw planes and raw 1-, 2- or 4-byte indices; a frame's version 1 table
-/// is skipped).
-pub const VERSION: u8 = 2;
+/// raw planes and raw 1-, 2- or 4-byte indices, 2 coded every coefficient
+/// to 1/65536 and every segment's index; a frame's older table is skipped).
+pub const VERSION: u8 = 3;
 /// Planes on the move-to-front list of [`IndexCoder`].
 const RECENT: usize = 15;
 /// Fraction bits of the fixed-point plane coefficients.
@@ -37,6 +41,61 @@ pub const FRACTION_BITS: u32 = 16;
 /// `(0, 0)`), each times 2^[`FRACTION_BITS`].
 pub type FixedPlane = [i32; 3];
 
+/// How a table is coded: its coefficients' precision and which segments'
+/// indices are left out. The defaults were measured with
+/// `examples/planes_over_radio fodpso 3` on Tsukuba / Venus / Teddy /
+/// Cones (table bytes; bad > 1 px of the board's map from the planes):
+/// - exact (16, 16, 0): 954 / 1484 / 2519 / 5869 B; 6.95 / 0.67 / 6.56 / 4.32 %;
+/// - (12, 5, 0): 752 / 1227 / 2013 / 4840 B; 6.68 / 0.67 / 6.61 / 4.33 %;
+/// - (12, 5, 2), the default: 652 / 1021 / 1649 / 3826 B; 6.77 / 0.73 /
+///   6.73 / 4.39 %;
+/// - (12, 5, 4): 572 / 809 / 1415 / 3029 B; 6.91 / 0.81 / 6.95 / 4.44 %;
+/// - (13, 6, 8): 545 / 724 / 1324 / 2743 B; 7.47 / 0.90 / 7.28 / 4.66 %.
+///
+/// A plane rounded so is off by at most 2^−(slant_bits+1) · (x + y) +
+/// 2^−(offset_bits+1) px at `(x, y)`: 0.12 px at the far corner of a
+/// 450×375 view with the defaults.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct TableCoding {
+    /// Fraction bits of the slants `a` and `b` (at most 16): each is a
+    /// multiple of 2^−`slant_bits` px per px.
+    pub slant_bits: u8,
+    /// Fraction bits of the offset `c` (at most 16).
+    pub offset_bits: u8,
+    /// Segments of fewer pixels take the plane of the segment above their
+    /// first pixel, else of the one left of it, and their indices are not
+    /// coded (0 or 1: every index is coded).
+    pub implied_below: u16,
+}
+
+impl Default for TableCoding {
+    fn default() -> Self {
+        TableCoding {
+            slant_bits: 12,
+            offset_bits: 5,
+            implied_below: 2,
+        }
+    }
+}
+
+impl TableCoding {
+    /// Every coefficient to 1/65536 and every index coded (version 2's content).
+    pub const EXACT: TableCoding = TableCoding {
+        slant_bits: FRACTION_BITS as u8,
+        offset_bits: FRACTION_BITS as u8,
+        implied_below: 0,
+    };
+
+    /// The fraction bits of coefficient `i` (a, b, c).
+    fn bits(&self, i: usize) -> u32 {
+        u32::from(if i < 2 {
+            self.slant_bits
+        } else {
+            self.offset_bits
+        })
+    }
+}
+
 /// The plane table of a frame.
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
 pub struct PlaneTable {
@@ -45,6 +104,8 @@ pub struct PlaneTable {
     pub tile: u16,
     /// The disparity range every plane is clamped to (px, inclusive).
     pub range: (i16, i16),
+    /// The coefficients' precision and the segments left implied.
+    pub coding: TableCoding,
     /// The distinct planes.
     pub planes: Vec<FixedPlane>,
     /// For each segment, in raster order of its first pixel, its plane's
@@ -53,30 +114,49 @@ pub struct PlaneTable {
     pub of_segment: Vec<u32>,
 }
 
-/// `v` in 16.16 fixed point, rounded to nearest and saturated (0 for NaN).
-fn fixed(v: f32) -> i32 {
-    (v as f64 * (1u32 << FRACTION_BITS) as f64).round() as i32
+/// `v` in 16.16 fixed point, rounded to the nearest multiple of
+/// 2^−`bits` and saturated (0 for NaN).
+fn fixed(v: f32, bits: u32) -> i32 {
+    let steps = (v as f64 * (1u64 << bits) as f64).round();
+    let limit = (i32::MAX >> (FRACTION_BITS - bits)) as f64;
+    (steps.clamp(-limit - 1.0, limit) as i32) << (FRACTION_BITS - bits)
 }
 
 impl PlaneTable {
-    /// Quantises one plane `[a, b, c]` per segment, listing equal
-    /// quantised planes once in the order of their first segment.
-    pub fn quantise(tile: u16, range: (i16, i16), per_segment: &[[f32; 3]]) -> Self {
+    /// Quantises one plane `[a, b, c]` per segment as `coding` says,
+    /// listing equal quantised planes once in the order of their first
+    /// segment. `ids` are the segments (as [`PlaneTable::encode`] takes
+    /// them): a segment that `coding` leaves implied takes its
+    /// predecessor's plane here, as the receiver will.
+    pub fn quantise(
+        tile: u16,
+        range: (i16, i16),
+        coding: TableCoding,
+        ids: Option<&Plane<u32>>,
+        per_segment: &[[f32; 3]],
+    ) -> Self {
+        let implied = ids.map(|ids| implied(ids, per_segment.len(), coding.implied_below));
         let mut index = HashMap::new();
         let mut planes = Vec::new();
-        let of_segment = per_segment
-            .iter()
-            .map(|p| {
-                let q = p.map(fixed);
-                *index.entry(q).or_insert_with(|| {
-                    planes.push(q);
-                    planes.len() as u32 - 1
-                })
-            })
-            .collect();
+        let mut of_segment: Vec<u32> = Vec::with_capacity(per_segment.len());
+        for (s, p) in per_segment.iter().enumerate() {
+            let from = implied.as_ref().and_then(|i| i[s]);
+            let k = match from {
+                Some(t) => of_segment[t as usize],
+                None => {
+                    let q = [0, 1, 2].map(|i| fixed(p[i], coding.bits(i)));
+                    *index.entry(q).or_insert_with(|| {
+                        planes.push(q);
+                        planes.len() as u32 - 1
+                    })
+                }
+            };
+            of_segment.push(k);
+        }
         PlaneTable {
             tile,
             range,
+            coding,
             planes,
             of_segment,
         }
@@ -111,20 +191,29 @@ impl PlaneTable {
     /// ([`stereolink_image::segments::components`] in tiles of `tile`); the
     /// indices are coded without neighbours when there are none.
     pub(crate) fn encode(&self, w: &mut Writer, ids: Option<&Plane<u32>>) {
+        let n = self.of_segment.len();
+        let coding = self.coding;
         let mut c = Writer(Vec::new());
         c.u16(self.tile);
         c.u16(self.range.0 as u16);
         c.u16(self.range.1 as u16);
-        c.u32(self.of_segment.len() as u32);
+        c.u16(coding.implied_below);
+        c.u8(coding.slant_bits);
+        c.u8(coding.offset_bits);
+        c.u32(n as u32);
         c.u32(self.planes.len() as u32);
         let mut enc = Encoder::new();
-        let mut coefficients = CoefficientCoder::default();
+        let mut coefficients = CoefficientCoder::new(coding);
         for p in &self.planes {
             coefficients.encode(&mut enc, p);
         }
-        let neighbours = ids.map(|ids| neighbours(ids, self.of_segment.len()));
+        let neighbours = ids.map(|ids| neighbours(ids, n));
+        let implied = ids.map(|ids| implied(ids, n, coding.implied_below));
         let mut coder = IndexCoder::default();
         for (s, &i) in self.of_segment.iter().enumerate() {
+            if implied.as_ref().is_some_and(|m| m[s].is_some()) {
+                continue;
+            }
             let seen = candidates(neighbours.as_deref(), s, &self.of_segment);
             coder.encode(&mut enc, i, seen);
         }
@@ -143,6 +232,7 @@ impl PlaneTable {
 pub struct CodedPlaneTable {
     tile: u16,
     range: (i16, i16),
+    coding: TableCoding,
     segments: usize,
     planes: usize,
     coded: Vec<u8>,
@@ -165,6 +255,17 @@ impl CodedPlaneTable {
                 range.0, range.1
             )));
         }
+        let coding = TableCoding {
+            implied_below: r.u16("plane table")?,
+            slant_bits: r.u8("plane table")?,
+            offset_bits: r.u8("plane table")?,
+        };
+        if coding.slant_bits.max(coding.offset_bits) as u32 > FRACTION_BITS {
+            return Err(CodecError::Invalid(format!(
+                "plane table: {} and {} fraction bits (at most {FRACTION_BITS})",
+                coding.slant_bits, coding.offset_bits
+            )));
+        }
         let n = r.u32("plane table")? as usize;
         let k = r.u32("plane table")? as usize;
         if n > pixels || k > n || (k == 0) != (n == 0) {
@@ -175,6 +276,7 @@ impl CodedPlaneTable {
         Ok(CodedPlaneTable {
             tile,
             range,
+            coding,
             segments: n,
             planes: k,
             coded: content[r.pos..].to_vec(),
@@ -208,16 +310,23 @@ impl CodedPlaneTable {
             )));
         }
         let mut dec = Decoder::new(&self.coded);
-        let mut coefficients = CoefficientCoder::default();
+        let mut coefficients = CoefficientCoder::new(self.coding);
         let planes = (0..k)
             .map(|_| coefficients.decode(&mut dec))
             .collect::<Result<Vec<_>, _>>()?;
         let neighbours = neighbours(ids, n);
+        let implied = implied(ids, n, self.coding.implied_below);
         let mut coder = IndexCoder::default();
-        let mut of_segment = Vec::with_capacity(n);
-        for s in 0..n {
-            let seen = candidates(Some(&neighbours), s, &of_segment);
-            of_segment.push(coder.decode(&mut dec, k, seen)?);
+        let mut of_segment: Vec<u32> = Vec::with_capacity(n);
+        for (s, from) in implied.iter().enumerate() {
+            let plane = match from {
+                Some(t) => of_segment[*t as usize],
+                None => {
+                    let seen = candidates(Some(&neighbours), s, &of_segment);
+                    coder.decode(&mut dec, k, seen)?
+                }
+            };
+            of_segment.push(plane);
         }
         if coder.used != k {
             return Err(CodecError::Invalid(format!(
@@ -228,32 +337,36 @@ impl CodedPlaneTable {
         Ok(PlaneTable {
             tile: self.tile,
             range: self.range,
+            coding: self.coding,
             planes,
             of_segment,
         })
     }
 }
 
-/// The model that range codes the planes' coefficients: each zigzag-mapped
-/// (0, −1, 1, −2, … → 0, 1, 2, 3, …), its bit length 0–32 through a 6-bit
-/// tree of its own per coefficient (a, b, c), then the bits below the
-/// leading 1 as plain bits. Lossless: a plane's fitted slopes are small,
-/// so most take far fewer than their 32 bits.
+/// The model that range codes the planes' coefficients: each in units of
+/// its precision ([`TableCoding`]), zigzag-mapped (0, −1, 1, −2, … → 0,
+/// 1, 2, 3, …), its bit length 0–32 through a 6-bit tree of its own per
+/// coefficient (a, b, c), then the bits below the leading 1 as plain bits.
+/// A plane's fitted slopes are small, so most take far fewer than 32 bits.
 struct CoefficientCoder {
+    coding: TableCoding,
     lengths: [BitTree; 3],
 }
 
-impl Default for CoefficientCoder {
-    fn default() -> Self {
+impl CoefficientCoder {
+    fn new(coding: TableCoding) -> Self {
         CoefficientCoder {
+            coding,
             lengths: [BitTree::new(6), BitTree::new(6), BitTree::new(6)],
         }
     }
-}
 
-impl CoefficientCoder {
+    /// Codes `plane`, whose coefficients are multiples of their precision
+    /// ([`PlaneTable::quantise`] makes them so).
     fn encode(&mut self, enc: &mut Encoder, plane: &FixedPlane) {
-        for (tree, &v) in self.lengths.iter_mut().zip(plane) {
+        for (i, (tree, &v)) in self.lengths.iter_mut().zip(plane).enumerate() {
+            let v = v >> (FRACTION_BITS - self.coding.bits(i));
             let u = ((v << 1) ^ (v >> 31)) as u32;
             let n = u32::BITS - u.leading_zeros();
             tree.encode(enc, n);
@@ -265,7 +378,7 @@ impl CoefficientCoder {
 
     fn decode(&mut self, dec: &mut Decoder) -> Result<FixedPlane, CodecError> {
         let mut plane = [0; 3];
-        for (tree, v) in self.lengths.iter_mut().zip(&mut plane) {
+        for (i, (tree, v)) in self.lengths.iter_mut().zip(&mut plane).enumerate() {
             let n = tree.decode(dec);
             let u = match n {
                 0 => 0,
@@ -276,10 +389,36 @@ impl CoefficientCoder {
                     )))
                 }
             };
-            *v = ((u >> 1) as i32) ^ -((u & 1) as i32);
+            let steps = ((u >> 1) as i32) ^ -((u & 1) as i32);
+            *v = steps
+                .checked_mul(1 << (FRACTION_BITS - self.coding.bits(i)))
+                .ok_or_else(|| {
+                    CodecError::Invalid("plane table: a coefficient beyond 32 bits".into())
+                })?;
         }
         Ok(plane)
     }
+}
+
+/// For each of the first `n` segments of `ids`, the earlier segment whose
+/// plane it takes uncoded: a segment of fewer than `below` pixels takes
+/// the one above its first pixel, else the one left of it; `None` (coded)
+/// for larger segments and for those with neither.
+fn implied(ids: &Plane<u32>, n: usize, below: u16) -> Vec<Option<u32>> {
+    if below <= 1 {
+        return vec![None; n];
+    }
+    let mut size = vec![0u16; n];
+    for &s in ids.as_slice() {
+        if let Some(c) = size.get_mut(s as usize) {
+            *c = c.saturating_add(1);
+        }
+    }
+    neighbours(ids, n)
+        .iter()
+        .zip(size)
+        .map(|(&[up, left], size)| if size < below { up.or(left) } else { None })
+        .collect()
 }
 
 /// For each of the first `n` segments of `ids`, the segments above and
@@ -467,7 +606,8 @@ mod tests {
     #[test]
     fn quantisation_lists_equal_planes_once_within_the_bound() {
         let p = [0.25f32, -0.125, 17.3];
-        let t = PlaneTable::quantise(48, (0, 63), &[p, [0.0, 0.0, 5.0], p]);
+        let exact = TableCoding::EXACT;
+        let t = PlaneTable::quantise(48, (0, 63), exact, None, &[p, [0.0, 0.0, 5.0], p]);
         assert_eq!(t.planes.len(), 2);
         assert_eq!(t.of_segment, [0, 1, 0]);
         for (x, y) in [(0, 0), (100, 3), (449, 374)] {
@@ -481,6 +621,67 @@ mod tests {
         assert_eq!(t.disparity(1, 9, 9), Some(5 << 16));
         assert!(t.check_segments(3).is_ok());
         assert!(t.check_segments(4).is_err());
+    }
+
+    #[test]
+    fn coarse_coefficients_stay_within_their_precision() {
+        let p = [0.0123f32, -0.0456, 37.789];
+        let coding = TableCoding::default();
+        let t = PlaneTable::quantise(0, (-100, 100), coding, None, &[p]);
+        let (sb, ob) = (coding.slant_bits as i32, coding.offset_bits as i32);
+        for (x, y) in [(0, 0), (100, 3), (449, 374), (2000, 1500)] {
+            let exact = p[0] as f64 * x as f64 + p[1] as f64 * y as f64 + p[2] as f64;
+            let got = t.disparity(0, x, y).unwrap() as f64 / 65536.0;
+            let bound = 2f64.powi(-sb - 1) * (x + y) as f64 + 2f64.powi(-ob - 1);
+            assert!(
+                (got - exact).abs() <= bound + 1e-9,
+                "{got} vs {exact} at {x},{y}"
+            );
+        }
+        // Each coefficient is a multiple of its step, and saturates.
+        let [a, b, c] = t.planes[0];
+        assert_eq!(
+            (
+                a % (1 << (16 - sb)),
+                b % (1 << (16 - sb)),
+                c % (1 << (16 - ob))
+            ),
+            (0, 0, 0)
+        );
+        let huge = PlaneTable::quantise(0, (0, 1), coding, None, &[[1e9, -1e9, f32::NAN]]);
+        let top = i32::MAX >> (16 - sb) << (16 - sb);
+        assert_eq!(huge.planes[0], [top, i32::MIN, 0]);
+    }
+
+    #[test]
+    fn tiny_segments_take_the_plane_above_or_left_uncoded() {
+        // Segment 0 is the top row (4 px); 1 is one pixel under its left
+        // end, 2 the rest of row 1 (3 px), 3 a column of 2 px at x = 0 of
+        // rows 2–3 and 4 the rest (6 px).
+        let ids = Plane::from_fn(4, 4, |x, y| match (x, y) {
+            (_, 0) => 0,
+            (0, 1) => 1,
+            (_, 1) => 2,
+            (0, _) => 3,
+            _ => 4,
+        });
+        let per: Vec<[f32; 3]> = (0..5).map(|s| [0.0, 0.0, s as f32]).collect();
+        let coding = TableCoding {
+            implied_below: 4,
+            ..TableCoding::EXACT
+        };
+        let t = PlaneTable::quantise(0, (0, 9), coding, Some(&ids), &per);
+        // 1 (1 px) takes 0's plane, from above; 2 (3 px) takes 0's from
+        // above; 3 (2 px) takes 1's, which is 0's; 4 (6 px) keeps its own.
+        assert_eq!(t.of_segment, [0, 0, 0, 0, 1]);
+        assert_eq!(t.planes, [[0, 0, 0], [0, 0, 4 << 16]]);
+        assert_eq!(round_trip(&t, &ids, 5, 16).unwrap(), t);
+        // The implied indices cost nothing: the table is as long with any
+        // plane the tiny segments were given.
+        let mut other = per.clone();
+        other[2] = [0.0, 0.0, 7.0];
+        let u = PlaneTable::quantise(0, (0, 9), coding, Some(&ids), &other);
+        assert_eq!(u, t);
     }
 
     /// Segments in a row, one pixel each: every segment's left neighbour
@@ -509,7 +710,7 @@ mod tests {
     fn many_planes_round_trip_and_counts_are_checked() {
         for k in [0usize, 1, 256, 257, 70_000] {
             let per: Vec<[f32; 3]> = (0..k).map(|i| [0.0, 0.0, i as f32 / 64.0]).collect();
-            let t = PlaneTable::quantise(0, (-5, 300), &per);
+            let t = PlaneTable::quantise(0, (-5, 300), TableCoding::EXACT, None, &per);
             assert_eq!(t.planes.len(), k);
             assert_eq!(round_trip(&t, &row(k), k, k).unwrap(), t);
             if k > 0 {
@@ -525,22 +726,29 @@ mod tests {
     /// `docs/wire-format.md` quotes them).
     #[test]
     fn golden_plane_table() {
+        let coding = TableCoding {
+            implied_below: 0,
+            ..TableCoding::default()
+        };
         let t = PlaneTable::quantise(
             48,
             (0, 63),
+            coding,
+            Some(&row(3)),
             &[[0.25, -0.125, 17.3], [0.0, 0.0, 5.0], [0.25, -0.125, 17.3]],
         );
-        assert_eq!(t.planes, [[16384, -8192, 1_133_773], [0, 0, 327_680]]);
+        assert_eq!(t.planes, [[16384, -8192, 1_134_592], [0, 0, 327_680]]);
         let mut w = Writer(Vec::new());
         t.encode(&mut w, Some(&row(3)));
         let hex: String = w.0.iter().map(|b| format!("{b:02x}")).collect();
         assert_eq!(
             hex,
-            "010221000000\
+            "010321000000\
              30000000\
-             3f0003000000\
+             3f0000000c05\
+             03000000\
              02000000\
-             3ffffddfff5853334000a8d87a7304a0ecad00"
+             300011ff2c5400028d0db6331fe500"
         );
     }
 
@@ -553,14 +761,20 @@ mod tests {
             width in 1usize..20,
             tile in 0usize..6,
             choice in proptest::collection::vec(0u8..40, 300),
+            implied_below in 0u16..5,
+            slant_bits in 0u8..=16,
+            offset_bits in 0u8..=16,
         ) {
             let height = labels.len().div_ceil(width);
             let map = stereolink_image::LabelMap::from_fn(width, height, |x, y| {
                 labels[(y * width + x) % labels.len()]
             });
             let (ids, count) = stereolink_image::segments::components(&map, tile);
-            let per: Vec<[f32; 3]> = (0..count).map(|s| [0.0, 0.0, f32::from(choice[s % 300])]).collect();
-            let t = PlaneTable::quantise(tile as u16, (0, 63), &per);
+            let per: Vec<[f32; 3]> = (0..count)
+                .map(|s| [0.01 * f32::from(choice[(s + 1) % 300]), -0.02, f32::from(choice[s % 300]) / 3.0])
+                .collect();
+            let coding = TableCoding { slant_bits, offset_bits, implied_below };
+            let t = PlaneTable::quantise(tile as u16, (0, 63), coding, Some(&ids), &per);
             prop_assert_eq!(round_trip(&t, &ids, count, width * height).unwrap(), t);
         }
 

@@ -5,7 +5,7 @@
 //! indices decode against those labels' segments), in integers, without
 //! matching. Both fill the map the same way, so they hold the very same map.
 
-use stereolink_codec::planetable::{CodedPlaneTable, PlaneTable, FRACTION_BITS};
+use stereolink_codec::planetable::{CodedPlaneTable, PlaneTable, TableCoding, FRACTION_BITS};
 use stereolink_codec::CodecError;
 use stereolink_image::segments::components;
 use stereolink_image::{DisparityMap, LabelMap, Plane};
@@ -13,11 +13,15 @@ use stereolink_stereo::planes::PlaneMap;
 use stereolink_stereo::MatchSpec;
 
 /// The plane table of `matched` (matched over the segments of the
-/// transmitted left labels with `spec`).
+/// transmitted left labels with `spec`), coded as `coding` says.
 ///
 /// # Errors
 /// If the tile side or the disparity range do not fit the wire's 16 bits.
-pub fn table_of(matched: &PlaneMap, spec: &MatchSpec) -> anyhow::Result<PlaneTable> {
+pub fn table_of(
+    matched: &PlaneMap,
+    spec: &MatchSpec,
+    coding: TableCoding,
+) -> anyhow::Result<PlaneTable> {
     let tile = u16::try_from(spec.planes.tile)
         .map_err(|_| anyhow::anyhow!("plane tile {} exceeds 65535", spec.planes.tile))?;
     let range = (i16::try_from(spec.min_disp), i16::try_from(spec.max_disp));
@@ -29,7 +33,8 @@ pub fn table_of(matched: &PlaneMap, spec: &MatchSpec) -> anyhow::Result<PlaneTab
         );
     };
     let planes: Vec<[f32; 3]> = matched.planes.iter().map(|p| [p.a, p.b, p.c]).collect();
-    Ok(PlaneTable::quantise(tile, (lo, hi), &planes))
+    let ids = Some(&matched.graph.ids);
+    Ok(PlaneTable::quantise(tile, (lo, hi), coding, ids, &planes))
 }
 
 /// Rebuilds the dense map of `table` over the segments of `labels` into
@@ -93,7 +98,7 @@ mod tests {
     #[test]
     fn rebuilds_each_segments_plane_exactly_and_checks_the_count() {
         let planes = [[0.5, 0.0, 1.0], [0.0, 0.25, 7.0], [-1.0, 0.0, 20.0]];
-        let table = PlaneTable::quantise(4, (0, 15), &planes);
+        let table = PlaneTable::quantise(4, (0, 15), TableCoding::EXACT, None, &planes);
         let mut out = DisparityMap::default();
         rebuild_into(&labels(), &table, &mut out).unwrap();
         for (x, y) in [(0, 0), (3, 2), (5, 1), (9, 2), (11, 0)] {
@@ -124,8 +129,11 @@ mod tests {
         };
         let mut board = BoardReceiver::new(3, 3, std::time::Duration::from_secs(1));
         board.source = DisparitySource::Planes;
-        let two = PlaneTable::quantise(0, (0, 3), &[[0.0, 0.0, 1.0], [0.0, 0.0, 2.0]]);
-        let five = PlaneTable::quantise(0, (0, 3), &[[0.0, 0.0, 1.0]; 5]);
+        let quantise = |planes: &[[f32; 3]]| {
+            PlaneTable::quantise(0, (0, 3), TableCoding::default(), None, planes)
+        };
+        let two = quantise(&[[0.0, 0.0, 1.0], [0.0, 0.0, 2.0]]);
+        let five = quantise(&[[0.0, 0.0, 1.0]; 5]);
         for (planes, shown) in [(None, false), (Some(five), false), (Some(two), true)] {
             let bytes = container::encode(&Message::StereoFrame(Box::new(frame(planes))), 1, 0);
             let event = board.handle(&bytes);

@@ -16,8 +16,9 @@ use std::time::Instant;
 
 use anyhow::Context;
 use stereolink_codec::{
-    container, labels, planetable::PlaneTable, DepthReport, Message, ReportLevel, SegmentationKind,
-    StereoFrame, View,
+    container, labels,
+    planetable::{PlaneTable, TableCoding},
+    DepthReport, Message, ReportLevel, SegmentationKind, StereoFrame, View,
 };
 use stereolink_image::{metrics::psnr_rgb, Calibration, DisparityMap, LabelMap, RgbImage};
 use stereolink_segment::carry::{carry_over, NOTHING};
@@ -131,7 +132,7 @@ fn match_pair(
         return Ok((Matcher::new().compute(left, right, spec)?, None));
     }
     let matched = match_planes(left, right, left_labels, spec)?;
-    let table = planetable::table_of(&matched, spec)?;
+    let table = planetable::table_of(&matched, spec, TableCoding::default())?;
     let mut disparity = DisparityMap::default();
     planetable::rebuild_into(left_labels, &table, &mut disparity)?;
     Ok((disparity, Some(table)))
