@@ -32,7 +32,7 @@ fn stages(c: &mut Criterion) {
     let fitted = planes::fit_segments(&graph, &reliable, params);
     let clusters = assign::cluster(&graph, &fitted, &reliable, params);
     let census = || (sgm::census(&gl), sgm::census(&gr));
-    let cost = assign::DataCost::new(census(), &reliable, (0.0, 31.0), params);
+    let cost = assign::DataCost::new(census(), (&gl, &gr), &reliable, (0.0, 31.0), params);
 
     let mut g = c.benchmark_group("planes_320x240_32");
     g.sample_size(10);

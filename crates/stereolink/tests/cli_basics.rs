@@ -254,3 +254,39 @@ fn planes_matches_through_eval_and_match_with_any_segments() {
     assert_eq!(err.lines().count(), 1, "{err}");
     assert!(err.contains("foo"), "{err}");
 }
+
+/// On the real v2 scenes (`STEREOLINK_DATA`), planes over the default mean
+/// shift over-segmentation beat our SGM on Venus, Teddy and Cones (bad > 1
+/// px non-occluded, measured 0.48 / 4.73 / 3.09 % against 0.94 / 6.04 /
+/// 3.60 %). Tsukuba is not asserted: planes give 4.67 % there, SGM 3.05 %.
+#[test]
+fn planes_beat_sgm_on_venus_teddy_and_cones() {
+    let Some(data) = std::env::var_os("STEREOLINK_DATA") else {
+        eprintln!("STEREOLINK_DATA is unset: skipping");
+        return;
+    };
+    let out = stereolink()
+        .args(["--json", "eval", "--data"])
+        .arg(data)
+        .args(["--scenes", "venus,teddy,cones", "--algos", "sgm,planes"])
+        .output()
+        .unwrap();
+    assert_success(&out);
+    let t: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let bad = |scene: &str, algo: &str| {
+        t["rows"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|r| r["scene"] == scene && r["algorithm"] == algo)
+            .and_then(|r| r["bad1_nonocc"].as_f64())
+            .unwrap_or_else(|| panic!("no {algo} row for {scene}: {t}"))
+    };
+    for scene in ["venus", "teddy", "cones"] {
+        let (planes, sgm) = (bad(scene, "planes"), bad(scene, "sgm"));
+        assert!(
+            planes < sgm,
+            "{scene}: planes {planes} % against SGM {sgm} %"
+        );
+    }
+}

@@ -10,9 +10,12 @@
 //! **Assignment**: every segment `s` takes one cluster plane `P_s`,
 //! minimising `E = Σ_s D(s, P_s) + λ · Σ_(s,t) |∂(s,t)| · [P_s ≠ P_t]`:
 //! the data term `D` sums each pixel's census Hamming cost at the plane's
-//! subpixel disparity (interpolated between whole disparities), truncated
-//! at `truncation`, which is also the cost of a match outside the right
-//! view, so that occluded pixels cost a bounded amount whatever the plane,
+//! subpixel disparity plus `intensity` times its absolute grey difference
+//! (capped at `intensity_cap`; census and intensity together, as
+//! AD-Census, Mei et al. 2011, combines them), interpolated between whole
+//! disparities and truncated at `truncation`, which is also the cost of a
+//! match outside the right view, so that occluded pixels cost a bounded
+//! amount whatever the plane,
 //! plus `agreement` per px of disagreement (capped at `agreement_cap`)
 //! with the initial disparity where that passed the LR check;
 //! the smoothness term charges `λ` per unit of boundary between two
@@ -27,32 +30,37 @@
 use std::collections::VecDeque;
 
 use rayon::prelude::*;
-use stereolink_image::DisparityMap;
+use stereolink_image::{DisparityMap, GrayImage};
 
 use super::fit::{refit, samples, Sample};
 use super::graph::SegmentGraph;
 use super::{DisparityPlane, PlanesParams};
 
-/// The per-pixel data cost: the census Hamming distance (9×7, as SGM's) at
-/// the plane's disparity, truncated, plus the disagreement with the initial
-/// map where a pixel is reliable.
+/// The per-pixel data cost: the census Hamming distance (9×7, as SGM's) and
+/// the weighted grey difference at the plane's disparity, truncated, plus
+/// the disagreement with the initial map where a pixel is reliable.
 pub struct DataCost<'a> {
     left: Vec<u64>,
     right: Vec<u64>,
+    gray: (&'a [u8], &'a [u8]),
     reliable: &'a DisparityMap,
     width: usize,
     /// Disparities are clamped to this range before the cost is taken.
     range: (f32, f32),
     truncation: f32,
+    intensity: f32,
+    intensity_cap: f32,
     agreement: f32,
     agreement_cap: f32,
 }
 
 impl<'a> DataCost<'a> {
-    /// The cost from the two views' census transforms and the LR-checked
-    /// initial map `reliable` (same size), plane disparities clamped to `range`.
+    /// The cost from the two views' census transforms, their grey views
+    /// and the LR-checked initial map `reliable` (all of one size), plane
+    /// disparities clamped to `range`.
     pub fn new(
         (left, right): (Vec<u64>, Vec<u64>),
+        gray: (&'a GrayImage, &'a GrayImage),
         reliable: &'a DisparityMap,
         range: (f32, f32),
         params: &PlanesParams,
@@ -60,10 +68,13 @@ impl<'a> DataCost<'a> {
         DataCost {
             left,
             right,
+            gray: (gray.0.as_slice(), gray.1.as_slice()),
             reliable,
             width: reliable.width(),
             range,
             truncation: params.truncation,
+            intensity: params.intensity,
+            intensity_cap: params.intensity_cap,
             agreement: params.agreement,
             agreement_cap: params.agreement_cap,
         }
@@ -77,12 +88,12 @@ impl<'a> DataCost<'a> {
         } else {
             0.0
         };
-        agreement + self.census(p, d)
+        agreement + self.matching(p, d)
     }
 
-    /// The truncated census cost of pixel `p` at disparity `d`, interpolated
-    /// between whole disparities.
-    fn census(&self, p: usize, d: f32) -> f32 {
+    /// The truncated census and grey cost of pixel `p` at disparity `d`,
+    /// interpolated between whole disparities.
+    fn matching(&self, p: usize, d: f32) -> f32 {
         let x = (p % self.width) as f32;
         let xr = x - d;
         if xr < 0.0 {
@@ -91,10 +102,14 @@ impl<'a> DataCost<'a> {
         let i = xr as usize;
         let f = xr - i as f32;
         let row = p - p % self.width;
+        let (i0, i1) = (row + i, row + (i + 1).min(self.width - 1));
         let c = self.left[p];
-        let h0 = (c ^ self.right[row + i]).count_ones() as f32;
-        let h1 = (c ^ self.right[row + (i + 1).min(self.width - 1)]).count_ones() as f32;
-        (h0 + f * (h1 - h0)).min(self.truncation)
+        let h0 = (c ^ self.right[i0]).count_ones() as f32;
+        let h1 = (c ^ self.right[i1]).count_ones() as f32;
+        let (g0, g1) = (f32::from(self.gray.1[i0]), f32::from(self.gray.1[i1]));
+        let grey = (f32::from(self.gray.0[p]) - (g0 + f * (g1 - g0))).abs();
+        let cost = h0 + f * (h1 - h0) + self.intensity * grey.min(self.intensity_cap);
+        cost.min(self.truncation)
     }
 
     /// `D(s, plane)`: the summed cost of `pixels` under `plane`.

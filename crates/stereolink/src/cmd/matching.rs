@@ -99,10 +99,16 @@ pub struct MatcherArgs {
     /// different planes (default 8).
     #[arg(long)]
     pub plane_smoothness: Option<f32>,
-    /// Planes: truncation of the per-pixel census cost, also the cost of an
-    /// occluded match (Hamming bits; default 24).
+    /// Planes: truncation of the per-pixel matching cost (census Hamming
+    /// bits plus the weighted grey difference), also the cost of an
+    /// occluded match (default 24).
     #[arg(long)]
     pub plane_truncation: Option<f32>,
+    /// Planes: weight of the absolute grey difference beside census in the
+    /// data term, per grey level, capped at 20 levels (default 1; 0: census
+    /// alone).
+    #[arg(long)]
+    pub plane_intensity: Option<f32>,
     /// Planes: cut segments into tiles of this side (px; default 48, 0
     /// keeps them whole), so that a segment spanning several depths gets
     /// several planes.
@@ -185,6 +191,7 @@ impl MatcherArgs {
         spec.line_growing.passes = self.lg_passes.unwrap_or(spec.line_growing.passes);
         spec.planes.smoothness = self.plane_smoothness.unwrap_or(spec.planes.smoothness);
         spec.planes.truncation = self.plane_truncation.unwrap_or(spec.planes.truncation);
+        spec.planes.intensity = self.plane_intensity.unwrap_or(spec.planes.intensity);
         spec.planes.tile = self.plane_tile.unwrap_or(spec.planes.tile);
         Ok(spec)
     }
