@@ -18,9 +18,8 @@ use std::time::{Duration, Instant};
 
 use rumqttc::{Client, Event, MqttOptions, Packet, QoS};
 use serde_json::Value;
-use stereolink::pipeline::gateway::command::Command as StationCommand;
+use stereolink::pipeline::control::{unix_us, Command as StationCommand};
 use stereolink::pipeline::gateway::sim::{SimConfig, SimStation};
-use stereolink::pipeline::gateway::station::unix_us;
 use stereolink_link::secure::{keyfile, Keys};
 
 const MOSQUITTO: &str = "/usr/sbin/mosquitto";

@@ -178,9 +178,7 @@ pub fn prepare(
         right: View::Indexed(sr.image),
         planes,
     };
-    let timestamp = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_micros() as u64);
+    let timestamp = super::control::unix_us();
     let frame_bytes =
         container::encode(&Message::StereoFrame(Box::new(frame)), frame_id, timestamp);
     let enc_ms = t.elapsed().as_secs_f64() * 1e3;

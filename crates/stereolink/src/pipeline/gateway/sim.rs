@@ -7,16 +7,15 @@ use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use stereolink_codec::container::{self, Body};
-use stereolink_codec::{DepthReport, Limits, Message, ReportLevel};
+use stereolink_codec::container;
+use stereolink_codec::{DepthReport, Message, ReportLevel};
 use stereolink_image::synth::SynthSpec;
 use stereolink_link::endpoint::{Endpoint, Lane, LinkError};
 use stereolink_link::secure::{Keys, SecureConfig};
 use stereolink_link::spec::{self, LinkSpec};
 use stereolink_robot::Axis;
 
-use super::command::Command;
-use super::station::unix_us;
+use crate::pipeline::control::{unix_us, Command, Control};
 use crate::pipeline::receiver::synthetic_frame;
 
 /// How a simulated station behaves.
@@ -284,14 +283,10 @@ fn on_command(
     frame_wanted: &mut bool,
     log: &Mutex<SimLog>,
 ) {
-    let cmd = match container::parse(msg, &Limits::default()) {
-        Ok((_, Body::Control(body))) => Command::decode(body),
-        Ok(_) => Err("not a control message".into()),
-        Err(e) => Err(e.to_string()),
-    };
     let mut l = log.lock().expect("log");
-    match cmd {
-        Ok((c, _id)) => {
+    match Control::from_message(msg) {
+        Ok(Control::Reply(r)) => l.failures.push(format!("a reply to a station: {r:?}")),
+        Ok(Control::Command { command: c, .. }) => {
             match c {
                 Command::AxisStop => {
                     let _ = axis.stop();

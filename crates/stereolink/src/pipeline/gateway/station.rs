@@ -6,7 +6,7 @@
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{Receiver, Sender};
 use std::sync::Arc;
-use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+use std::time::{Duration, Instant};
 
 use serde_json::{json, Value};
 use stereolink_codec::container::{self, Body};
@@ -20,7 +20,7 @@ use stereolink_link::endpoint::{Endpoint, Lane, LinkError};
 use stereolink_link::secure::{Keys, SecureConfig};
 use stereolink_link::spec::{self, LinkSpec};
 
-use super::command::Command;
+use crate::pipeline::control::{unix_us, Command};
 use crate::pipeline::receiver::{BoardReceiver, Event};
 
 /// A station as the gateway knows it.
@@ -93,13 +93,6 @@ pub struct Request {
     pub at: Instant,
 }
 
-/// Microseconds since the Unix epoch.
-pub fn unix_us() -> u64 {
-    SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map_or(0, |d| d.as_micros() as u64)
-}
-
 /// The longest a command waits for the station's link before it fails.
 const COMMAND_DEADLINE: Duration = Duration::from_secs(5);
 
@@ -166,10 +159,8 @@ pub fn run(
         waiting.extend(down.try_iter());
         if in_flight.is_none() {
             if let Some(req) = waiting.pop_front() {
-                let body = req.command.encode(next_id);
+                let msg = req.command.message(next_id);
                 next_id = next_id.wrapping_add(1);
-                let msg =
-                    container::encode(&stereolink_codec::Message::Control(body), 0, unix_us());
                 match ep.submit(Lane::Urgent, &msg) {
                     Ok(()) => in_flight = Some(req),
                     Err(e) => st.done(req, Err(format!("the link refused it: {e}"))),
