@@ -351,7 +351,7 @@ impl Station {
                 meta["rejected"] = json!(why);
                 None
             }
-            Event::Report { .. } => None,
+            Event::Report { .. } | Event::Command { .. } => None,
         }
     }
 
