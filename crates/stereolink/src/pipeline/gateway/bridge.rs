@@ -281,6 +281,25 @@ impl Bridge {
                 }
                 self.respond(station, &r, connected);
             }
+            Up::Acted {
+                station,
+                request,
+                result,
+            } => {
+                let mut r = json!({
+                    "command": request.command.name(),
+                    "transaction": request.transaction,
+                    "acted_ms": (request.at.elapsed().as_secs_f64() * 1e4).round() / 10.0,
+                });
+                match result {
+                    Ok(()) => r["status"] = json!("done"),
+                    Err(e) => {
+                        r["status"] = json!("refused");
+                        r["error"] = json!(e);
+                    }
+                }
+                self.respond(station, &r, connected);
+            }
             Up::Notice { station, text } => {
                 eprintln!("gateway: station {}: {text}", self.names[station])
             }
