@@ -39,6 +39,8 @@ pub struct ScreenStatus {
     /// Retransmitted segments the link received (duplicates it dropped),
     /// if counted.
     pub retransmitted: Option<u64>,
+    /// Their share of the segments received (0..1), if any were.
+    pub retransmit_rate: Option<f64>,
     /// Target distance from the depth report, metres.
     pub distance_m: Option<f64>,
     /// Axis position, millimetres.
@@ -247,6 +249,9 @@ impl Screen {
         if let Some(n) = status.retransmitted {
             let _ = write!(text, "{n} RTX ");
         }
+        if let Some(r) = status.retransmit_rate {
+            let _ = write!(text, "{:.1}% ", r * 100.0);
+        }
         match text.len() == before {
             true => text.push_str("--"),
             false => {
@@ -346,6 +351,12 @@ mod tests {
             ..status.clone()
         };
         let plain = s.render(&view, &disp, 0.0, 32.0, &status).clone();
-        assert_ne!(s.render(&view, &disp, 0.0, 32.0, &measured), &plain);
+        let counted = s.render(&view, &disp, 0.0, 32.0, &measured).clone();
+        assert_ne!(counted, plain);
+        let rated = ScreenStatus {
+            retransmit_rate: Some(0.012),
+            ..measured
+        };
+        assert_ne!(s.render(&view, &disp, 0.0, 32.0, &rated), &counted);
     }
 }

@@ -492,6 +492,11 @@ fn soak_four_stations_every_report_arrives_once() {
         }
         let link: Value = serde_json::from_str(&sub.last(&t("link")).unwrap()).unwrap();
         assert!(link["depth_reports"].as_u64().unwrap() >= 100, "{link}");
+        // The retransmission rate: duplicates over the segments received.
+        let (dups, segs) = (link["retransmissions"].as_u64(), link["segments"].as_u64());
+        let rate = link["retransmission_rate"].as_f64().unwrap();
+        assert!(segs.unwrap() >= 100, "{link}");
+        assert_eq!(rate, dups.unwrap() as f64 / segs.unwrap() as f64, "{link}");
         let depth = got.iter().find(|g| g.topic == t("depth")).unwrap();
         let d = json(depth);
         for field in [

@@ -201,9 +201,13 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         }
         board.status.security = security_line(&eps);
         // What the links measure: the radio's signal where its frames
-        // carry it, and the retransmitted segments received.
+        // carry it, and the retransmitted segments received, as a count and
+        // as their share of all the segments received.
         board.status.rssi_dbm = eps.iter().find_map(|e| e.link_stats().rssi_dbm);
-        board.status.retransmitted = Some(eps.iter().map(Endpoint::duplicates).sum());
+        let duplicates: u64 = eps.iter().map(Endpoint::duplicates).sum();
+        let segments: u64 = eps.iter().map(Endpoint::segments_received).sum();
+        board.status.retransmitted = Some(duplicates);
+        board.status.retransmit_rate = (segments > 0).then(|| duplicates as f64 / segments as f64);
         if matches!(event, Event::Report { .. }) {
             if let Some(axis) = board.axis.as_mut() {
                 board.status.axis_mm = axis.position().ok();

@@ -241,6 +241,7 @@ fn quality(ep: &Endpoint) -> Value {
     json!({
         "rssi_dbm": s.rssi_dbm,
         "retransmissions": ep.duplicates(),
+        "retransmission_rate": ep.duplicate_rate(),
         "damaged": s.damaged,
     })
 }
@@ -442,6 +443,8 @@ impl Station {
             "depth_reports": c.depth_reports,
             "frames": c.frames,
             "retransmissions": ep.duplicates(),
+            "retransmission_rate": ep.duplicate_rate(),
+            "segments": ep.segments_received(),
             "damaged": link.damaged,
             "rssi_dbm": link.rssi_dbm,
             "rejected": {
