@@ -60,15 +60,16 @@ Examples:
 Live, pairs are sent at the rate the link carries: while one is prepared and
 sent the cameras run on, the newest pair wins and the pairs skipped are
 counted. Each frame prints a timing line (capture wait, segment, match,
-encode, send).
+encode, send). A camera that stops (no frame for --frame-timeout-s, or the end
+of its stream) stops the sender with an error naming it; the board's watchdog
+then stops the axis.
 
 Commands from the peer (a gateway's Control messages; with keys, only the
 paired peer's) are obeyed between pairs and answered on the link: levels and
 method hold from the next pair, a frame request sends the last pair again at
-once with the current settings, and an axis stop is refused (a sender drives
-no axis). Each is logged on stderr. A camera that stops (no frame for --frame-timeout-s, or the end
-of its stream) stops the sender with an error naming it; the board's watchdog
-then stops the axis.")]
+once with the current settings (live cameras: the next pair, which goes at
+once anyway), and an axis stop is refused (a sender drives no axis). Each is
+logged on stderr.")]
 pub struct Args {
     /// Link: serial:/dev/ttyUSB0?baud=115200&api=2, udp:BIND?peer=ADDR, fallback:A,B.
     #[arg(long)]
@@ -246,7 +247,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     while args.frames.is_none_or(|n| frame_id < n) {
         let next = match (sender.obey()?, sender.last.take()) {
             // The last pair again, now, with the current settings.
-            (Applied::FrameNow, Some(last)) => Next {
+            (Applied::FrameNow, Some(last)) if !pairs.live() => Next {
                 wait_ms: 0.0,
                 skipped: 0,
                 ..last
@@ -379,6 +380,12 @@ enum Pairs {
 }
 
 impl Pairs {
+    /// Whether the pairs come live from cameras (the next one is always
+    /// fresh, and comes at once).
+    fn live(&self) -> bool {
+        matches!(self, Pairs::Cameras { .. })
+    }
+
     /// The next pair, [`Got::Wait`] after one poll interval of an empty
     /// folder (a folder is waited on forever), or [`Got::End`]. A camera
     /// that stops is an error.

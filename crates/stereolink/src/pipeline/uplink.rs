@@ -41,6 +41,7 @@ pub type Incoming = Result<Control, ControlError>;
 #[derive(Debug)]
 pub struct Outcome {
     pub kind: Kind,
+    /// The frame's id (a reply's: the id of the command it answers).
     pub frame_id: u32,
     pub result: Result<SendStats, LinkError>,
     /// The link's statistics when it ended.
