@@ -45,6 +45,8 @@ pub struct ScreenStatus {
     pub distance_m: Option<f64>,
     /// Axis position, millimetres.
     pub axis_mm: Option<f64>,
+    /// The axis is held by a stop command (reports no longer move it).
+    pub axis_held: bool,
     /// A free line (method, errors, ...).
     pub message: String,
     /// The link's security, after the free line: sealed or not, and the
@@ -266,6 +268,9 @@ impl Screen {
             Some(a) => write!(text, "   AXIS {a:.1} MM"),
             None => write!(text, "   AXIS --"),
         };
+        if status.axis_held {
+            text.push_str(" HELD");
+        }
         draw_text(img, MARGIN + 2, sy, text, TEXT);
         let x = draw_text(
             img,
@@ -357,6 +362,18 @@ mod tests {
             retransmit_rate: Some(0.012),
             ..measured
         };
-        assert_ne!(s.render(&view, &disp, 0.0, 32.0, &rated), &counted);
+        let rated = s.render(&view, &disp, 0.0, 32.0, &rated).clone();
+        assert_ne!(rated, counted);
+        let held = ScreenStatus {
+            axis_mm: Some(12.5),
+            axis_held: true,
+            ..status.clone()
+        };
+        let moving = ScreenStatus {
+            axis_held: false,
+            ..held.clone()
+        };
+        let moving = s.render(&view, &disp, 0.0, 32.0, &moving).clone();
+        assert_ne!(s.render(&view, &disp, 0.0, 32.0, &held), &moving);
     }
 }

@@ -208,7 +208,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         let segments: u64 = eps.iter().map(Endpoint::segments_received).sum();
         board.status.retransmitted = Some(duplicates);
         board.status.retransmit_rate = (segments > 0).then(|| duplicates as f64 / segments as f64);
-        if matches!(event, Event::Report { .. }) {
+        if matches!(event, Event::Report { .. } | Event::Command { .. }) {
             if let Some(axis) = board.axis.as_mut() {
                 board.status.axis_mm = axis.position().ok();
             }

@@ -111,7 +111,8 @@ pub struct BoardReceiver {
     pub status: ScreenStatus,
     /// Where the disparity map comes from.
     pub source: DisparitySource,
-    /// A stop command holds the axis: reports no longer move it.
+    /// A stop command holds the axis: reports no longer move it (the
+    /// latch itself; `status.axis_held` only shows it).
     held: bool,
 }
 
@@ -230,6 +231,7 @@ impl BoardReceiver {
         let result = match &command {
             Command::AxisStop => {
                 self.held = true;
+                self.status.axis_held = true;
                 match self.axis.as_mut() {
                     Some(axis) => axis
                         .stop()
