@@ -39,10 +39,14 @@ pub struct ScreenStatus {
     /// Retransmitted segments the link received (duplicates it dropped),
     /// if counted.
     pub retransmitted: Option<u64>,
+    /// Their share of the segments received (0..1), if any were.
+    pub retransmit_rate: Option<f64>,
     /// Target distance from the depth report, metres.
     pub distance_m: Option<f64>,
     /// Axis position, millimetres.
     pub axis_mm: Option<f64>,
+    /// The axis is held by a stop command (reports no longer move it).
+    pub axis_held: bool,
     /// A free line (method, errors, ...).
     pub message: String,
     /// The link's security, after the free line: sealed or not, and the
@@ -247,6 +251,9 @@ impl Screen {
         if let Some(n) = status.retransmitted {
             let _ = write!(text, "{n} RTX ");
         }
+        if let Some(r) = status.retransmit_rate {
+            let _ = write!(text, "{:.1}% ", r * 100.0);
+        }
         match text.len() == before {
             true => text.push_str("--"),
             false => {
@@ -261,6 +268,9 @@ impl Screen {
             Some(a) => write!(text, "   AXIS {a:.1} MM"),
             None => write!(text, "   AXIS --"),
         };
+        if status.axis_held {
+            text.push_str(" HELD");
+        }
         draw_text(img, MARGIN + 2, sy, text, TEXT);
         let x = draw_text(
             img,
@@ -346,6 +356,24 @@ mod tests {
             ..status.clone()
         };
         let plain = s.render(&view, &disp, 0.0, 32.0, &status).clone();
-        assert_ne!(s.render(&view, &disp, 0.0, 32.0, &measured), &plain);
+        let counted = s.render(&view, &disp, 0.0, 32.0, &measured).clone();
+        assert_ne!(counted, plain);
+        let rated = ScreenStatus {
+            retransmit_rate: Some(0.012),
+            ..measured
+        };
+        let rated = s.render(&view, &disp, 0.0, 32.0, &rated).clone();
+        assert_ne!(rated, counted);
+        let held = ScreenStatus {
+            axis_mm: Some(12.5),
+            axis_held: true,
+            ..status.clone()
+        };
+        let moving = ScreenStatus {
+            axis_held: false,
+            ..held.clone()
+        };
+        let moving = s.render(&view, &disp, 0.0, 32.0, &moving).clone();
+        assert_ne!(s.render(&view, &disp, 0.0, 32.0, &held), &moving);
     }
 }

@@ -689,6 +689,8 @@ pub struct Receiver {
     pending: BTreeMap<MsgKey, Pending>,
     /// The last delivered messages and their fragment counts.
     recent: VecDeque<(MsgKey, u16)>,
+    /// DATA segments received, and those among them already held.
+    segments: u64,
     duplicates: u64,
 }
 
@@ -701,6 +703,7 @@ impl Receiver {
             peers: VecDeque::new(),
             pending: BTreeMap::new(),
             recent: VecDeque::new(),
+            segments: 0,
             duplicates: 0,
         }
     }
@@ -722,6 +725,20 @@ impl Receiver {
     /// Duplicate DATA segments dropped so far.
     pub fn duplicates(&self) -> u64 {
         self.duplicates
+    }
+
+    /// DATA segments received so far, duplicates included.
+    pub fn segments(&self) -> u64 {
+        self.segments
+    }
+
+    /// The share of the DATA segments received that were retransmissions
+    /// of a fragment already held (`None` before the first). The receiver
+    /// sees only those: a retransmission of a fragment that was lost looks
+    /// like a first copy, so this is a lower bound of the sender's
+    /// retransmission rate, and exactly the airtime wasted on copies.
+    pub fn duplicate_rate(&self) -> Option<f64> {
+        (self.segments > 0).then(|| self.duplicates as f64 / self.segments as f64)
     }
 
     /// Names `session` in the ACKs from now on (a new handshake opened a new
@@ -788,6 +805,7 @@ impl Receiver {
         now: Micros,
     ) -> (Option<Vec<u8>>, Option<Delivery>) {
         let (session, msg_id) = key;
+        self.segments += 1;
         if let Some(&(_, c)) = self.recent.iter().find(|(k, _)| *k == key) {
             // Already delivered: the sender missed our final ACK.
             self.duplicates += 1;
@@ -956,6 +974,24 @@ mod tests {
 
     fn message(seed: u32, len: usize) -> Vec<u8> {
         (0..len as u32).map(|i| (i * 7 + seed * 13) as u8).collect()
+    }
+
+    #[test]
+    fn the_duplicate_rate_is_copies_over_the_data_segments_received() {
+        let mut r = Receiver::new(cfg(), RX);
+        assert_eq!(r.duplicate_rate(), None);
+        let data = |index| Segment::Data {
+            session: TX,
+            msg_id: 1,
+            index,
+            last: false,
+            fragment: &[1, 2, 3],
+        };
+        for (index, now) in [(0, 0), (0, 1), (1, 2), (0, 3)] {
+            r.on_segment(&data(index), now);
+        }
+        assert_eq!((r.segments(), r.duplicates()), (4, 2));
+        assert_eq!(r.duplicate_rate(), Some(0.5));
     }
 
     #[test]

@@ -612,6 +612,18 @@ impl Endpoint {
     pub fn duplicates(&self) -> u64 {
         self.receiver.duplicates()
     }
+
+    /// DATA segments the receiver took in, duplicates included.
+    pub fn segments_received(&self) -> u64 {
+        self.receiver.segments()
+    }
+
+    /// The share of the DATA segments received that were duplicates
+    /// ([`Receiver::duplicate_rate`]: what the receiving end can measure of
+    /// the retransmissions).
+    pub fn duplicate_rate(&self) -> Option<f64> {
+        self.receiver.duplicate_rate()
+    }
 }
 
 /// A random session id from the OS RNG.

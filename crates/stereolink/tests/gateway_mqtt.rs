@@ -2,7 +2,8 @@
 //! test with its own broker on a free port and its own config in a temp
 //! folder, built from `tools/mosquitto/` (its ACL as shipped). Stations are
 //! simulated ([`SimStation`]: synthetic frames and reports over UDP on
-//! 127.0.0.1); the gateway is the `stereolink gateway` process.
+//! 127.0.0.1), or a real `stereolink send` process for the commands; the
+//! gateway is the `stereolink gateway` process.
 //!
 //! Without `/usr/sbin/mosquitto` the tests are skipped, except under
 //! `CI=true`, where they fail and say to install it.
@@ -18,9 +19,8 @@ use std::time::{Duration, Instant};
 
 use rumqttc::{Client, Event, MqttOptions, Packet, QoS};
 use serde_json::Value;
-use stereolink::pipeline::gateway::command::Command as StationCommand;
+use stereolink::pipeline::control::{unix_us, Command as StationCommand};
 use stereolink::pipeline::gateway::sim::{SimConfig, SimStation};
-use stereolink::pipeline::gateway::station::unix_us;
 use stereolink_link::secure::{keyfile, Keys};
 
 const MOSQUITTO: &str = "/usr/sbin/mosquitto";
@@ -492,6 +492,11 @@ fn soak_four_stations_every_report_arrives_once() {
         }
         let link: Value = serde_json::from_str(&sub.last(&t("link")).unwrap()).unwrap();
         assert!(link["depth_reports"].as_u64().unwrap() >= 100, "{link}");
+        // The retransmission rate: duplicates over the segments received.
+        let (dups, segs) = (link["retransmissions"].as_u64(), link["segments"].as_u64());
+        let rate = link["retransmission_rate"].as_f64().unwrap();
+        assert!(segs.unwrap() >= 100, "{link}");
+        assert_eq!(rate, dups.unwrap() as f64 / segs.unwrap() as f64, "{link}");
         let depth = got.iter().find(|g| g.topic == t("depth")).unwrap();
         let d = json(depth);
         for field in [
@@ -792,6 +797,17 @@ fn commands_from_an_operator_stop_the_axis_and_others_are_refused() {
         .find(|g| g.topic.ends_with("/response") && json(g)["transaction"] == "t1")
         .unwrap();
     assert_eq!(json(&response)["status"], "ok", "{}", json(&response));
+    // Then the station's own word: it did it.
+    let acted = |g: &Got| json(g)["transaction"] == "t1" && json(g)["status"] == "done";
+    op.wait_for(
+        &format!(
+            "the station's reply; gateway: {}, station: {:?}",
+            gw.log(),
+            sim.log.lock().unwrap().failures
+        ),
+        Duration::from_secs(5),
+        |g| g.iter().any(|g| g.topic.ends_with("/response") && acted(g)),
+    );
     std::thread::sleep(Duration::from_millis(300));
     let log = sim.stop();
     let log = log.lock().unwrap();
@@ -805,6 +821,133 @@ fn commands_from_an_operator_stop_the_axis_and_others_are_refused() {
     let spread =
         p.iter().copied().fold(f64::MIN, f64::max) - p.iter().copied().fold(f64::MAX, f64::min);
     assert!(spread < 1.0, "the axis kept moving after the stop: {p:?}");
+    drop(gw);
+}
+
+/// A real `send` process as the station, sealed to the gateway: an
+/// operator's levels, method and frame request reach it over MQTT and its
+/// link, each answered `ok` (delivered) then `done` (its reply); the frame
+/// it sends on request is segmented with the new settings (the frame
+/// metadata says so); a stop, which a sender cannot honour, is answered
+/// `refused` with why.
+#[test]
+fn a_real_sender_obeys_levels_method_and_frame_request_and_refuses_a_stop() {
+    let Some(broker) = Broker::start() else {
+        return;
+    };
+    let dir = broker.dir.path();
+    let keys = dir.join("keys");
+    std::fs::create_dir(&keys).unwrap();
+    key_pair(&keys, "gateway");
+    key_pair(&keys, "cam1");
+    let key = |name: &str, ext: &str| keys.join(format!("{name}.{ext}"));
+    let (gw, specs) = Gateway::start(
+        &broker,
+        &["cam1"],
+        &[
+            "--key",
+            key("gateway", "key").to_str().unwrap(),
+            "--peer-keys",
+            keys.to_str().unwrap(),
+            "--images-every-s",
+            "0",
+        ],
+    );
+    // One synthetic pair in a camera folder.
+    let (scene, watch) = (dir.join("scene"), dir.join("watch"));
+    let synth = Command::new(env!("CARGO_BIN_EXE_stereolink"))
+        .args(["synth", scene.to_str().unwrap(), "--width", "160"])
+        .args(["--height", "120", "--max-disp", "16", "--seed", "3"])
+        .stdout(Stdio::null())
+        .status()
+        .unwrap();
+    assert!(synth.success());
+    std::fs::create_dir(&watch).unwrap();
+    for view in ["left", "right"] {
+        let to = watch.join(format!("{view}-1.png"));
+        std::fs::copy(scene.join(format!("{view}.png")), to).unwrap();
+    }
+    let op = Subscriber::start(&broker, "operator", "op", &["stereolink/cam1/#"], false);
+    let mut send = Command::new(env!("CARGO_BIN_EXE_stereolink"))
+        .args([
+            "send",
+            "--link",
+            &specs[0],
+            "--watch",
+            watch.to_str().unwrap(),
+        ])
+        .args(["--poll-ms", "50", "--frames", "2", "--max-disp", "16"])
+        .args(["--method", "kmeans", "--levels", "3"])
+        .args(["--key", key("cam1", "key").to_str().unwrap()])
+        .args(["--peer-key", key("gateway", "pub").to_str().unwrap()])
+        .stdout(Stdio::null())
+        .stderr(std::fs::File::create(dir.join("send.log")).unwrap())
+        .spawn()
+        .unwrap();
+    let frame = |g: &Got, id: u64| g.topic == "stereolink/cam1/frame" && json(g)["frame_id"] == id;
+    op.wait_for("frame 1", Duration::from_secs(30), |g| {
+        g.iter().any(|g| frame(g, 1))
+    });
+    for set in [
+        r#"{"levels":5,"transaction":"l"}"#,
+        r#"{"method":"otsu","transaction":"m"}"#,
+        r#"{"axis":"stop","transaction":"s"}"#,
+        r#"{"frame":"request","transaction":"f"}"#,
+    ] {
+        op.publish("stereolink/cam1/set", set);
+    }
+    let answer = |g: &Got, t: &str, status: &str| {
+        g.topic == "stereolink/cam1/response"
+            && json(g)["transaction"] == t
+            && json(g)["status"] == status
+    };
+    let answers = [
+        ("l", "done"),
+        ("m", "done"),
+        ("s", "refused"),
+        ("f", "done"),
+    ];
+    op.wait_for(
+        &format!("the replies and frame 2; gateway: {}", gw.log()),
+        Duration::from_secs(30),
+        |g| {
+            g.iter().any(|g| frame(g, 2))
+                && answers.iter().all(|(t, s)| {
+                    g.iter().any(|g| answer(g, t, "ok")) && g.iter().any(|g| answer(g, t, s))
+                })
+        },
+    );
+    let got = op.all();
+    let meta = json(got.iter().find(|g| frame(g, 2)).unwrap());
+    assert_eq!(
+        (meta["levels"].as_u64(), meta["segmentation"].as_str()),
+        (Some(5), Some("otsu")),
+        "{meta}"
+    );
+    let first = json(got.iter().find(|g| frame(g, 1)).unwrap());
+    assert_eq!(
+        (first["levels"].as_u64(), first["segmentation"].as_str()),
+        (Some(3), Some("kmeans")),
+        "{first}"
+    );
+    let stop = json(got.iter().find(|g| answer(g, "s", "refused")).unwrap());
+    assert!(
+        stop["error"].as_str().unwrap().contains("no axis"),
+        "{stop}"
+    );
+    // Each command: delivered first, then the station's word.
+    for (t, s) in answers {
+        let at = |status: &str| got.iter().position(|g| answer(g, t, status)).unwrap();
+        assert!(at("ok") < at(s), "{t}: the reply came before the delivery");
+    }
+    let until = Instant::now() + Duration::from_secs(30);
+    while send.try_wait().unwrap().is_none() {
+        assert!(Instant::now() < until, "send did not end");
+        std::thread::sleep(Duration::from_millis(50));
+    }
+    let said = std::fs::read_to_string(dir.join("send.log")).unwrap();
+    assert!(send.wait().unwrap().success(), "{said}");
+    assert!(said.contains("command 3 (axis stop): refused"), "{said}");
     drop(gw);
 }
 

@@ -18,6 +18,11 @@ const POLL: Duration = Duration::from_millis(200);
 
 /// Arguments of `stereolink receive`.
 #[derive(Debug, clap::Args)]
+#[command(after_long_help = "\
+An axis stop from the link (a Control command; with keys, only from the
+paired peer) stops the axis at once and holds it: later depth reports no
+longer move it until the receiver restarts. Other commands are refused
+(segmentation is the sender's).")]
 pub struct Args {
     /// Link: serial:/dev/ttyUSB0?baud=115200&api=2, udp:BIND?peer=ADDR, fallback:A,B.
     #[arg(long)]
@@ -153,12 +158,32 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
                     frame_id,
                     distance_m,
                     commanded_mm,
+                    held,
                 } => println!(
                     "report {frame_id}: distance {distance_m:.3} m, axis {}",
-                    commanded_mm.map_or("not moved (no valid distance)".into(), |p| format!(
-                        "to {p:.1} mm"
-                    ))
+                    match (commanded_mm, held) {
+                        (_, true) => "held (stopped by command)".into(),
+                        (None, false) => "not moved (no valid distance)".into(),
+                        (Some(p), false) => format!("to {p:.1} mm"),
+                    }
                 ),
+                Event::Command {
+                    id,
+                    command,
+                    result: Ok(()),
+                } => println!(
+                    "command {id} ({command}): done{}",
+                    board
+                        .axis
+                        .as_mut()
+                        .and_then(|a| a.position().ok())
+                        .map_or(String::new(), |p| format!(", axis at {p:.1} mm, held"))
+                ),
+                Event::Command {
+                    id,
+                    command,
+                    result: Err(why),
+                } => eprintln!("command {id} ({command}): refused: {why}"),
                 Event::Rejected(why) => eprintln!("{why}"),
             }
         }
@@ -176,10 +201,14 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         }
         board.status.security = security_line(&eps);
         // What the links measure: the radio's signal where its frames
-        // carry it, and the retransmitted segments received.
+        // carry it, and the retransmitted segments received, as a count and
+        // as their share of all the segments received.
         board.status.rssi_dbm = eps.iter().find_map(|e| e.link_stats().rssi_dbm);
-        board.status.retransmitted = Some(eps.iter().map(Endpoint::duplicates).sum());
-        if matches!(event, Event::Report { .. }) {
+        let duplicates: u64 = eps.iter().map(Endpoint::duplicates).sum();
+        let segments: u64 = eps.iter().map(Endpoint::segments_received).sum();
+        board.status.retransmitted = Some(duplicates);
+        board.status.retransmit_rate = (segments > 0).then(|| duplicates as f64 / segments as f64);
+        if matches!(event, Event::Report { .. } | Event::Command { .. }) {
             if let Some(axis) = board.axis.as_mut() {
                 board.status.axis_mm = axis.position().ok();
             }

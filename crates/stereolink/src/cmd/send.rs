@@ -2,6 +2,9 @@
 //! `--repeat` times), for every pair a camera writes into a folder
 //! (`--watch`), or live from two cameras (`--camera-left`/`--source-left`).
 //! All three feed one loop ([`Pairs`]): take a pair, prepare it, send it.
+//! Between pairs the loop obeys the commands that came over the link
+//! ([`Sender::obey`]): new levels or method from the next pair, the last
+//! pair again at once on a frame request; each is answered on the link.
 
 use std::collections::{BTreeMap, VecDeque};
 use std::io::IsTerminal;
@@ -26,7 +29,8 @@ use super::camera::CameraArgs;
 use super::keygen::KeyArgs;
 use super::matching::MatcherArgs;
 use super::segment::SegmentArgs;
-use crate::pipeline::sender::{prepare, SenderConfig};
+use crate::pipeline::control::{Control, Reply};
+use crate::pipeline::sender::{prepare, Applied, SenderConfig};
 use crate::pipeline::uplink::{Kind, Outcome, Uplink};
 use crate::pipeline::watch::{Pair, Watcher};
 
@@ -58,7 +62,14 @@ sent the cameras run on, the newest pair wins and the pairs skipped are
 counted. Each frame prints a timing line (capture wait, segment, match,
 encode, send). A camera that stops (no frame for --frame-timeout-s, or the end
 of its stream) stops the sender with an error naming it; the board's watchdog
-then stops the axis.")]
+then stops the axis.
+
+Commands from the peer (a gateway's Control messages; with keys, only the
+paired peer's) are obeyed between pairs and answered on the link: levels and
+method hold from the next pair, a frame request sends the last pair again at
+once with the current settings (live cameras: the next pair, which goes at
+once anyway), and an axis stop is refused (a sender drives no axis). Each is
+logged on stderr.")]
 pub struct Args {
     /// Link: serial:/dev/ttyUSB0?baud=115200&api=2, udp:BIND?peer=ADDR, fallback:A,B.
     #[arg(long)]
@@ -211,6 +222,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         json: out.json,
         waiting: BTreeMap::new(),
         sent: Vec::new(),
+        last: None,
     };
     let mut pairs = match (&args.watch, &args.left, &args.right) {
         (Some(dir), _, _) => Pairs::Folder {
@@ -233,9 +245,25 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     };
     let mut frame_id = 0;
     while args.frames.is_none_or(|n| frame_id < n) {
-        let Some(next) = pairs.next()? else { break };
+        let next = match (sender.obey()?, sender.last.take()) {
+            // The last pair again, now, with the current settings.
+            (Applied::FrameNow, Some(last)) if !pairs.live() => Next {
+                wait_ms: 0.0,
+                skipped: 0,
+                ..last
+            },
+            (_, last) => {
+                sender.last = last;
+                match pairs.next()? {
+                    Got::Pair(next) => next,
+                    Got::Wait => continue,
+                    Got::End => break,
+                }
+            }
+        };
         frame_id += 1;
         sender.send(&next, frame_id)?;
+        sender.last = Some(next);
     }
     let rest = sender.uplink.finish()?;
     sender.collect(rest)?;
@@ -297,6 +325,8 @@ struct Sender {
     /// Frames handed to the link whose frame or report has not ended yet.
     waiting: BTreeMap<u32, Waiting>,
     sent: Vec<Sent>,
+    /// The last pair sent, for a frame request.
+    last: Option<Next>,
 }
 
 /// A frame on its way: what was measured preparing it, and how its two
@@ -315,6 +345,15 @@ struct Next {
     wait_ms: f64,
     /// Pairs skipped since the previous one (live cameras only).
     skipped: u64,
+}
+
+/// What [`Pairs::next`] found.
+enum Got {
+    Pair(Next),
+    /// Nothing yet (a folder with no new pair): ask again.
+    Wait,
+    /// No more pairs.
+    End,
 }
 
 /// Where the pairs come from; the send loop is the same for all.
@@ -341,9 +380,16 @@ enum Pairs {
 }
 
 impl Pairs {
-    /// The next pair, or `None` when there is no more. A folder is waited
-    /// on forever; a camera that stops is an error.
-    fn next(&mut self) -> anyhow::Result<Option<Next>> {
+    /// Whether the pairs come live from cameras (the next one is always
+    /// fresh, and comes at once).
+    fn live(&self) -> bool {
+        matches!(self, Pairs::Cameras { .. })
+    }
+
+    /// The next pair, [`Got::Wait`] after one poll interval of an empty
+    /// folder (a folder is waited on forever), or [`Got::End`]. A camera
+    /// that stops is an error.
+    fn next(&mut self) -> anyhow::Result<Got> {
         let start = Instant::now();
         let wait_ms = || start.elapsed().as_secs_f64() * 1e3;
         match self {
@@ -353,10 +399,10 @@ impl Pairs {
                 remaining,
             } => {
                 if *remaining == 0 {
-                    return Ok(None);
+                    return Ok(Got::End);
                 }
                 *remaining -= 1;
-                Ok(Some(Next {
+                Ok(Got::Pair(Next {
                     left: left.clone(),
                     right: right.clone(),
                     wait_ms: wait_ms(),
@@ -375,11 +421,12 @@ impl Pairs {
                     })?);
                     if pending.is_empty() {
                         std::thread::sleep(*poll);
+                        return Ok(Got::Wait);
                     }
                     continue;
                 };
                 if let Some((left, right)) = read_pair(watcher, &pair)? {
-                    return Ok(Some(Next {
+                    return Ok(Got::Pair(Next {
                         left,
                         right,
                         wait_ms: wait_ms(),
@@ -395,7 +442,7 @@ impl Pairs {
                 let pair = capture.next_pair(*timeout)?;
                 let new = pair.stats.skipped - *skipped;
                 *skipped = pair.stats.skipped;
-                Ok(Some(Next {
+                Ok(Got::Pair(Next {
                     left: pair.left,
                     right: pair.right,
                     wait_ms: wait_ms(),
@@ -487,6 +534,44 @@ impl Sender {
         self.collect(outcomes)
     }
 
+    /// Obeys the commands that came over the link since the last call and
+    /// answers each on the link; says whether a frame is wanted now (and
+    /// there is a pair to send again).
+    fn obey(&mut self) -> anyhow::Result<Applied> {
+        let mut wanted = Applied::FromNextPair;
+        for incoming in self.uplink.incoming() {
+            let (id, command) = match incoming {
+                Ok(Control::Command { id, command }) => (id, command),
+                Ok(Control::Reply(r)) => {
+                    eprintln!("ignored a reply from the peer (to command {})", r.id);
+                    continue;
+                }
+                Err(e) => {
+                    eprintln!("refused a message from the peer: {e}");
+                    continue;
+                }
+            };
+            let result = match self.cfg.apply(&command) {
+                Ok(Applied::FrameNow) if self.last.is_none() => {
+                    Err("no pair has been sent yet: the first goes when it comes".into())
+                }
+                Ok(applied) => {
+                    if applied == Applied::FrameNow {
+                        wanted = applied;
+                    }
+                    Ok(())
+                }
+                Err(e) => Err(e),
+            };
+            match &result {
+                Ok(()) => eprintln!("command {id} ({}): done", command.name()),
+                Err(why) => eprintln!("command {id} ({}): refused: {why}", command.name()),
+            }
+            self.uplink.reply(&Reply { id, result })?;
+        }
+        Ok(wanted)
+    }
+
     /// Takes the ends of sends: a failure stops the sender, naming the
     /// message; a frame whose two messages both arrived is printed.
     fn collect(&mut self, outcomes: Vec<Outcome>) -> anyhow::Result<()> {
@@ -494,6 +579,12 @@ impl Sender {
             let what = match o.kind {
                 Kind::Frame => format!("sending frame {}", o.frame_id),
                 Kind::Report => format!("sending the depth report of frame {}", o.frame_id),
+                Kind::Reply => {
+                    if let Err(e) = o.result {
+                        eprintln!("the reply to command {} was not delivered: {e}", o.frame_id);
+                    }
+                    continue;
+                }
             };
             let stats = o.result.context(what)?;
             let Some(w) = self.waiting.get_mut(&o.frame_id) else {
@@ -502,6 +593,7 @@ impl Sender {
             match o.kind {
                 Kind::Frame => w.frame = Some(stats),
                 Kind::Report => w.report = Some(stats),
+                Kind::Reply => {} // no frame waits for a reply (taken above)
             }
             w.sent.link = o.link.to_string();
             if let (Some(f), Some(r)) = (w.frame, w.report) {

@@ -176,6 +176,9 @@ pub fn run(cfg: DemoConfig, progress: &dyn Fn(&str)) -> anyhow::Result<DemoRepor
             Event::Frame { ms, .. } => frame_ms = *ms,
             Event::Report { commanded_mm, .. } => commanded = *commanded_mm,
             Event::Rejected(why) => anyhow::bail!("the receiver rejected a message: {why}"),
+            Event::Command { command, .. } => {
+                anyhow::bail!("the demo sent no command, yet the receiver read {command}")
+            }
         }
     }
     let axis_final = match board.axis.as_mut() {

@@ -6,9 +6,11 @@
 //! pair ([`sensor`]: rectification maps and depth from `P1`/`P2`), the
 //! sender's link in its own thread ([`uplink`]: reports ahead of frames), and
 //! the segments of the plane matcher ([`planes`]) and its plane table over
-//! the radio ([`planetable`]); off the board, the MQTT gateway for many
+//! the radio ([`planetable`]), the commands a station takes and its
+//! replies ([`control`]); off the board, the MQTT gateway for many
 //! stations (`gateway`, `stereolink gateway`).
 
+pub mod control;
 pub mod demo;
 pub mod planes;
 pub mod planetable;

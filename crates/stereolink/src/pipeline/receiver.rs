@@ -12,11 +12,17 @@
 //! With [`DisparitySource::Planes`] the board does not match: it rebuilds
 //! the map from the decoded left labels and the frame's plane table
 //! ([`super::planetable`]); a frame without a table is rejected.
+//!
+//! An axis stop from the link (a Control command, [`super::control`]) is
+//! the safety path: it stops the axis at once and holds it, so that no
+//! later report moves it again until the receiver restarts. The board takes
+//! no other command (segmentation is the sender's).
 
 use std::time::Instant;
 
 use std::fmt::Write;
 
+use super::control::{Command, Control};
 use stereolink_codec::container::{self, Body, FrameDecoder, FrameRef};
 use stereolink_codec::{CodecError, Limits, Message, SegmentationKind, StereoFrame, View};
 use stereolink_display::{anaglyph_into, Anaglyph, Screen, ScreenStatus, Sink};
@@ -47,8 +53,20 @@ pub enum Event {
         frame_id: u32,
         /// Reported distance, metres.
         distance_m: f32,
-        /// Commanded axis position, mm (None: the distance was not valid).
+        /// Commanded axis position, mm (None: the distance was not valid,
+        /// or the axis is held).
         commanded_mm: Option<f64>,
+        /// The axis is held by a stop command: reports no longer move it.
+        held: bool,
+    },
+    /// A command from the link was obeyed or refused.
+    Command {
+        /// The command's id.
+        id: u32,
+        /// What it asked.
+        command: String,
+        /// Done, or why not.
+        result: Result<(), String>,
     },
     /// A message was rejected.
     Rejected(String),
@@ -93,6 +111,9 @@ pub struct BoardReceiver {
     pub status: ScreenStatus,
     /// Where the disparity map comes from.
     pub source: DisparitySource,
+    /// A stop command holds the axis: reports no longer move it (the
+    /// latch itself; `status.axis_held` only shows it).
+    held: bool,
 }
 
 impl BoardReceiver {
@@ -125,6 +146,7 @@ impl BoardReceiver {
             watchdog: Watchdog::new(watchdog),
             status: ScreenStatus::default(),
             source: DisparitySource::default(),
+            held: false,
         }
     }
 
@@ -176,6 +198,7 @@ impl BoardReceiver {
                 if commanded.is_some() {
                     self.watchdog.feed(Instant::now());
                 }
+                let commanded = commanded.filter(|_| !self.held);
                 if let (Some(m), Some(axis)) = (commanded, self.axis.as_mut()) {
                     if let Err(e) = axis.move_to(m.position_mm, m.speed_mm_s) {
                         return Event::Rejected(format!("axis: {e}"));
@@ -185,11 +208,46 @@ impl BoardReceiver {
                     frame_id: header.frame_id,
                     distance_m: d,
                     commanded_mm: commanded.map(|m| m.position_mm),
+                    held: self.held,
                 }
             }
-            Ok((_, Body::Control(_))) => {
-                Event::Rejected("control messages are not used by this receiver".into())
+            Ok((_, Body::Control(body))) => self.obey(body),
+        }
+    }
+
+    /// Obeys a Control body: an axis stop stops the axis now and holds it;
+    /// anything else is refused, with why.
+    fn obey(&mut self, body: &[u8]) -> Event {
+        let (id, command) = match Control::decode(body) {
+            Ok(Control::Command { id, command }) => (id, command),
+            Ok(Control::Reply(r)) => {
+                return Event::Rejected(format!(
+                    "a reply (to command {}) is not for the board",
+                    r.id
+                ))
             }
+            Err(e) => return Event::Rejected(e.to_string()),
+        };
+        let result = match &command {
+            Command::AxisStop => {
+                self.held = true;
+                self.status.axis_held = true;
+                match self.axis.as_mut() {
+                    Some(axis) => axis
+                        .stop()
+                        .map_err(|e| format!("the axis did not take the stop: {e}")),
+                    None => Err("this receiver drives no axis".into()),
+                }
+            }
+            other => Err(format!(
+                "the board takes only an axis stop ({} is the sender's)",
+                other.name()
+            )),
+        };
+        Event::Command {
+            id,
+            command: command.name(),
+            result,
         }
     }
 

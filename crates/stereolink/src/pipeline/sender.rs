@@ -21,12 +21,13 @@ use stereolink_codec::{
     DepthReport, Message, ReportLevel, SegmentationKind, StereoFrame, View,
 };
 use stereolink_image::{metrics::psnr_rgb, Calibration, DisparityMap, LabelMap, RgbImage};
-use stereolink_segment::carry::{carry_over, NOTHING};
+use stereolink_segment::carry::{carry_over, default_margin, NOTHING};
 use stereolink_segment::{segment, Method, Segmentation};
 use stereolink_stereo::depth::{depth_levels, depth_of, metric, region_distance, LevelSpec, Roi};
 use stereolink_stereo::planes::match_planes;
 use stereolink_stereo::{Algorithm, MatchSpec, Matcher};
 
+use super::control::Command;
 use super::planetable;
 
 /// What the sender does with a pair.
@@ -46,6 +47,41 @@ pub struct SenderConfig {
     pub roi: Option<Roi>,
     /// How depth levels are counted.
     pub levels_spec: LevelSpec,
+}
+
+/// What a command asks of the send loop once the configuration took it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Applied {
+    /// The next pair is prepared with the new setting.
+    FromNextPair,
+    /// A frame is wanted now.
+    FrameNow,
+}
+
+impl SenderConfig {
+    /// Takes a command from the link (`docs/mqtt.md`, "Commands"): levels
+    /// and method hold from the next pair (a new method starts from its
+    /// default parameters, and a stereo-consistent right view from that
+    /// method's default carry margin); a frame request is the send loop's
+    /// to honour. A sender has no axis: a stop is refused, with why.
+    pub fn apply(&mut self, command: &Command) -> Result<Applied, String> {
+        match command {
+            Command::SetLevels(n) => self.levels = usize::from(*n),
+            Command::SetMethod(name) => {
+                self.method = name.parse().map_err(|e| format!("{e}"))?;
+                if self.carry_margin.is_some() {
+                    self.carry_margin = Some(default_margin(&self.method));
+                }
+            }
+            Command::FrameRequest => return Ok(Applied::FrameNow),
+            Command::AxisStop => {
+                return Err("this station only sends images: it drives no axis \
+                            (stop it on the robot's receiver)"
+                    .into())
+            }
+        }
+        Ok(Applied::FromNextPair)
+    }
 }
 
 /// A pair ready to send, with what the sender measured on the way.
@@ -179,9 +215,7 @@ pub fn prepare(
         right: View::Indexed(sr.image),
         planes,
     };
-    let timestamp = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_micros() as u64);
+    let timestamp = super::control::unix_us();
     let frame_bytes =
         container::encode(&Message::StereoFrame(Box::new(frame)), frame_id, timestamp);
     let enc_ms = t.elapsed().as_secs_f64() * 1e3;
@@ -220,4 +254,32 @@ pub fn prepare(
         psnr_db,
         times_ms: (seg_ms, enc_ms, match_ms),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn commands_change_the_next_pairs_settings_and_a_stop_is_refused() {
+        let mut cfg = SenderConfig {
+            method: Method::KMeans,
+            levels: 3,
+            seed: 1,
+            carry_margin: Some(20.0),
+            matcher: MatchSpec::new(Algorithm::Wta, 0, 16).unwrap(),
+            roi: None,
+            levels_spec: LevelSpec::default(),
+        };
+        assert_eq!(cfg.apply(&Command::SetLevels(5)), Ok(Applied::FromNextPair));
+        assert_eq!(cfg.levels, 5);
+        let fodpso = Command::SetMethod("fodpso".into());
+        assert_eq!(cfg.apply(&fodpso), Ok(Applied::FromNextPair));
+        assert_eq!(cfg.method.name(), "fodpso");
+        assert_eq!(cfg.carry_margin, Some(default_margin(&cfg.method)));
+        assert_eq!(cfg.apply(&Command::FrameRequest), Ok(Applied::FrameNow));
+        let stop = cfg.apply(&Command::AxisStop);
+        assert!(stop.is_err_and(|e| e.contains("no axis")));
+        assert_eq!((cfg.levels, cfg.method.name()), (5, "fodpso"));
+    }
 }

@@ -5,15 +5,23 @@
 //! the link stays busy while the next pair is segmented and matched. With a
 //! second link (the paper's two radio pairs, `send --report-link`) the
 //! reports go over that one instead.
+//!
+//! The thread also takes what the peer sends, busy or idle: Control
+//! messages (commands from a gateway, [`super::control`]) come back to the
+//! send loop through [`Uplink::incoming`], and its replies go out on the
+//! urgent lane, as the reports do. With keys, only what the paired peer
+//! sealed gets this far (the secure layer refuses and counts the rest).
 
 use std::collections::VecDeque;
-use std::sync::mpsc::{self, Receiver, RecvTimeoutError, SyncSender};
+use std::sync::mpsc::{self, Receiver, SyncSender, TryRecvError};
 use std::thread::JoinHandle;
 use std::time::Duration;
 
 use anyhow::Context;
 use stereolink_link::endpoint::{Endpoint, Lane, LinkError, SendStats};
 use stereolink_link::transport::LinkStats;
+
+use super::control::{Control, ControlError, Reply};
 
 /// What a message carries.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -22,12 +30,18 @@ pub enum Kind {
     Frame,
     /// A DepthReport, on the urgent lane.
     Report,
+    /// A reply to a command, on the urgent lane.
+    Reply,
 }
+
+/// A message from the peer, read as a Control body (or why it is not one).
+pub type Incoming = Result<Control, ControlError>;
 
 /// How one message's send ended.
 #[derive(Debug)]
 pub struct Outcome {
     pub kind: Kind,
+    /// The frame's id (a reply's: the id of the command it answers).
     pub frame_id: u32,
     pub result: Result<SendStats, LinkError>,
     /// The link's statistics when it ended.
@@ -44,6 +58,7 @@ struct Job {
 pub struct Uplink {
     jobs: Option<SyncSender<Job>>,
     outcomes: Receiver<Outcome>,
+    incoming: Receiver<Incoming>,
     thread: Option<JoinHandle<anyhow::Result<()>>>,
     /// Frames handed over whose outcome has not come back.
     frames_in_flight: usize,
@@ -55,6 +70,9 @@ pub struct Uplink {
 /// the last message.
 const LINGER: Duration = Duration::from_millis(300);
 const TICK: Duration = Duration::from_millis(20);
+/// How long the idle link thread waits for the peer before it looks at
+/// its queue again (a report handed over waits at most this long).
+const IDLE_WAIT: Duration = Duration::from_millis(5);
 
 impl Uplink {
     /// Starts the link thread; `make` builds the endpoints there (an
@@ -65,13 +83,15 @@ impl Uplink {
     ) -> Self {
         let (jobs, job_rx) = mpsc::sync_channel::<Job>(8);
         let (done_tx, outcomes) = mpsc::channel();
+        let (incoming_tx, incoming) = mpsc::channel();
         let thread = std::thread::spawn(move || {
             let (frames, reports) = make()?;
-            run(frames, reports, job_rx, done_tx)
+            run(frames, reports, job_rx, (done_tx, incoming_tx))
         });
         Uplink {
             jobs: Some(jobs),
             outcomes,
+            incoming,
             thread: Some(thread),
             frames_in_flight: 0,
             taken: VecDeque::new(),
@@ -98,6 +118,16 @@ impl Uplink {
     /// Sends a depth report at once, on the urgent lane.
     pub fn report(&mut self, frame_id: u32, bytes: Vec<u8>) -> anyhow::Result<()> {
         self.hand_over(Kind::Report, frame_id, bytes)
+    }
+
+    /// Sends a reply to a command, on the urgent lane.
+    pub fn reply(&mut self, reply: &Reply) -> anyhow::Result<()> {
+        self.hand_over(Kind::Reply, reply.id, reply.message())
+    }
+
+    /// What the peer sent since the last call, in order.
+    pub fn incoming(&self) -> Vec<Incoming> {
+        self.incoming.try_iter().collect()
     }
 
     /// Sends a frame on the bulk lane once the previous frame has ended
@@ -148,12 +178,13 @@ impl Drop for Uplink {
     }
 }
 
-/// The link thread: takes jobs, keeps each lane busy, hands back outcomes.
+/// The link thread: takes jobs, keeps each lane busy, hands back outcomes
+/// and what the peer sent.
 fn run(
     frames: Endpoint,
     reports: Option<Endpoint>,
     jobs: Receiver<Job>,
-    done: mpsc::Sender<Outcome>,
+    (done, incoming): (mpsc::Sender<Outcome>, mpsc::Sender<Incoming>),
 ) -> anyhow::Result<()> {
     // Reports take the urgent lane of the frames' link, or the second link.
     let mut eps = vec![frames];
@@ -171,18 +202,10 @@ fn run(
         if idle && !open {
             break;
         }
-        // Wait for work only when there is nothing to drive.
-        let next = match idle {
-            true => jobs.recv_timeout(TICK),
-            false => jobs.try_recv().map_err(|e| match e {
-                mpsc::TryRecvError::Empty => RecvTimeoutError::Timeout,
-                mpsc::TryRecvError::Disconnected => RecvTimeoutError::Disconnected,
-            }),
-        };
-        match next {
+        match jobs.try_recv() {
             Ok(job) => queued[lane_of(job.kind) as usize].push_back(job),
-            Err(RecvTimeoutError::Disconnected) => open = false,
-            Err(RecvTimeoutError::Timeout) => {}
+            Err(TryRecvError::Disconnected) => open = false,
+            Err(TryRecvError::Empty) => {}
         }
         for (lane, e) in [(Lane::Urgent, urgent_ep), (Lane::Bulk, bulk_ep)] {
             let i = lane as usize;
@@ -196,6 +219,14 @@ fn run(
             }
         }
         if current.iter().all(Option::is_none) {
+            // Nothing to drive: listen to the peer a moment.
+            if !open {
+                continue;
+            }
+            let wait = IDLE_WAIT / eps.len() as u32;
+            for ep in eps.iter_mut() {
+                take_messages(ep, wait, &incoming)?;
+            }
             continue;
         }
         let wait = TICK / eps.len() as u32;
@@ -211,6 +242,7 @@ fn run(
                     });
                 }
             }
+            take_messages(ep, Duration::ZERO, &incoming)?;
         }
     }
     for ep in eps.iter_mut() {
@@ -219,9 +251,30 @@ fn run(
     Ok(())
 }
 
+/// Hands up every message the peer completed, waiting up to `wait` for
+/// the first; taking the next one acknowledges the one before (it was
+/// dealt with: handed to the send loop).
+fn take_messages(
+    ep: &mut Endpoint,
+    mut wait: Duration,
+    incoming: &mpsc::Sender<Incoming>,
+) -> anyhow::Result<()> {
+    loop {
+        match ep.recv_message(wait) {
+            Ok(msg) => {
+                let _ = incoming.send(Control::from_message(&msg));
+                wait = Duration::ZERO;
+            }
+            Err(LinkError::Timeout) => return Ok(()),
+            Err(LinkError::Arq(e)) => eprintln!("link: a message from the peer was lost: {e}"),
+            Err(e) => return Err(e).context("link"),
+        }
+    }
+}
+
 fn lane_of(kind: Kind) -> Lane {
     match kind {
         Kind::Frame => Lane::Bulk,
-        Kind::Report => Lane::Urgent,
+        Kind::Report | Kind::Reply => Lane::Urgent,
     }
 }

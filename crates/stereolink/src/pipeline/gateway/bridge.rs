@@ -7,10 +7,11 @@ use std::time::{Duration, Instant};
 use rumqttc::{LastWill, MqttOptions, QoS};
 use serde_json::{json, Value};
 
-use super::command::Command;
+use super::command;
 use super::mqtt::{Outbox, Pub};
-use super::station::{self, Request, Up};
+use super::station::{Request, Up};
 use super::{Broker, GatewayConfig};
+use crate::pipeline::control::unix_us;
 
 /// A station's state on the bridge side.
 #[derive(Default)]
@@ -55,7 +56,7 @@ impl Bridge {
             connections: 0,
             reconnects: 0,
             commands: 0,
-            started_us: station::unix_us(),
+            started_us: unix_us(),
         };
         // The retained state the first CONNACK publishes.
         b.retain(b.topic("bridge/state"), b"online".to_vec(), false);
@@ -280,6 +281,25 @@ impl Bridge {
                 }
                 self.respond(station, &r, connected);
             }
+            Up::Acted {
+                station,
+                request,
+                result,
+            } => {
+                let mut r = json!({
+                    "command": request.command.name(),
+                    "transaction": request.transaction,
+                    "acted_ms": (request.at.elapsed().as_secs_f64() * 1e4).round() / 10.0,
+                });
+                match result {
+                    Ok(()) => r["status"] = json!("done"),
+                    Err(e) => {
+                        r["status"] = json!("refused");
+                        r["error"] = json!(e);
+                    }
+                }
+                self.respond(station, &r, connected);
+            }
             Up::Notice { station, text } => {
                 eprintln!("gateway: station {}: {text}", self.names[station])
             }
@@ -330,7 +350,7 @@ impl Bridge {
         let Some(i) = self.names.iter().position(|n| n == name) else {
             return; // not ours: no response topic to answer on
         };
-        let command = parsed.and_then(|v| Command::from_json(&v));
+        let command = parsed.and_then(|v| command::from_json(&v));
         self.commands += 1;
         match command {
             // A command waits for no station that cannot take it now.

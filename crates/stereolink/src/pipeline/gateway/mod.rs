@@ -7,8 +7,9 @@
 //! frames and sends its commands down; the bridge thread ([`run`]) owns
 //! the broker connection ([`mqtt`]'s outbox): its state (`bridge`) turns
 //! the stations' events into publishes, tracks availability, and hands
-//! commands from `set` topics to the stations. Commands reach a station only over its own link, sealed
-//! when keys are given ([`command`]: a versioned Control message).
+//! commands from `set` topics ([`command`]) to the stations. Commands reach
+//! a station only over its own link, sealed when keys are given, as a
+//! versioned Control message ([`crate::pipeline::control`]).
 //!
 //! [`sim`] is a simulated station (synthetic frames and reports, an axis
 //! that obeys commands) for the tests and the measurements.

@@ -1,22 +1,23 @@
 //! A simulated station: synthetic frames and depth reports over a real
 //! link, paced like a radio, and an axis that obeys the gateway's
-//! commands. The gateway tests and measurements run several of them.
+//! commands and replies to each. The gateway tests and measurements run
+//! several of them.
 
+use std::collections::VecDeque;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::{Arc, Mutex};
 use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
-use stereolink_codec::container::{self, Body};
-use stereolink_codec::{DepthReport, Limits, Message, ReportLevel};
+use stereolink_codec::container;
+use stereolink_codec::{DepthReport, Message, ReportLevel};
 use stereolink_image::synth::SynthSpec;
 use stereolink_link::endpoint::{Endpoint, Lane, LinkError};
 use stereolink_link::secure::{Keys, SecureConfig};
 use stereolink_link::spec::{self, LinkSpec};
 use stereolink_robot::Axis;
 
-use super::command::Command;
-use super::station::unix_us;
+use crate::pipeline::control::{unix_us, Command, Control, Reply};
 use crate::pipeline::receiver::synthetic_frame;
 
 /// How a simulated station behaves.
@@ -197,7 +198,9 @@ fn run(
     let mut next_at = Instant::now();
     let mut frame_wanted = false;
     let mut busy = [false; 2]; // urgent, bulk
-                               // Pacing: the time the link is busy with what was sent.
+                               // Replies to commands go on the urgent lane ahead of the next report.
+    let (mut replies, mut urgent_is_reply) = (VecDeque::<Vec<u8>>::new(), false);
+    // Pacing: the time the link is busy with what was sent.
     let mut link_free = Instant::now();
     let pace = |bytes: usize, link_free: &mut Instant| {
         if cfg.bytes_per_s > 0.0 {
@@ -218,6 +221,12 @@ fn run(
         let stopping = stop.load(Ordering::Relaxed);
         if stopping && idle {
             break;
+        }
+        if !busy[0] {
+            if let Some(reply) = replies.pop_front() {
+                ep.submit(Lane::Urgent, &reply)?;
+                (busy[0], urgent_is_reply) = (true, true);
+            }
         }
         // The frame that goes with a report goes before the next report.
         let frame_due = frame_wanted && !frame.is_empty();
@@ -250,6 +259,7 @@ fn run(
             busy[i] = false;
             let mut l = log.lock().expect("log");
             match (result, lane) {
+                (Ok(_), Lane::Urgent) if std::mem::take(&mut urgent_is_reply) => {}
                 (Ok(_), Lane::Urgent) => l.reports_delivered += 1,
                 (Ok(_), Lane::Bulk) => l.frames_delivered += 1,
                 (Err(e), _) => l.failures.push(e.to_string()),
@@ -257,7 +267,11 @@ fn run(
         }
         loop {
             match ep.recv_message(Duration::ZERO) {
-                Ok(msg) => on_command(&msg, axis.as_mut(), &mut stopped, &mut frame_wanted, log),
+                Ok(msg) => {
+                    let reply =
+                        on_command(&msg, axis.as_mut(), &mut stopped, &mut frame_wanted, log);
+                    replies.extend(reply.map(|r| r.message()));
+                }
                 Err(LinkError::Timeout) => break,
                 Err(e) => {
                     log.lock().expect("log").failures.push(e.to_string());
@@ -277,21 +291,19 @@ fn run(
     Ok(())
 }
 
+/// Obeys a command (levels and method are taken and change nothing in the
+/// synthetic frames); returns the reply to send.
 fn on_command(
     msg: &[u8],
     axis: &mut dyn Axis,
     stopped: &mut bool,
     frame_wanted: &mut bool,
     log: &Mutex<SimLog>,
-) {
-    let cmd = match container::parse(msg, &Limits::default()) {
-        Ok((_, Body::Control(body))) => Command::decode(body),
-        Ok(_) => Err("not a control message".into()),
-        Err(e) => Err(e.to_string()),
-    };
+) -> Option<Reply> {
     let mut l = log.lock().expect("log");
-    match cmd {
-        Ok((c, _id)) => {
+    match Control::from_message(msg) {
+        Ok(Control::Reply(r)) => l.failures.push(format!("a reply to a station: {r:?}")),
+        Ok(Control::Command { command: c, id }) => {
             match c {
                 Command::AxisStop => {
                     let _ = axis.stop();
@@ -302,7 +314,9 @@ fn on_command(
             }
             l.axis_moving = axis.is_moving().unwrap_or(true);
             l.commands.push((c, Instant::now()));
+            return Some(Reply { id, result: Ok(()) });
         }
         Err(e) => l.failures.push(format!("command refused: {e}")),
     }
+    None
 }

@@ -3,10 +3,11 @@
 //! frames, and the commands that go down to it. It turns what arrives into
 //! [`Up`] events for the bridge; it never touches MQTT.
 
+use std::collections::VecDeque;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{Receiver, Sender};
 use std::sync::Arc;
-use std::time::{Duration, Instant, SystemTime, UNIX_EPOCH};
+use std::time::{Duration, Instant};
 
 use serde_json::{json, Value};
 use stereolink_codec::container::{self, Body};
@@ -20,7 +21,7 @@ use stereolink_link::endpoint::{Endpoint, Lane, LinkError};
 use stereolink_link::secure::{Keys, SecureConfig};
 use stereolink_link::spec::{self, LinkSpec};
 
-use super::command::Command;
+use crate::pipeline::control::{unix_us, Command, Control};
 use crate::pipeline::receiver::{BoardReceiver, Event};
 
 /// A station as the gateway knows it.
@@ -62,11 +63,17 @@ pub enum Up {
     },
     /// The link statistics, as their JSON payload.
     Link { station: usize, payload: Value },
-    /// How a command ended.
+    /// How a command's delivery ended.
     Done {
         station: usize,
         request: Request,
         result: Result<Duration, String>,
+    },
+    /// The station's reply to a delivered command: done, or refused and why.
+    Acted {
+        station: usize,
+        request: Request,
+        result: Result<(), String>,
     },
     /// Something worth a line on stderr.
     Notice { station: usize, text: String },
@@ -91,13 +98,6 @@ pub struct Request {
     pub transaction: Option<Value>,
     /// When the gateway took it.
     pub at: Instant,
-}
-
-/// Microseconds since the Unix epoch.
-pub fn unix_us() -> u64 {
-    SystemTime::now()
-        .duration_since(UNIX_EPOCH)
-        .map_or(0, |d| d.as_micros() as u64)
 }
 
 /// The longest a command waits for the station's link before it fails.
@@ -157,33 +157,40 @@ pub fn run(
         last_images: None,
         cfg,
         up,
+        delivered: VecDeque::new(),
+        in_flight: None,
+        early: None,
     };
-    let mut waiting: std::collections::VecDeque<Request> = Default::default();
-    let mut in_flight: Option<Request> = None;
+    let mut waiting: VecDeque<Request> = Default::default();
+    let mut in_flight: Option<(u32, Request)> = None;
     let mut next_id = 1u32;
     let (mut window_start, mut window_bytes) = (Instant::now(), 0u64);
     while !stop.load(Ordering::Relaxed) {
         waiting.extend(down.try_iter());
         if in_flight.is_none() {
             if let Some(req) = waiting.pop_front() {
-                let body = req.command.encode(next_id);
+                let msg = req.command.message(next_id);
                 next_id = next_id.wrapping_add(1);
-                let msg =
-                    container::encode(&stereolink_codec::Message::Control(body), 0, unix_us());
+                let id = next_id.wrapping_sub(1);
                 match ep.submit(Lane::Urgent, &msg) {
-                    Ok(()) => in_flight = Some(req),
+                    Ok(()) => {
+                        // Awaited from now: the reply may overtake the ACK.
+                        st.awaiting_reply(id, req.clone());
+                        in_flight = Some((id, req));
+                    }
                     Err(e) => st.done(req, Err(format!("the link refused it: {e}"))),
                 }
             }
         }
-        let got = if let Some(req) = in_flight.as_ref() {
+        st.in_flight = in_flight.as_ref().map(|(id, _)| *id);
+        let got = if let Some((_, req)) = in_flight.as_ref() {
             // Drive the command's send (this also takes in segments).
             let ended = match ep.poll_sends(Duration::from_millis(5)) {
                 Ok(ended) => ended,
                 Err(e) => vec![(Lane::Urgent, Err(e))],
             };
             if let Some((_, result)) = ended.into_iter().find(|(l, _)| *l == Lane::Urgent) {
-                let req = in_flight.take().expect("a command in flight");
+                let (id, req) = in_flight.take().expect("a command in flight");
                 if result.is_ok() && req.command == Command::FrameRequest {
                     // The frame asked for is rebuilt, whatever the interval.
                     st.last_images = None;
@@ -191,11 +198,11 @@ pub fn run(
                 let r = result
                     .map(|_| req.at.elapsed())
                     .map_err(|e| format!("not delivered: {e}"));
-                st.done(req, r);
+                st.settled(id, req, r);
             } else if req.at.elapsed() > COMMAND_DEADLINE * 3 {
                 // The ARQ deadline ends it first; this is a backstop.
-                let req = in_flight.take().expect("a command in flight");
-                st.done(req, Err("not delivered in time".into()));
+                let (id, req) = in_flight.take().expect("a command in flight");
+                st.settled(id, req, Err("not delivered in time".into()));
             }
             ep.recv_message(Duration::ZERO)
         } else {
@@ -234,6 +241,7 @@ fn quality(ep: &Endpoint) -> Value {
     json!({
         "rssi_dbm": s.rssi_dbm,
         "retransmissions": ep.duplicates(),
+        "retransmission_rate": ep.duplicate_rate(),
         "damaged": s.damaged,
     })
 }
@@ -247,7 +255,17 @@ struct Station {
     view3d: RgbImage,
     last_images: Option<Instant>,
     up: Sender<Up>,
+    /// Commands sent whose reply has not come, by id, oldest first.
+    delivered: VecDeque<(u32, Request)>,
+    /// The id of the command whose delivery is not settled yet.
+    in_flight: Option<u32>,
+    /// Its reply, if it came first (held to keep the responses in order).
+    early: Option<(u32, Up)>,
 }
+
+/// The most delivered commands kept for their replies (a station that
+/// never replies, as an older build, costs no more than this).
+const AWAITING_REPLIES: usize = 32;
 
 impl Station {
     fn send(&self, e: Up) {
@@ -263,6 +281,52 @@ impl Station {
             station: self.index,
             request,
             result,
+        });
+    }
+
+    /// The delivery of command `id` ended; a reply that overtook its ACK
+    /// goes up after it.
+    fn settled(&mut self, id: u32, request: Request, result: Result<Duration, String>) {
+        self.in_flight = None;
+        self.done(request, result);
+        if let Some((_, acted)) = self.early.take_if(|e| e.0 == id) {
+            self.send(acted);
+        }
+    }
+
+    fn awaiting_reply(&mut self, id: u32, request: Request) {
+        if self.delivered.len() == AWAITING_REPLIES {
+            self.delivered.pop_front();
+        }
+        self.delivered.push_back((id, request));
+    }
+
+    /// A Control body from the station: the reply to a command delivered.
+    fn replied(&mut self, body: &[u8]) {
+        let text = match Control::decode(body) {
+            Ok(Control::Reply(r)) => match self.delivered.iter().position(|(id, _)| *id == r.id) {
+                Some(i) => {
+                    let (id, request) = self.delivered.remove(i).expect("found");
+                    let acted = Up::Acted {
+                        station: self.index,
+                        request,
+                        result: r.result,
+                    };
+                    return match self.in_flight == Some(id) {
+                        true => self.early = Some((id, acted)),
+                        false => self.send(acted),
+                    };
+                }
+                None => format!("a reply to command {}, which is not awaited", r.id),
+            },
+            Ok(Control::Command { command, .. }) => {
+                format!("ignored a command from the station ({})", command.name())
+            }
+            Err(e) => format!("refused a control message from the station: {e}"),
+        };
+        self.send(Up::Notice {
+            station: self.index,
+            text,
         });
     }
 
@@ -333,10 +397,7 @@ impl Station {
                     images,
                 });
             }
-            Body::Control(c) => self.send(Up::Notice {
-                station: self.index,
-                text: format!("ignored a control message from the station ({} B)", c.len()),
-            }),
+            Body::Control(c) => self.replied(c),
         }
     }
 
@@ -360,7 +421,7 @@ impl Station {
                 meta["rejected"] = json!(why);
                 None
             }
-            Event::Report { .. } => None,
+            Event::Report { .. } | Event::Command { .. } => None,
         }
     }
 
@@ -382,6 +443,8 @@ impl Station {
             "depth_reports": c.depth_reports,
             "frames": c.frames,
             "retransmissions": ep.duplicates(),
+            "retransmission_rate": ep.duplicate_rate(),
+            "segments": ep.segments_received(),
             "damaged": link.damaged,
             "rssi_dbm": link.rssi_dbm,
             "rejected": {
