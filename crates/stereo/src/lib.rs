@@ -288,6 +288,7 @@ pub struct Matcher {
     /// page-faulted in, anew on every call otherwise).
     luma: [wta::Samples; 2],
     sgm: sgm::SgmBuffers,
+    refine: refine::RefineBuffers,
 }
 
 impl Matcher {
@@ -341,7 +342,7 @@ impl Matcher {
                 }
             }
         };
-        Ok(refine::postprocess(raw, spec, left))
+        Ok(refine::postprocess(raw, spec, left, &mut self.refine))
     }
 }
 

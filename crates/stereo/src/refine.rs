@@ -133,9 +133,23 @@ pub struct Raw {
     pub right: Option<DisparityMap>,
 }
 
+/// The buffers of [`postprocess`], kept from one call to the next (the
+/// weighted median's guide and a second map): refining frames of an
+/// unchanged size allocates only the map it returns.
+#[derive(Default)]
+pub struct RefineBuffers {
+    guide: Option<WeightedMedianGuide>,
+    spare: DisparityMap,
+}
+
 /// Runs the refinement steps of `spec` on a raw result; `guide` is the
 /// left view (for the weighted median).
-pub fn postprocess(raw: Raw, spec: &MatchSpec, guide: &RgbImage) -> DisparityMap {
+pub fn postprocess(
+    raw: Raw,
+    spec: &MatchSpec,
+    guide: &RgbImage,
+    buffers: &mut RefineBuffers,
+) -> DisparityMap {
     let r = &spec.refine;
     let mut d = raw.disparity;
     if let (Some(tol), Some(right)) = (r.lr_check, &raw.right) {
@@ -144,28 +158,36 @@ pub fn postprocess(raw: Raw, spec: &MatchSpec, guide: &RgbImage) -> DisparityMap
     if r.median > 1 {
         d = median(&d, r.median);
     }
-    // One guide serves both weighted-median passes.
-    let wm = r
-        .weighted_median
-        .map(|p| WeightedMedianGuide::new(guide, &p));
-    if let Some(wm) = &wm {
+    // One guide serves both weighted-median passes; each filters from `d`
+    // into the spare map, which then changes places with `d`.
+    let RefineBuffers { guide: wm, spare } = buffers;
+    let mut wm = r.weighted_median.map(|p| match wm {
+        Some(wm) => {
+            wm.rebuild(guide, &p);
+            wm
+        }
+        None => wm.insert(WeightedMedianGuide::new(guide, &p)),
+    });
+    if let Some(wm) = &mut wm {
         // Holes left to the fill: measured on the Middlebury scenes, this
         // beats filling them with the median too (after WTA, bad > 1 px
         // 3.60 / 0.87 / 15.35 / 6.85 % against 3.60 / 1.03 / 15.71 /
         // 7.25 % on Tsukuba / Venus / Teddy / Cones, 26.93 against 27.25 %
         // over the 20 scenes), and it costs less.
-        d = match r.fill {
-            Some(_) => wm.filter_valid(&d),
-            None => wm.filter(&d),
-        };
+        match r.fill {
+            Some(_) => wm.filter_valid(&d, spare),
+            None => wm.filter(&d, spare),
+        }
+        std::mem::swap(&mut d, spare);
     }
     match r.fill {
         Some(HoleFill::Row) => fill_holes(&mut d),
         Some(HoleFill::Directions) => fill_from_directions(&mut d),
         None => {}
     }
-    if let (Some(wm), Some(_)) = (&wm, r.fill) {
-        d = wm.filter(&d);
+    if let (Some(wm), Some(_)) = (&mut wm, r.fill) {
+        wm.filter(&d, spare);
+        std::mem::swap(&mut d, spare);
     }
     d
 }
