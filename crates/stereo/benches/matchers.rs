@@ -1,10 +1,12 @@
 //! One benchmark per matcher on a deterministic synthetic 320x240 pair, 32
-//! disparities, and one per refinement step on its LR-checked WTA map.
+//! disparities, WTA with its default refinement (as `match --algo wta`
+//! runs it, frame after frame), and one per refinement step on its
+//! LR-checked WTA map.
 
 use criterion::{criterion_group, criterion_main, Criterion};
 use std::hint::black_box;
 use stereolink_image::synth::{synthesize, SynthSpec};
-use stereolink_stereo::{compute_disparity, refine, Algorithm, MatchSpec, Refinement};
+use stereolink_stereo::{compute_disparity, refine, Algorithm, MatchSpec, Matcher, Refinement};
 
 fn matchers(c: &mut Criterion) {
     let s = synthesize(&SynthSpec {
@@ -23,6 +25,14 @@ fn matchers(c: &mut Criterion) {
             b.iter(|| compute_disparity(black_box(&s.left), black_box(&s.right), &spec).unwrap())
         });
     }
+    let spec = MatchSpec::new(Algorithm::Wta, 0, 31).unwrap();
+    let mut matcher = Matcher::new();
+    g.bench_function("wta_default_refinement", |b| {
+        b.iter(|| {
+            let pair = (black_box(&s.left), black_box(&s.right));
+            matcher.compute(pair.0, pair.1, &spec).unwrap()
+        })
+    });
     g.finish();
 
     // The refinement steps' input: the WTA map after the LR check, holes included.

@@ -287,7 +287,10 @@ pub struct Matcher {
     /// The views' gray samples for WTA (large enough to be allocated, and
     /// page-faulted in, anew on every call otherwise).
     luma: [wta::Samples; 2],
+    /// The right view's WTA map, for the left-right check.
+    wta_right: DisparityMap,
     sgm: sgm::SgmBuffers,
+    refine: refine::RefineBuffers,
 }
 
 impl Matcher {
@@ -325,7 +328,7 @@ impl Matcher {
                     || wta::luma_samples_into(left, spec.gray_bits, l),
                     || wta::luma_samples_into(right, spec.gray_bits, r),
                 );
-                wta_with_check(&mut self.wta, l, r, spec)
+                wta_with_check(&mut self.wta, &mut self.wta_right, l, r, spec)
             }
             Algorithm::LineGrowing => line_growing::line_growing(left, right, spec),
             Algorithm::Sgm => {
@@ -341,7 +344,7 @@ impl Matcher {
                 }
             }
         };
-        Ok(refine::postprocess(raw, spec, left))
+        Ok(refine::postprocess(raw, spec, left, &mut self.refine))
     }
 }
 
@@ -350,31 +353,33 @@ fn gray_pair(left: &RgbImage, right: &RgbImage) -> (GrayImage, GrayImage) {
     rayon::join(|| color::rgb_to_gray(left), || color::rgb_to_gray(right))
 }
 
-/// WTA on gray views, with the right view's map for the left-right check
-/// when it is asked for (from the same pass).
+/// WTA on gray views, and the left-right check when it is asked for,
+/// against the right view's map from the same pass (in `right_map`, kept
+/// from one call to the next).
 fn wta_with_check(
     matcher: &mut wta::WtaMatcher,
+    right_map: &mut DisparityMap,
     left: &wta::Samples,
     right: &wta::Samples,
     spec: &MatchSpec,
 ) -> refine::Raw {
     let params = wta::WtaParams::from_spec(spec);
-    let new_map = || DisparityMap::new(left.width(), left.height(), f32::INFINITY);
-    let mut disp = new_map();
-    let right_disp = match spec.refine.lr_check {
-        Some(_) => {
-            let mut r = new_map();
-            matcher.compute_both_into(left, right, &params, &mut disp, &mut r);
-            Some(r)
+    let (w, h) = left.dims();
+    let mut disp = DisparityMap::new(w, h, f32::INFINITY);
+    match spec.refine.lr_check {
+        Some(tol) => {
+            if right_map.dims() != (w, h) {
+                right_map.reset(w, h, f32::INFINITY);
+            }
+            matcher.compute_both_into(left, right, &params, &mut disp, right_map);
+            refine::lr_check(&mut disp, right_map, tol);
         }
-        None => {
-            matcher.compute_into(left, right, &params, &mut disp);
-            None
-        }
-    };
+        None => matcher.compute_into(left, right, &params, &mut disp),
+    }
+    // Checked already: no right map for the refinement.
     refine::Raw {
         disparity: disp,
-        right: right_disp,
+        right: None,
     }
 }
 

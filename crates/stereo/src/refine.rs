@@ -26,8 +26,10 @@ pub struct Refinement {
     /// Median filter size over valid pixels (0 or 1 = off, else odd).
     pub median: usize,
     /// Colour-weighted median guided by the left view: once on the checked
-    /// map (valid pixels vote, so it also fills holes among similar
-    /// colours) and once after the fill (it cleans the fill's streaks).
+    /// map and once after the fill (it cleans the fill's streaks). Before a
+    /// fill, only the valid pixels take the median (the holes are the
+    /// fill's); without one, the holes take it too (valid pixels vote, so
+    /// it fills holes among similar colours).
     pub weighted_median: Option<WeightedMedian>,
     /// How invalid pixels are filled, if at all.
     pub fill: Option<HoleFill>,
@@ -83,10 +85,11 @@ impl Refinement {
         match algorithm {
             // WTA: the LR check asks for equal disparities (tolerance 0.5
             // on whole pixels), then the colour-weighted median
-            // (`WeightedMedian::DEFAULT`) before and after the fill: bad > 1
-            // px 3.60 / 1.03 / 15.71 / 7.25 % on Tsukuba / Venus / Teddy /
-            // Cones, below the SSD+MF baseline of 5.23 / 3.74 / 16.5 /
-            // 10.6 %, and 27.25 % over the 20 scenes. A 5×5 median in its
+            // (`WeightedMedian::DEFAULT`) before (valid pixels only) and
+            // after the fill: bad > 1 px 3.60 / 0.87 / 15.35 / 6.85 % on
+            // Tsukuba / Venus / Teddy / Cones, below the SSD+MF baseline of
+            // 5.23 / 3.74 / 16.5 / 10.6 %, and 26.93 % over the 20 scenes
+            // (27.25 % when the first pass filled holes too). A 5×5 median in its
             // place takes 0.54–0.64x the time on the four (Cones, in
             // alternating rounds: 3.97 against 6.72 ms) but gives 5.89 /
             // 3.73 / 18.44 / 10.09 % and 29.14 % (`--weighted-median 0
@@ -130,9 +133,23 @@ pub struct Raw {
     pub right: Option<DisparityMap>,
 }
 
+/// The buffers of [`postprocess`], kept from one call to the next (the
+/// weighted median's guide and a second map): refining frames of an
+/// unchanged size allocates only the map it returns.
+#[derive(Default)]
+pub struct RefineBuffers {
+    guide: Option<WeightedMedianGuide>,
+    spare: DisparityMap,
+}
+
 /// Runs the refinement steps of `spec` on a raw result; `guide` is the
 /// left view (for the weighted median).
-pub fn postprocess(raw: Raw, spec: &MatchSpec, guide: &RgbImage) -> DisparityMap {
+pub fn postprocess(
+    raw: Raw,
+    spec: &MatchSpec,
+    guide: &RgbImage,
+    buffers: &mut RefineBuffers,
+) -> DisparityMap {
     let r = &spec.refine;
     let mut d = raw.disparity;
     if let (Some(tol), Some(right)) = (r.lr_check, &raw.right) {
@@ -141,20 +158,36 @@ pub fn postprocess(raw: Raw, spec: &MatchSpec, guide: &RgbImage) -> DisparityMap
     if r.median > 1 {
         d = median(&d, r.median);
     }
-    // One guide serves both weighted-median passes.
-    let wm = r
-        .weighted_median
-        .map(|p| WeightedMedianGuide::new(guide, &p));
-    if let Some(wm) = &wm {
-        d = wm.filter(&d);
+    // One guide serves both weighted-median passes; each filters from `d`
+    // into the spare map, which then changes places with `d`.
+    let RefineBuffers { guide: wm, spare } = buffers;
+    let mut wm = r.weighted_median.map(|p| match wm {
+        Some(wm) => {
+            wm.rebuild(guide, &p);
+            wm
+        }
+        None => wm.insert(WeightedMedianGuide::new(guide, &p)),
+    });
+    if let Some(wm) = &mut wm {
+        // Holes left to the fill: measured on the Middlebury scenes, this
+        // beats filling them with the median too (after WTA, bad > 1 px
+        // 3.60 / 0.87 / 15.35 / 6.85 % against 3.60 / 1.03 / 15.71 /
+        // 7.25 % on Tsukuba / Venus / Teddy / Cones, 26.93 against 27.25 %
+        // over the 20 scenes), and it costs less.
+        match r.fill {
+            Some(_) => wm.filter_valid(&d, spare),
+            None => wm.filter(&d, spare),
+        }
+        std::mem::swap(&mut d, spare);
     }
     match r.fill {
         Some(HoleFill::Row) => fill_holes(&mut d),
         Some(HoleFill::Directions) => fill_from_directions(&mut d),
         None => {}
     }
-    if let (Some(wm), Some(_)) = (&wm, r.fill) {
-        d = wm.filter(&d);
+    if let (Some(wm), Some(_)) = (&mut wm, r.fill) {
+        wm.filter(&d, spare);
+        std::mem::swap(&mut d, spare);
     }
     d
 }

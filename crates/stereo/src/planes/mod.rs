@@ -246,7 +246,8 @@ pub fn initial_disparity(
     };
     let raw = sgm::sgm(left, right, &initial, buffers);
     // No refinement step uses the guide without a weighted median.
-    refine::postprocess(raw, &initial, &RgbImage::new(0, 0, [0; 3]))
+    let no_buffers = &mut refine::RefineBuffers::default();
+    refine::postprocess(raw, &initial, &RgbImage::new(0, 0, [0; 3]), no_buffers)
 }
 
 /// Each segment's own plane from its reliable pixels (`None` with fewer

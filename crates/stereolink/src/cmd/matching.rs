@@ -46,8 +46,8 @@ pub struct MatcherArgs {
     pub median: Option<usize>,
     /// Colour-weighted median guided by the left view, radius in pixels; it
     /// runs before and after the fill and replaces the plain median unless
-    /// --median is given too. Default 8 for wta (bad > 1 px 3.60 / 1.03 /
-    /// 15.71 / 7.25 % on Tsukuba / Venus / Teddy / Cones; `0 --median 5`
+    /// --median is given too. Default 8 for wta (bad > 1 px 3.60 / 0.87 /
+    /// 15.35 / 6.85 % on Tsukuba / Venus / Teddy / Cones; `0 --median 5`
     /// takes about 0.6x the time at 5.89 / 3.73 / 18.44 / 10.09 %), off
     /// (0) for lg and sgm.
     #[arg(long, value_name = "RADIUS")]
