@@ -138,7 +138,10 @@ impl PlaneTable {
         ids: Option<&Plane<u32>>,
         per_segment: &[[f32; 3]],
     ) -> Self {
-        let implied = ids.map(|ids| implied(ids, per_segment.len(), coding.implied_below));
+        let implied = ids.map(|ids| {
+            let around = neighbours(ids, per_segment.len());
+            implied(ids, &around, coding.implied_below)
+        });
         let mut index = HashMap::new();
         let mut planes = Vec::new();
         let mut of_segment: Vec<u32> = Vec::with_capacity(per_segment.len());
@@ -211,7 +214,9 @@ impl PlaneTable {
             coefficients.encode(&mut enc, p);
         }
         let neighbours = ids.map(|ids| neighbours(ids, n));
-        let implied = ids.map(|ids| implied(ids, n, coding.implied_below));
+        let implied = ids
+            .zip(neighbours.as_deref())
+            .map(|(ids, around)| implied(ids, around, coding.implied_below));
         let mut coder = IndexCoder::default();
         for (s, &i) in self.of_segment.iter().enumerate() {
             if implied.as_ref().is_some_and(|m| m[s].is_some()) {
@@ -318,7 +323,7 @@ impl CodedPlaneTable {
             .map(|_| coefficients.decode(&mut dec))
             .collect::<Result<Vec<_>, _>>()?;
         let neighbours = neighbours(ids, n);
-        let implied = implied(ids, n, self.coding.implied_below);
+        let implied = implied(ids, &neighbours, self.coding.implied_below);
         let mut coder = IndexCoder::default();
         let mut of_segment: Vec<u32> = Vec::with_capacity(n);
         for (s, from) in implied.iter().enumerate() {
@@ -403,11 +408,12 @@ impl CoefficientCoder {
     }
 }
 
-/// For each of the first `n` segments of `ids`, the earlier segment whose
-/// plane it takes uncoded: a segment of fewer than `below` pixels takes
-/// the one above its first pixel, else the one left of it; `None` (coded)
-/// for larger segments and for those with neither.
-fn implied(ids: &Plane<u32>, n: usize, below: u16) -> Vec<Option<u32>> {
+/// For each segment of `ids` with its `neighbours` ([`neighbours`]), the
+/// earlier segment whose plane it takes uncoded: a segment of fewer than
+/// `below` pixels takes the one above its first pixel, else the one left of
+/// it; `None` (coded) for larger segments and for those with neither.
+fn implied(ids: &Plane<u32>, neighbours: &[[Option<u32>; 2]], below: u16) -> Vec<Option<u32>> {
+    let n = neighbours.len();
     if below <= 1 {
         return vec![None; n];
     }
@@ -417,7 +423,7 @@ fn implied(ids: &Plane<u32>, n: usize, below: u16) -> Vec<Option<u32>> {
             *c = c.saturating_add(1);
         }
     }
-    neighbours(ids, n)
+    neighbours
         .iter()
         .zip(size)
         .map(|(&[up, left], size)| if size < below { up.or(left) } else { None })
