@@ -23,6 +23,7 @@ use std::time::Duration;
 
 use stereolink::pipeline::receiver::{BoardReceiver, DisparitySource, Event};
 use stereolink::pipeline::sender::{prepare, SenderConfig};
+use stereolink_codec::planetable::TableCoding;
 use stereolink_codec::{container, Limits, Message};
 use stereolink_image::{metrics, Scene};
 use stereolink_segment::carry::default_margin;
@@ -57,6 +58,7 @@ fn main() -> anyhow::Result<()> {
             matcher: MatchSpec::new(Algorithm::Planes, 0, max_disp)?,
             roi: None,
             levels_spec: LevelSpec::default(),
+            plane_table: TableCoding::default(),
         };
         let p = prepare(&scene.left, &scene.right, &scene.calib, &cfg, 1)?;
         let board = |source| {

@@ -90,7 +90,9 @@ fn run_pair(rx_link: String, tx_link: String, board: Board) -> String {
         "4",
     ]));
     if board == Board::Planes {
-        tx_args.extend(strings(&["--algo", "planes"]));
+        // A coarser table than the default: more segments left implied.
+        tx_args.extend(strings(&["--algo", "planes", "--plane-implied-below", "6"]));
+        tx_args.extend(strings(&["--plane-slant-bits", "10"]));
     }
     let tx = spawn(&tx_args);
     let (sent, said) = finish_with_stderr(tx, "send");

@@ -4,6 +4,7 @@
 use std::path::PathBuf;
 
 use anyhow::Context;
+use stereolink_codec::planetable::TableCoding;
 use stereolink_image::synth::{synthesize, SynthSpec};
 use stereolink_image::Scene;
 use stereolink_link::secure::{keyfile, public_key, Keys};
@@ -122,6 +123,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
             matcher: args.matcher.depth_spec(0, max_disp)?,
             roi: None,
             levels_spec: LevelSpec::default(),
+            plane_table: TableCoding::default(),
         },
         scene,
         link: SimConfig {

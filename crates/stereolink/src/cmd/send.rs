@@ -14,6 +14,7 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use serde::Serialize;
 use stereolink_calib::StereoRectifier;
+use stereolink_codec::planetable::TableCoding;
 use stereolink_image::{io, Calibration, RgbImage};
 use stereolink_link::arq::Config;
 use stereolink_link::endpoint::{Endpoint, Progress, ProgressReport, SendStats};
@@ -129,8 +130,35 @@ pub struct Args {
     pub segment: SegmentArgs,
     #[command(flatten)]
     pub matcher: MatcherArgs,
+    /// With --algo planes: fraction bits of the plane table's slants (0–16;
+    /// default 12, a slant to 1/4096 px per px). Fewer bits, fewer bytes;
+    /// a plane is then off by up to 2^−(bits+1)·(x + y) px at (x, y).
+    #[arg(long, value_parser = clap::value_parser!(u8).range(0..=16))]
+    pub plane_slant_bits: Option<u8>,
+    /// With --algo planes: fraction bits of the planes' offsets (0–16;
+    /// default 5, 1/32 px).
+    #[arg(long, value_parser = clap::value_parser!(u8).range(0..=16))]
+    pub plane_offset_bits: Option<u8>,
+    /// With --algo planes: segments of fewer pixels take the plane of the
+    /// segment above (else left of) them without a coded index (default 2:
+    /// one-pixel segments; 0 codes every index). docs/wire-format.md
+    /// lists the bytes and the accuracy of other choices.
+    #[arg(long)]
+    pub plane_implied_below: Option<u16>,
     #[command(flatten)]
     pub keys: KeyArgs,
+}
+
+impl Args {
+    /// The plane table's coding from the flags and the defaults.
+    fn plane_table(&self) -> TableCoding {
+        let d = TableCoding::default();
+        TableCoding {
+            slant_bits: self.plane_slant_bits.unwrap_or(d.slant_bits),
+            offset_bits: self.plane_offset_bits.unwrap_or(d.offset_bits),
+            implied_below: self.plane_implied_below.unwrap_or(d.implied_below),
+        }
+    }
 }
 
 #[derive(Serialize)]
@@ -172,6 +200,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         matcher: args.matcher.depth_spec(0, args.max_disp)?,
         roi: args.roi,
         levels_spec: LevelSpec::default(),
+        plane_table: args.plane_table(),
     };
     let transport = spec::open(&spec).with_context(|| format!("cannot open link {}", args.link))?;
     let report_transport = match &args.report_link {

@@ -47,6 +47,8 @@ pub struct SenderConfig {
     pub roi: Option<Roi>,
     /// How depth levels are counted.
     pub levels_spec: LevelSpec,
+    /// How the plane table is coded (with the plane matcher).
+    pub plane_table: TableCoding,
 }
 
 /// What a command asks of the send loop once the configuration took it.
@@ -162,13 +164,14 @@ pub fn segment_pair(
 fn match_pair(
     (left, right): (&RgbImage, &RgbImage),
     left_labels: &LabelMap,
-    spec: &MatchSpec,
+    cfg: &SenderConfig,
 ) -> anyhow::Result<(DisparityMap, Option<PlaneTable>)> {
+    let spec = &cfg.matcher;
     if spec.algorithm != Algorithm::Planes {
         return Ok((Matcher::new().compute(left, right, spec)?, None));
     }
     let matched = match_planes(left, right, left_labels, spec)?;
-    let table = planetable::table_of(&matched, spec, TableCoding::default())?;
+    let table = planetable::table_of(&matched, spec, cfg.plane_table)?;
     let mut disparity = DisparityMap::default();
     planetable::rebuild_into(left_labels, &table, &mut disparity)?;
     Ok((disparity, Some(table)))
@@ -202,7 +205,7 @@ pub fn prepare(
         psnr_rgb(right, &sent.1)?.overall,
     );
     let t = Instant::now();
-    let (disparity, planes) = match_pair((left, right), sl.image.labels(), &cfg.matcher)?;
+    let (disparity, planes) = match_pair((left, right), sl.image.labels(), cfg)?;
     let match_ms = t.elapsed().as_secs_f64() * 1e3;
     let t = Instant::now();
     let frame = StereoFrame {
@@ -270,6 +273,7 @@ mod tests {
             matcher: MatchSpec::new(Algorithm::Wta, 0, 16).unwrap(),
             roi: None,
             levels_spec: LevelSpec::default(),
+            plane_table: TableCoding::default(),
         };
         assert_eq!(cfg.apply(&Command::SetLevels(5)), Ok(Applied::FromNextPair));
         assert_eq!(cfg.levels, 5);
