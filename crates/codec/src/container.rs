@@ -613,8 +613,8 @@ pub struct FrameDecoder {
     predicted: LabelMap,
     /// The conditioned view's label table.
     table: Vec<u16>,
-    /// The view's palette, for the label decoder.
-    palette: Vec<Rgb>,
+    /// Each view's palette, for the label decoder and the colours.
+    palettes: [Vec<Rgb>; 2],
     label_decoder: labels::LabelDecoder,
     rgb_decoder: rgb::RgbDecoder,
 }
@@ -623,20 +623,28 @@ impl FrameDecoder {
     /// Decodes both views of `frame` as RGB images, then in [`views`](Self::views).
     pub fn decode_rgb(&mut self, frame: &FrameRef) -> Result<(), CodecError> {
         self.decode_labels(frame)?;
-        for (view, labels, rgb) in [
-            (&frame.left, &self.labels.0, &mut self.rgb.0),
-            (&frame.right, &self.labels.1, &mut self.rgb.1),
+        for (view, labels, rgb, palette) in [
+            (
+                &frame.left,
+                &self.labels.0,
+                &mut self.rgb.0,
+                &self.palettes[0],
+            ),
+            (
+                &frame.right,
+                &self.labels.1,
+                &mut self.rgb.1,
+                &self.palettes[1],
+            ),
         ] {
             if view.coding != coding::RGB {
-                // The palette's colours once, then one lookup per pixel
-                // (labels were checked against the palette's size).
-                self.palette.clear();
-                self.palette.extend(view.palette());
+                // One lookup per pixel (labels were checked against the
+                // palette's size).
                 if rgb.dims() != labels.dims() {
                     rgb.reset(labels.width(), labels.height(), [0; 3]);
                 }
                 let pixels = rgb.as_mut_slice().iter_mut().zip(labels.as_slice());
-                pixels.for_each(|(p, &l)| *p = self.palette[l as usize]);
+                pixels.for_each(|(p, &l)| *p = palette[l as usize]);
             }
         }
         Ok(())
@@ -646,6 +654,16 @@ impl FrameDecoder {
     /// indexed (what a plane table's segments are the components of).
     pub fn left_labels(&self, frame: &FrameRef) -> Option<&LabelMap> {
         (frame.left.coding != coding::RGB).then_some(&self.labels.0)
+    }
+
+    /// The label maps of the last frame decoded, each with its palette,
+    /// if both views are indexed: what the views' colours come from.
+    pub fn indexed_views(&self, frame: &FrameRef) -> Option<[(&LabelMap, &[Rgb]); 2]> {
+        let indexed = frame.left.coding != coding::RGB && frame.right.coding != coding::RGB;
+        indexed.then_some([
+            (&self.labels.0, &self.palettes[0][..]),
+            (&self.labels.1, &self.palettes[1][..]),
+        ])
     }
 
     /// The views of the last frame [`decode_rgb`](Self::decode_rgb) decoded.
@@ -664,8 +682,9 @@ impl FrameDecoder {
                 (&mut self.labels.1, &mut self.rgb.1)
             };
             let n = view.colours();
-            self.palette.clear();
-            self.palette.extend(view.palette());
+            let palette = &mut self.palettes[i];
+            palette.clear();
+            palette.extend(view.palette());
             match view.coding {
                 coding::RGB => {
                     rgb.reset(w, h, [0; 3]);
@@ -678,7 +697,7 @@ impl FrameDecoder {
                         labels.reset(w, h, 0);
                     }
                     self.label_decoder
-                        .decode_into(view.payload, &self.palette, None, labels)?;
+                        .decode_into(view.payload, palette, None, labels)?;
                 }
                 _ => {
                     // Conditioned: the label table (one u16 per left label,
@@ -710,12 +729,8 @@ impl FrameDecoder {
                     if right.dims() != (w, h) {
                         right.reset(w, h, 0);
                     }
-                    self.label_decoder.decode_into(
-                        coded,
-                        &self.palette,
-                        Some(&self.predicted),
-                        right,
-                    )?;
+                    self.label_decoder
+                        .decode_into(coded, palette, Some(&self.predicted), right)?;
                 }
             }
         }

@@ -19,14 +19,17 @@ use std::fmt::Write;
 
 use stereolink_codec::container::{self, Body, FrameDecoder, FrameRef};
 use stereolink_codec::{CodecError, Limits, Message, SegmentationKind, StereoFrame, View};
-use stereolink_display::{anaglyph_into, Anaglyph, Screen, ScreenStatus, Sink};
+use stereolink_display::{
+    anaglyph_into, anaglyph_labels_into, Anaglyph, Screen, ScreenStatus, Sink,
+};
 use stereolink_image::synth::{synthesize, SynthSpec};
 use stereolink_image::{DisparityMap, RgbImage};
 use stereolink_robot::policy::{MotionPolicy, ValidatedDistance, Watchdog};
 use stereolink_robot::{Axis, AxisError};
 use stereolink_segment::segment;
 use stereolink_stereo::wta::{
-    levels_to_disparity, luma_samples_into, Levels, Samples, WtaMatcher, WtaParams, NO_DISPARITY,
+    levels_to_disparity, luma_labels_into, luma_samples_into, Levels, Samples, WtaMatcher,
+    WtaParams, NO_DISPARITY,
 };
 
 /// What the receiver did with one message.
@@ -71,6 +74,9 @@ pub struct BoardReceiver {
     matcher: WtaMatcher,
     params: WtaParams,
     gray: (Samples, Samples),
+    /// Scratch of the views' luma and anaglyph from their labels.
+    luma_lut: Vec<u16>,
+    label_pairs: Vec<u32>,
     levels: Levels,
     /// The map rebuilt from a plane table ([`DisparitySource::Planes`]).
     planes: DisparityMap,
@@ -112,6 +118,8 @@ impl BoardReceiver {
                 subpixel: false,
             },
             gray: Default::default(),
+            luma_lut: Vec::new(),
+            label_pairs: Vec::new(),
             levels: Levels::default(),
             planes: DisparityMap::default(),
             screen: Screen::new(),
@@ -202,10 +210,19 @@ impl BoardReceiver {
         }
         self.decoder.decode_rgb(frame)?;
         let (left, right) = self.decoder.views();
+        // Indexed views (segmented: few colours) give their luma and their
+        // anaglyph through the palettes, a lookup per pixel.
+        let indexed = self.decoder.indexed_views(frame);
         match self.source {
             DisparitySource::Wta => {
-                luma_samples_into(left, self.params.gray_bits, &mut self.gray.0);
-                luma_samples_into(right, self.params.gray_bits, &mut self.gray.1);
+                let bits = self.params.gray_bits;
+                if let Some([(ll, lp), (rl, rp)]) = indexed {
+                    luma_labels_into(ll, lp, bits, &mut self.luma_lut, &mut self.gray.0);
+                    luma_labels_into(rl, rp, bits, &mut self.luma_lut, &mut self.gray.1);
+                } else {
+                    luma_samples_into(left, bits, &mut self.gray.0);
+                    luma_samples_into(right, bits, &mut self.gray.1);
+                }
                 if self.levels.dims() != (w, h) {
                     self.levels.reset(w, h, 0);
                 }
@@ -227,7 +244,12 @@ impl BoardReceiver {
                 super::planetable::rebuild_coded_into(labels, table, &mut self.planes)?;
             }
         }
-        anaglyph_into(left, right, self.mode, &mut self.view);
+        match indexed {
+            Some([l, r]) => {
+                anaglyph_labels_into(l, r, self.mode, &mut self.label_pairs, &mut self.view)
+            }
+            None => anaglyph_into(left, right, self.mode, &mut self.view),
+        }
         self.shown = true;
         self.status.frame_id = frame_id;
         self.status.message.clear();
