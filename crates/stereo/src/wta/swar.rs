@@ -407,10 +407,27 @@ fn band_words<T: Disparity, const NW: usize>(job: &Job, sb: &mut SwarBand, out: 
                 }
             };
         }
-        for (x, d) in out_row.iter_mut().enumerate().skip(fast_from) {
-            let (a, s) = (&cols[(x + r).min(w - 1)], &cols[x.saturating_sub(r + 1)]);
+        // The columns `from..inner` slide without clamping: the entering
+        // column x + r is inside, the leaving one x − r − 1 too; the
+        // others clamp them.
+        let inner = (w - r).max(fast_from).max(r + 1).min(w);
+        let from = fast_from.max(r + 1).min(inner);
+        let clamped = |x: usize| (&cols[(x + r).min(w - 1)], &cols[x.saturating_sub(r + 1)]);
+        let mut pixel = |d: &mut T, (a, s): (&[u32; NW], &[u32; NW])| {
             let best = slide_argmin_all(hs, a, s);
             *d = T::winner(as_lanes(hs), 2 * NW, best, p);
+        };
+        for (x, d) in out_row.iter_mut().enumerate().take(from).skip(fast_from) {
+            pixel(d, clamped(x));
+        }
+        if from < inner {
+            let slide = cols[from + r..].iter().zip(&cols[from - r - 1..]);
+            for (d, a_s) in out_row[from..inner].iter_mut().zip(slide) {
+                pixel(d, a_s);
+            }
+        }
+        for (x, d) in out_row.iter_mut().enumerate().skip(inner) {
+            pixel(d, clamped(x));
         }
     }
 }
