@@ -615,6 +615,10 @@ pub struct FrameDecoder {
     table: Vec<u16>,
     /// Each view's palette, for the label decoder and the colours.
     palettes: [Vec<Rgb>; 2],
+    /// Whether each view of the last frame is indexed, and whether `rgb`
+    /// holds the indexed views' colours yet ([`expand_views`](Self::expand_views)).
+    indexed: [bool; 2],
+    expanded: bool,
     label_decoder: labels::LabelDecoder,
     rgb_decoder: rgb::RgbDecoder,
 }
@@ -622,22 +626,35 @@ pub struct FrameDecoder {
 impl FrameDecoder {
     /// Decodes both views of `frame` as RGB images, then in [`views`](Self::views).
     pub fn decode_rgb(&mut self, frame: &FrameRef) -> Result<(), CodecError> {
-        self.decode_labels(frame)?;
-        for (view, labels, rgb, palette) in [
-            (
-                &frame.left,
-                &self.labels.0,
-                &mut self.rgb.0,
-                &self.palettes[0],
-            ),
-            (
-                &frame.right,
-                &self.labels.1,
-                &mut self.rgb.1,
-                &self.palettes[1],
-            ),
-        ] {
-            if view.coding != coding::RGB {
+        self.decode(frame)?;
+        self.expand_views();
+        Ok(())
+    }
+
+    /// Decodes both views of `frame`: indexed views into their label maps
+    /// ([`indexed_views`](Self::indexed_views)), whose colours
+    /// [`expand_views`](Self::expand_views) writes when asked (a receiver
+    /// that works on the labels needs none), RGB views into
+    /// [`views`](Self::views).
+    pub fn decode(&mut self, frame: &FrameRef) -> Result<(), CodecError> {
+        self.expanded = false;
+        self.indexed = [frame.left, frame.right].map(|v| v.coding != coding::RGB);
+        self.decode_labels(frame)
+    }
+
+    /// Writes the colours of the last frame's indexed views into
+    /// [`views`](Self::views), once per frame.
+    pub fn expand_views(&mut self) {
+        if self.expanded {
+            return;
+        }
+        self.expanded = true;
+        let views = [
+            (self.indexed[0], &self.labels.0, &mut self.rgb.0),
+            (self.indexed[1], &self.labels.1, &mut self.rgb.1),
+        ];
+        for ((indexed, labels, rgb), palette) in views.into_iter().zip(&self.palettes) {
+            if indexed {
                 // One lookup per pixel (labels were checked against the
                 // palette's size).
                 if rgb.dims() != labels.dims() {
@@ -647,7 +664,6 @@ impl FrameDecoder {
                 pixels.for_each(|(p, &l)| *p = palette[l as usize]);
             }
         }
-        Ok(())
     }
 
     /// The left label map of the last frame decoded, if its left view is
@@ -658,15 +674,15 @@ impl FrameDecoder {
 
     /// The label maps of the last frame decoded, each with its palette,
     /// if both views are indexed: what the views' colours come from.
-    pub fn indexed_views(&self, frame: &FrameRef) -> Option<[(&LabelMap, &[Rgb]); 2]> {
-        let indexed = frame.left.coding != coding::RGB && frame.right.coding != coding::RGB;
-        indexed.then_some([
+    pub fn indexed_views(&self) -> Option<[(&LabelMap, &[Rgb]); 2]> {
+        (self.indexed == [true; 2]).then_some([
             (&self.labels.0, &self.palettes[0][..]),
             (&self.labels.1, &self.palettes[1][..]),
         ])
     }
 
-    /// The views of the last frame [`decode_rgb`](Self::decode_rgb) decoded.
+    /// The views of the last frame [`decode_rgb`](Self::decode_rgb) decoded
+    /// (or [`decode`](Self::decode) and [`expand_views`](Self::expand_views)).
     pub fn views(&self) -> (&RgbImage, &RgbImage) {
         (&self.rgb.0, &self.rgb.1)
     }

@@ -143,9 +143,15 @@ impl BoardReceiver {
         self
     }
 
-    /// The last rebuilt pair, once a frame was shown.
-    pub fn pair(&self) -> Option<(&RgbImage, &RgbImage)> {
-        self.shown.then(|| self.decoder.views())
+    /// The last rebuilt pair, once a frame was shown (an indexed pair's
+    /// colours are written on the first call after a frame: the board
+    /// itself works on its labels).
+    pub fn pair(&mut self) -> Option<(&RgbImage, &RgbImage)> {
+        if !self.shown {
+            return None;
+        }
+        self.decoder.expand_views();
+        Some(self.decoder.views())
     }
 
     /// The last disparity map computed on the board (a new map: the
@@ -208,11 +214,15 @@ impl BoardReceiver {
                 "a {w} px wide frame is narrower than the disparity range"
             )));
         }
-        self.decoder.decode_rgb(frame)?;
-        let (left, right) = self.decoder.views();
+        self.decoder.decode(frame)?;
         // Indexed views (segmented: few colours) give their luma and their
-        // anaglyph through the palettes, a lookup per pixel.
-        let indexed = self.decoder.indexed_views(frame);
+        // anaglyph through the palettes, a lookup per pixel; other views
+        // are matched and shown from their colours.
+        if self.decoder.indexed_views().is_none() {
+            self.decoder.expand_views();
+        }
+        let (left, right) = self.decoder.views();
+        let indexed = self.decoder.indexed_views();
         match self.source {
             DisparitySource::Wta => {
                 let bits = self.params.gray_bits;
