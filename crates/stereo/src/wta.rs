@@ -23,8 +23,10 @@
 //! SWAR on a CPU without vector instructions (the ARM926 board), and
 //! portable Rust elsewhere, which give bit-identical results (integer
 //! arithmetic, the same tie rule: the smallest disparity wins). On the
-//! SWAR kernel, a column whose entering and leaving rows agree (long runs
-//! of them in a segmented pair) skips its update: the two cancel. Row
+//! SWAR kernel's general band loop (with a min filter or the right view's
+//! map), a column whose entering and leaving rows agree (long runs of them
+//! in a segmented pair) skips its update: the two cancel; the board's
+//! setting has its own loop, with column sums from row tables (`swar`). Row
 //! bands run in parallel (rayon). Window pixels outside the image
 //! replicate the border.
 //!
@@ -982,7 +984,8 @@ mod tests {
     }
 
     /// A segmented-looking view: three gray levels in blocks, so that
-    /// rows repeat and the SWAR kernel skips the columns they leave alike.
+    /// rows repeat and the SWAR kernel's general band loop skips the
+    /// columns they leave alike.
     fn blocks(w: usize, h: usize, seed: u64) -> Samples {
         Samples::from_fn(w, h, |x, y| {
             let v = ((x / 5) as u64 * 31 + (y / 7) as u64 * 17) ^ seed;
@@ -992,17 +995,19 @@ mod tests {
 
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(24))]
-        /// Every kernel equals the naive definition on blocky pairs, where
-        /// the SWAR kernel's skipping of alike rows takes part.
+        /// Every kernel equals the naive definition on blocky pairs: the
+        /// SWAR kernel's board loop (no min filter) and its general loop,
+        /// where the skipping of alike rows takes part (with one).
         #[test]
         fn kernels_equal_reference_on_blocks(
             w in 1usize..60, h in 1usize..40, seed in any::<u64>(), shift in 0usize..6,
             min_disp in 0usize..3, ndisp in 1usize..20, half in 0usize..5,
+            min_filter in prop_oneof![Just(0usize), Just(3)],
         ) {
             let right = blocks(w, h, seed);
             let left = Samples::from_fn(w, h, |x, y| right.get(x.saturating_sub(shift), y));
             let p = WtaParams {
-                min_disp, ndisp, block: 2 * half + 1, gray_bits: 8, min_filter: 0,
+                min_disp, ndisp, block: 2 * half + 1, gray_bits: 8, min_filter,
                 uniqueness: 0, subpixel: false,
             };
             let slow = reference(&left, &right, &p);
