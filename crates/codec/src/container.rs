@@ -613,8 +613,12 @@ pub struct FrameDecoder {
     predicted: LabelMap,
     /// The conditioned view's label table.
     table: Vec<u16>,
-    /// The view's palette, for the label decoder.
-    palette: Vec<Rgb>,
+    /// Each view's palette, for the label decoder and the colours.
+    palettes: [Vec<Rgb>; 2],
+    /// Whether each view of the last frame is indexed, and whether `rgb`
+    /// holds the indexed views' colours yet ([`expand_views`](Self::expand_views)).
+    indexed: [bool; 2],
+    expanded: bool,
     label_decoder: labels::LabelDecoder,
     rgb_decoder: rgb::RgbDecoder,
 }
@@ -622,24 +626,44 @@ pub struct FrameDecoder {
 impl FrameDecoder {
     /// Decodes both views of `frame` as RGB images, then in [`views`](Self::views).
     pub fn decode_rgb(&mut self, frame: &FrameRef) -> Result<(), CodecError> {
-        self.decode_labels(frame)?;
-        for (view, labels, rgb) in [
-            (&frame.left, &self.labels.0, &mut self.rgb.0),
-            (&frame.right, &self.labels.1, &mut self.rgb.1),
-        ] {
-            if view.coding != coding::RGB {
-                // The palette's colours once, then one lookup per pixel
-                // (labels were checked against the palette's size).
-                self.palette.clear();
-                self.palette.extend(view.palette());
+        self.decode(frame)?;
+        self.expand_views();
+        Ok(())
+    }
+
+    /// Decodes both views of `frame`: indexed views into their label maps
+    /// ([`indexed_views`](Self::indexed_views)), whose colours
+    /// [`expand_views`](Self::expand_views) writes when asked (a receiver
+    /// that works on the labels needs none), RGB views into
+    /// [`views`](Self::views).
+    pub fn decode(&mut self, frame: &FrameRef) -> Result<(), CodecError> {
+        self.expanded = false;
+        self.indexed = [frame.left, frame.right].map(|v| v.coding != coding::RGB);
+        self.decode_labels(frame)
+    }
+
+    /// Writes the colours of the last frame's indexed views into
+    /// [`views`](Self::views), once per frame.
+    pub fn expand_views(&mut self) {
+        if self.expanded {
+            return;
+        }
+        self.expanded = true;
+        let views = [
+            (self.indexed[0], &self.labels.0, &mut self.rgb.0),
+            (self.indexed[1], &self.labels.1, &mut self.rgb.1),
+        ];
+        for ((indexed, labels, rgb), palette) in views.into_iter().zip(&self.palettes) {
+            if indexed {
+                // One lookup per pixel (labels were checked against the
+                // palette's size).
                 if rgb.dims() != labels.dims() {
                     rgb.reset(labels.width(), labels.height(), [0; 3]);
                 }
                 let pixels = rgb.as_mut_slice().iter_mut().zip(labels.as_slice());
-                pixels.for_each(|(p, &l)| *p = self.palette[l as usize]);
+                pixels.for_each(|(p, &l)| *p = palette[l as usize]);
             }
         }
-        Ok(())
     }
 
     /// The left label map of the last frame decoded, if its left view is
@@ -648,7 +672,17 @@ impl FrameDecoder {
         (frame.left.coding != coding::RGB).then_some(&self.labels.0)
     }
 
-    /// The views of the last frame [`decode_rgb`](Self::decode_rgb) decoded.
+    /// The label maps of the last frame decoded, each with its palette,
+    /// if both views are indexed: what the views' colours come from.
+    pub fn indexed_views(&self) -> Option<[(&LabelMap, &[Rgb]); 2]> {
+        (self.indexed == [true; 2]).then_some([
+            (&self.labels.0, &self.palettes[0][..]),
+            (&self.labels.1, &self.palettes[1][..]),
+        ])
+    }
+
+    /// The views of the last frame [`decode_rgb`](Self::decode_rgb) decoded
+    /// (or [`decode`](Self::decode) and [`expand_views`](Self::expand_views)).
     pub fn views(&self) -> (&RgbImage, &RgbImage) {
         (&self.rgb.0, &self.rgb.1)
     }
@@ -664,8 +698,9 @@ impl FrameDecoder {
                 (&mut self.labels.1, &mut self.rgb.1)
             };
             let n = view.colours();
-            self.palette.clear();
-            self.palette.extend(view.palette());
+            let palette = &mut self.palettes[i];
+            palette.clear();
+            palette.extend(view.palette());
             match view.coding {
                 coding::RGB => {
                     rgb.reset(w, h, [0; 3]);
@@ -678,7 +713,7 @@ impl FrameDecoder {
                         labels.reset(w, h, 0);
                     }
                     self.label_decoder
-                        .decode_into(view.payload, &self.palette, None, labels)?;
+                        .decode_into(view.payload, palette, None, labels)?;
                 }
                 _ => {
                     // Conditioned: the label table (one u16 per left label,
@@ -710,12 +745,8 @@ impl FrameDecoder {
                     if right.dims() != (w, h) {
                         right.reset(w, h, 0);
                     }
-                    self.label_decoder.decode_into(
-                        coded,
-                        &self.palette,
-                        Some(&self.predicted),
-                        right,
-                    )?;
+                    self.label_decoder
+                        .decode_into(coded, palette, Some(&self.predicted), right)?;
                 }
             }
         }

@@ -161,6 +161,8 @@ const LABEL_HASH_BITS: u32 = 18;
 /// Context bits besides the rank of the fast mode: eight bits of the own
 /// mask alone, four and the prediction's six conditioned.
 const FAST_BITS: u32 = 10;
+/// Contexts of the fast mode.
+const FAST_CONTEXTS: usize = RANKS << FAST_BITS;
 /// Mixer weight sets: rank, W, N, NW, NE of the own mask, P of the prediction's.
 const MIX_SETS: usize = RANKS * 32;
 /// Palettes up to this size send a missed label label by label.
@@ -187,8 +189,8 @@ struct Model {
     channels: [ChannelModel; CHANNEL_MODELS],
     classes: Vec<[u8; 3]>,
     column_runs: Vec<u32>,
-    /// The fast mode's counters.
-    fast: Vec<Counter>,
+    /// The fast mode's counters, one per [`fast_context`].
+    fast: Box<[Counter; FAST_CONTEXTS]>,
     explicit: Vec<Counter>,
     same_shift: Counter,
     shift: Vec<Counter>,
@@ -218,7 +220,7 @@ impl Model {
             channels: CHANNEL_ORDERS,
             classes: Vec::new(),
             column_runs: Vec::new(),
-            fast: Vec::new(),
+            fast: Box::new([Counter::default(); FAST_CONTEXTS]),
             explicit: Vec::new(),
             same_shift: Counter::default(),
             shift: Vec::new(),
@@ -252,11 +254,7 @@ impl Model {
             f.clear();
             f.resize(size, Counter::default());
         }
-        self.fast.clear();
-        self.fast.resize(
-            if strong { 0 } else { RANKS << FAST_BITS },
-            Counter::default(),
-        );
+        self.fast.fill(Counter::default());
         self.explicit.clear();
         self.explicit
             .resize(explicit_size(n_labels), Counter::default());
@@ -279,6 +277,18 @@ const fn fast_context<const COND: bool>(r: usize, mo: usize, mr: usize) -> usize
     } else {
         r << FAST_BITS | (mo & 255)
     }
+}
+
+/// The fast mode's counter for [`fast_context`] (which is below
+/// [`FAST_CONTEXTS`]: the mask only spares the bounds check).
+#[inline(always)]
+fn fast_counter<const COND: bool>(
+    fast: &mut [Counter; FAST_CONTEXTS],
+    r: usize,
+    mo: usize,
+    mr: usize,
+) -> &mut Counter {
+    &mut fast[fast_context::<COND>(r, mo, mr) & (FAST_CONTEXTS - 1)]
 }
 
 /// Bits of the binary tree of a missed label (palettes over [`SEQUENTIAL_MAX`]).
@@ -487,7 +497,7 @@ fn code_candidate<I: BitIo, const STRONG: bool, const COND: bool>(
 ) -> bool {
     let r = rank.min(RANKS - 1);
     if !STRONG {
-        return io.bit(&mut model.fast[fast_context::<COND>(r, mo, mr)], bit);
+        return io.bit(fast_counter::<COND>(&mut model.fast, r, mo, mr), bit);
     }
     let ctx = [
         r << 8 | (mo & 255),
@@ -743,7 +753,7 @@ fn code_pixel_fast<I: BitIo, const COND: bool>(
         }
         let wv = u32::from(wv);
         let mr = if COND { mask(rf, wv) } else { 0 };
-        if io.bit(&mut model.fast[fast_context::<COND>(0, mo, mr)], wv == v) {
+        if io.bit(fast_counter::<COND>(&mut model.fast, 0, mo, mr), wv == v) {
             // W's label is one this map already holds: below `n_labels`.
             return Ok(wv as u16);
         }

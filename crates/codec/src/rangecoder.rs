@@ -44,11 +44,12 @@ impl Default for Counter {
     }
 }
 
-/// `65536 / (n + 1.5)` for each state count `n`.
-const RATES: [u32; COUNT_LIMIT as usize + 1] = {
-    let mut t = [0; COUNT_LIMIT as usize + 1];
+/// `65536 / (n + 1.5)` for each state count `n` (up to `COUNT_LIMIT`;
+/// one entry per `u8`, so that a count indexes it without a bounds check).
+const RATES: [u32; 256] = {
+    let mut t = [0; 256];
     let mut n = 0;
-    while n <= COUNT_LIMIT as usize {
+    while n < 256 {
         t[n] = 2 * 65536 / (2 * n as u32 + 3);
         n += 1;
     }

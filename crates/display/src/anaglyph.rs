@@ -10,7 +10,7 @@
 
 use std::str::FromStr;
 
-use stereolink_image::{color::luma, Plane, Rgb, RgbImage};
+use stereolink_image::{color::luma, LabelMap, Plane, Rgb, RgbImage};
 
 /// Anaglyph modes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
@@ -138,6 +138,56 @@ pub fn anaglyph_into(left: &RgbImage, right: &RgbImage, mode: Anaglyph, out: &mu
     }
 }
 
+/// Most label pairs [`anaglyph_labels_into`] tabulates (two palettes of
+/// 256 colours).
+const MAX_PAIRS: usize = 1 << 16;
+
+/// [`anaglyph_into`] for a pair of label maps and their palettes. A
+/// segmented pair has few colours: the anaglyph pixel of each pair of
+/// labels that occurs is computed once into `pairs` (scratch, resized,
+/// storage reused), then a pixel is a lookup. Palettes with more than
+/// [`MAX_PAIRS`] pairs compute every pixel.
+///
+/// # Panics
+/// If the maps differ in size or a label does not index its palette.
+pub fn anaglyph_labels_into(
+    (left, lp): (&LabelMap, &[Rgb]),
+    (right, rp): (&LabelMap, &[Rgb]),
+    mode: Anaglyph,
+    pairs: &mut Vec<u32>,
+    out: &mut RgbImage,
+) {
+    assert_eq!(left.dims(), right.dims(), "views differ in size");
+    // Every pixel is written below: an image of the size is not cleared.
+    if out.dims() != left.dims() {
+        out.reset(left.width(), left.height(), [0; 3]);
+    }
+    let (nr, n) = (rp.len(), lp.len() * rp.len());
+    let labels = left.as_slice().iter().zip(right.as_slice());
+    let pixels = out.as_mut_slice().iter_mut().zip(labels);
+    if n > MAX_PAIRS {
+        for (o, (&l, &r)) in pixels {
+            *o = anaglyph_pixel(lp[l as usize], rp[r as usize], mode);
+        }
+        return;
+    }
+    // Pair `l · nr + r`: the pixel's bytes and a 1 above them, 0 until
+    // computed (a left label beyond its palette is beyond the table).
+    pairs.clear();
+    pairs.resize(n, 0);
+    for (o, (&l, &r)) in pixels {
+        let (l, r) = (l as usize, r as usize);
+        assert!(r < nr, "right label {r} beyond its palette");
+        let pair = &mut pairs[l * nr + r];
+        if *pair == 0 {
+            let [a, b, c] = anaglyph_pixel(lp[l], rp[r], mode);
+            *pair = u32::from_le_bytes([a, b, c, 1]);
+        }
+        let [a, b, c, _] = pair.to_le_bytes();
+        *o = [a, b, c];
+    }
+}
+
 /// A slot in `0..64` for a colour pair.
 #[inline]
 fn colour_pair_hash(l: Rgb, r: Rgb) -> usize {
@@ -182,6 +232,38 @@ mod tests {
         assert_eq!(side_by_side(&l, &r).dims(), (4, 1));
         assert_eq!("half".parse::<Anaglyph>(), Ok(Anaglyph::HalfColour));
         assert!("x".parse::<Anaglyph>().is_err());
+    }
+
+    /// Through label pairs, as from the views: small palettes (the table)
+    /// and large ones (per pixel), in every mode.
+    #[test]
+    fn labels_give_the_anaglyph_of_their_colours() {
+        let colour = |i: usize| {
+            [
+                (i * 37) as u8,
+                (255 - i * 29 % 256) as u8,
+                (i * i * 5) as u8,
+            ]
+        };
+        for (nl, nr) in [(3, 4), (300, 260)] {
+            let (lp, rp): (Vec<Rgb>, Vec<Rgb>) = (
+                (0..nl).map(colour).collect(),
+                (0..nr).map(|i| colour(i + 7)).collect(),
+            );
+            let left = LabelMap::from_fn(31, 17, |x, y| ((x * 7 + y * 13) % nl) as u16);
+            let right = LabelMap::from_fn(31, 17, |x, y| ((x * 5 + y * y) % nr) as u16);
+            let (l, r) = (left.map(|i| lp[i as usize]), right.map(|i| rp[i as usize]));
+            let (mut pairs, mut out) = (Vec::new(), RgbImage::default());
+            for mode in [
+                Anaglyph::Dubois,
+                Anaglyph::Colour,
+                Anaglyph::HalfColour,
+                Anaglyph::Gray,
+            ] {
+                anaglyph_labels_into((&left, &lp), (&right, &rp), mode, &mut pairs, &mut out);
+                assert_eq!(out, anaglyph(&l, &r, mode), "{nl}x{nr} {mode:?}");
+            }
+        }
     }
 
     /// The fixed-point Dubois pixel against the `f32` product of the

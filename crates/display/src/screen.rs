@@ -57,7 +57,6 @@ pub struct ScreenStatus {
 /// The screen and its buffers.
 pub struct Screen {
     image: RgbImage,
-    colour: RgbImage,
     /// The colour of each integer disparity of the range (render_levels).
     palette: Vec<Rgb>,
     /// Scratch for the text drawn, so rendering allocates nothing.
@@ -68,15 +67,19 @@ impl Default for Screen {
     fn default() -> Self {
         Screen {
             image: RgbImage::new(SCREEN_WIDTH, SCREEN_HEIGHT, BACKGROUND),
-            colour: RgbImage::new(0, 0, BACKGROUND),
             palette: Vec::new(),
             text: String::new(),
         }
     }
 }
 
-/// Nearest-neighbour scale of `src` into the panel at `(x0, y0)`, keeping the aspect ratio.
-fn blit_scaled(dst: &mut RgbImage, src: &RgbImage, x0: usize, y0: usize, w: usize, h: usize) {
+/// Nearest-neighbour scale of `src`, painted by `paint`, into the panel at
+/// `(x0, y0)`, keeping the aspect ratio: only the pixels shown are painted.
+fn blit_scaled<T: Copy>(
+    dst: &mut RgbImage,
+    (src, paint): (&Plane<T>, impl Fn(T) -> Rgb),
+    (x0, y0, w, h): (usize, usize, usize, usize),
+) {
     let (sw, sh) = src.dims();
     if sw == 0 || sh == 0 {
         return;
@@ -91,7 +94,7 @@ fn blit_scaled(dst: &mut RgbImage, src: &RgbImage, x0: usize, y0: usize, w: usiz
         let row = src.row(sy);
         let out = &mut dst.row_mut(oy + y)[ox..ox + tw.min(w)];
         for (px, sx) in out.iter_mut().zip(nearest(sw, tw)) {
-            *px = row[sx];
+            *px = paint(row[sx]);
         }
     }
 }
@@ -137,14 +140,15 @@ impl Screen {
     ) -> &RgbImage {
         let span = (dmax - dmin).max(f32::EPSILON);
         let turbo = colormap::turbo_table();
-        self.colour_from(disparity, |d| {
+        let paint = |d: f32| {
             if d.is_finite() {
                 turbo[colormap::turbo_index((d - dmin) / span)]
             } else {
                 colormap::INVALID
             }
-        });
-        self.compose(view, dmin, dmax, status)
+        };
+        self.compose(view, (disparity, paint), dmin, dmax, status);
+        &self.image
     }
 
     /// [`render`](Self::render) for integer disparities (`no_disparity`
@@ -169,32 +173,25 @@ impl Screen {
         // (below dmin, to the first, which is dmin's).
         palette.push(turbo[255]);
         let above = palette.len() - 1;
-        self.colour_from(levels, |l| match l {
+        let paint = |l: u16| match l {
             _ if l == no_disparity => colormap::INVALID,
             _ => palette[(l.saturating_sub(dmin) as usize).min(above)],
-        });
+        };
+        self.compose(view, (levels, paint), lo, dmax as f32, status);
         self.palette = palette;
-        self.compose(view, lo, dmax as f32, status)
+        &self.image
     }
 
-    /// Paints the disparity panel's source, one colour per map pixel.
-    fn colour_from<T: Copy>(&mut self, map: &Plane<T>, paint: impl Fn(T) -> Rgb) {
-        if self.colour.dims() != map.dims() {
-            self.colour.reset(map.width(), map.height(), BACKGROUND);
-        }
-        for (c, &d) in self.colour.as_mut_slice().iter_mut().zip(map.as_slice()) {
-            *c = paint(d);
-        }
-    }
-
-    /// Draws the panels, the colour bar over `[dmin, dmax]` and the status.
-    fn compose(
+    /// Draws the panels (the disparity map painted by its `paint`), the
+    /// colour bar over `[dmin, dmax]` and the status.
+    fn compose<T: Copy>(
         &mut self,
         view: &RgbImage,
+        disparity: (&Plane<T>, impl Fn(T) -> Rgb),
         dmin: f32,
         dmax: f32,
         status: &ScreenStatus,
-    ) -> &RgbImage {
+    ) {
         let turbo = colormap::turbo_table();
         let paint = |t: f32| turbo[colormap::turbo_index(t)];
         let img = &mut self.image;
@@ -208,9 +205,9 @@ impl Screen {
             ACCENT,
         );
         let top = MARGIN + GLYPH_H + 3;
-        blit_scaled(img, view, MARGIN, top, PANEL_W, PANEL_H);
+        blit_scaled(img, (view, |p| p), (MARGIN, top, PANEL_W, PANEL_H));
         let dx = PANEL_W + 3 * MARGIN;
-        blit_scaled(img, &self.colour, dx, top, PANEL_W - BAR_W - 16, PANEL_H);
+        blit_scaled(img, disparity, (dx, top, PANEL_W - BAR_W - 16, PANEL_H));
         // Colour bar with its range.
         let bx = dx + PANEL_W - BAR_W - 14;
         for y in 0..PANEL_H {
@@ -286,7 +283,6 @@ impl Screen {
             &status.security,
             [255, 200, 120],
         );
-        &self.image
     }
 }
 

@@ -23,8 +23,10 @@
 //! SWAR on a CPU without vector instructions (the ARM926 board), and
 //! portable Rust elsewhere, which give bit-identical results (integer
 //! arithmetic, the same tie rule: the smallest disparity wins). On the
-//! SWAR kernel, a column whose entering and leaving rows agree (long runs
-//! of them in a segmented pair) skips its update: the two cancel. Row
+//! SWAR kernel's general band loop (with a min filter or the right view's
+//! map), a column whose entering and leaving rows agree (long runs of them
+//! in a segmented pair) skips its update: the two cancel; the board's
+//! setting has its own loop, with column sums from row tables (`swar`). Row
 //! bands run in parallel (rayon). Window pixels outside the image
 //! replicate the border.
 //!
@@ -32,7 +34,7 @@
 //! with `x < d_min` get no disparity (`inf`).
 
 use rayon::prelude::*;
-use stereolink_image::{DisparityMap, Plane, RgbImage};
+use stereolink_image::{DisparityMap, LabelMap, Plane, Rgb, RgbImage};
 
 use crate::lanes::{LaneOps, Portable, Swar, LANES};
 use crate::{MatchSpec, StereoError};
@@ -73,34 +75,59 @@ pub fn luma_samples_into(img: &RgbImage, bits: u32, out: &mut Samples) {
     #[cfg(target_arch = "x86_64")]
     if avx2_available() {
         // SAFETY: the CPU has AVX2.
-        return unsafe { luma_avx2(img, bits, out.as_mut_slice()) };
+        return unsafe { luma_avx2(img.as_slice(), bits, out.as_mut_slice()) };
     }
-    luma(img, bits, out.as_mut_slice());
+    luma(img.as_slice(), bits, out.as_mut_slice());
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn luma_avx2(img: &RgbImage, bits: u32, out: &mut [u16]) {
-    luma(img, bits, out)
+unsafe fn luma_avx2(pixels: &[Rgb], bits: u32, out: &mut [u16]) {
+    luma(pixels, bits, out)
 }
 
 /// [`luma_samples_into`]'s loop: one per precision, with the shift a
 /// constant, so that it vectorises (the pixels' bytes are spread apart by
 /// shuffles; AVX2 has the wider ones).
 #[inline(always)]
-fn luma(img: &RgbImage, bits: u32, out: &mut [u16]) {
+fn luma(pixels: &[Rgb], bits: u32, out: &mut [u16]) {
     #[inline(always)]
-    fn shifted<const SHIFT: u32>(img: &RgbImage, out: &mut [u16]) {
+    fn shifted<const SHIFT: u32>(pixels: &[Rgb], out: &mut [u16]) {
         // 77 · 255 + 150 · 255 + 29 · 255 + 128 < 2¹⁶: 16-bit lanes suffice.
-        for (o, p) in out.iter_mut().zip(img.as_slice()) {
+        for (o, p) in out.iter_mut().zip(pixels) {
             let sum = 77 * p[0] as u16 + 150 * p[1] as u16 + 29 * p[2] as u16;
             *o = (sum + (1 << (SHIFT - 1))) >> SHIFT;
         }
     }
     match bits.clamp(8, 10) {
-        8 => shifted::<8>(img, out),
-        9 => shifted::<7>(img, out),
-        _ => shifted::<6>(img, out),
+        8 => shifted::<8>(pixels, out),
+        9 => shifted::<7>(pixels, out),
+        _ => shifted::<6>(pixels, out),
+    }
+}
+
+/// [`luma_samples_into`] for a label map and its palette (each label
+/// indexing it): the luma of each colour once, then a lookup per pixel.
+/// `lut` is scratch (resized, storage reused).
+///
+/// # Panics
+/// If a label does not index `palette`.
+pub fn luma_labels_into(
+    labels: &LabelMap,
+    palette: &[Rgb],
+    bits: u32,
+    lut: &mut Vec<u16>,
+    out: &mut Samples,
+) {
+    lut.clear();
+    lut.resize(palette.len(), 0);
+    luma(palette, bits, lut);
+    // Every sample is written below: a plane of the size is not cleared.
+    if out.dims() != labels.dims() {
+        out.reset(labels.width(), labels.height(), 0);
+    }
+    for (o, &l) in out.as_mut_slice().iter_mut().zip(labels.as_slice()) {
+        *o = lut[l as usize];
     }
 }
 
@@ -817,8 +844,23 @@ mod tests {
         });
         for bits in 8..=10 {
             let mut portable = vec![0; 33 * 7];
-            luma(&img, bits, &mut portable);
+            luma(img.as_slice(), bits, &mut portable);
             assert_eq!(luma_samples(&img, bits).as_slice(), portable.as_slice());
+        }
+    }
+
+    /// Luma through the palette equals the luma of the expanded view.
+    #[test]
+    fn luma_of_labels_equals_luma_of_their_colours() {
+        let palette: Vec<Rgb> = (0..7u8)
+            .map(|i| [i * 37, 255 - i * 29, i * i * 5])
+            .collect();
+        let labels = LabelMap::from_fn(23, 9, |x, y| ((x * 3 + y * 5) % 7) as u16);
+        let rgb = labels.map(|l| palette[l as usize]);
+        let (mut lut, mut out) = (Vec::new(), Samples::default());
+        for bits in 8..=10 {
+            luma_labels_into(&labels, &palette, bits, &mut lut, &mut out);
+            assert_eq!(out, luma_samples(&rgb, bits), "{bits} bits");
         }
     }
 
@@ -942,7 +984,8 @@ mod tests {
     }
 
     /// A segmented-looking view: three gray levels in blocks, so that
-    /// rows repeat and the SWAR kernel skips the columns they leave alike.
+    /// rows repeat and the SWAR kernel's general band loop skips the
+    /// columns they leave alike.
     fn blocks(w: usize, h: usize, seed: u64) -> Samples {
         Samples::from_fn(w, h, |x, y| {
             let v = ((x / 5) as u64 * 31 + (y / 7) as u64 * 17) ^ seed;
@@ -952,17 +995,19 @@ mod tests {
 
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(24))]
-        /// Every kernel equals the naive definition on blocky pairs, where
-        /// the SWAR kernel's skipping of alike rows takes part.
+        /// Every kernel equals the naive definition on blocky pairs: the
+        /// SWAR kernel's board loop (no min filter) and its general loop,
+        /// where the skipping of alike rows takes part (with one).
         #[test]
         fn kernels_equal_reference_on_blocks(
             w in 1usize..60, h in 1usize..40, seed in any::<u64>(), shift in 0usize..6,
             min_disp in 0usize..3, ndisp in 1usize..20, half in 0usize..5,
+            min_filter in prop_oneof![Just(0usize), Just(3)],
         ) {
             let right = blocks(w, h, seed);
             let left = Samples::from_fn(w, h, |x, y| right.get(x.saturating_sub(shift), y));
             let p = WtaParams {
-                min_disp, ndisp, block: 2 * half + 1, gray_bits: 8, min_filter: 0,
+                min_disp, ndisp, block: 2 * half + 1, gray_bits: 8, min_filter,
                 uniqueness: 0, subpixel: false,
             };
             let slow = reference(&left, &right, &p);

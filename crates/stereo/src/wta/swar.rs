@@ -7,11 +7,12 @@
 //!   row's reversed right samples `j` is built once (both word alignments),
 //!   so a column's update is `colsum += new − old` read a word at a time
 //!   from two tables: a load, an add and a subtract per two lanes. Tables
-//!   live in a ring of sets, one set per row of the window, so a row's
-//!   tables built as it enters serve again when it leaves. A value without
-//!   a table slot takes the direct path (absolute differences lane by lane).
-//! - **Columns whose entering and leaving rows agree are skipped**, as in
-//!   the generic SWAR band loop: they cancel.
+//!   live in a ring of sets, one set per row of the window, with where
+//!   each column of the row reads them: built as the row enters, they serve
+//!   again when it leaves, so a column's update looks nothing up. A value
+//!   without a table slot takes the direct path (absolute differences lane
+//!   by lane). Columns whose rows agree are not skipped: in a k-means view
+//!   few do, and the test cost more than it saved.
 //! - **The slide and the argmin are fused and unrolled** for 32 lanes: the
 //!   lane in a word's high half is compared without extracting it (a
 //!   running minimum kept in the high half of a word, low half zero), the
@@ -28,11 +29,11 @@ use crate::lanes::word;
 
 /// Table slots per row: values beyond take the direct path.
 const SLOTS: usize = 6;
-/// No slot (in [`TableSet::slot_of`]).
-const NO_SLOT: u8 = u8::MAX;
-/// A column of a row's plan that is skipped, or updated directly.
-const SKIP: u32 = u32::MAX;
+/// A value without a table (all slots taken): its columns are updated
+/// directly.
 const DIRECT: u32 = u32::MAX - 1;
+/// A value not yet seen in the row (in [`TableSet::base_of`]).
+const UNSEEN: u32 = u32::MAX;
 
 /// The scratch of one band for [`band`].
 #[derive(Default)]
@@ -41,55 +42,74 @@ pub(super) struct SwarBand {
     colsum: Vec<u32>,
     /// The sliding window sum of the current pixel.
     h: Vec<u32>,
-    /// As the generic band's `differ`: per reversed-row index, how many of
-    /// the entering and leaving right rows' samples before it differ.
-    differ: Vec<u32>,
     /// The tables of the window's rows, set `y % sets.len()` for row `y`.
     sets: Vec<TableSet>,
-    /// Per column of a row: where its entering and leaving table words
-    /// start, or [`SKIP`] or [`DIRECT`].
-    plan: Vec<(u32, u32)>,
 }
 
-/// The tables of one right row, per left gray value with a slot.
+/// The tables of one right row, per left gray value with a slot, and
+/// which table each column of the row reads.
 #[derive(Default)]
 struct TableSet {
     /// The row these tables belong to (`usize::MAX`: none).
     owner: usize,
-    /// Per gray value, its slot or [`NO_SLOT`].
-    slot_of: Vec<u8>,
-    /// The values holding a slot, in slot order.
+    /// Per gray value, where its table starts in `words` (slot `k` at
+    /// `2 k · tw`), or [`DIRECT`] or [`UNSEEN`].
+    base_of: Vec<u32>,
+    /// The values seen in the row, in order.
     values: Vec<u16>,
     /// Per slot, two tables of `tw` words: lanes `(2i, 2i + 1)` and
     /// `(2i + 1, 2i + 2)` of `|l − R(j)|` at word `i`.
     words: Vec<u32>,
+    /// Per column of the row, the start of its value's table (or
+    /// [`DIRECT`]): set as the row enters the window, read again as it
+    /// leaves.
+    at: Vec<u32>,
 }
 
 impl TableSet {
-    /// The slot of value `l` for row `y` (its reversed right samples
-    /// `rev`), building its table if a slot is free; `None` when full.
-    #[inline(always)]
-    fn slot(&mut self, y: usize, l: u16, rev: &[u16], tw: usize) -> Option<usize> {
-        if self.owner != y {
-            for &v in &self.values {
-                self.slot_of[v as usize] = NO_SLOT;
-            }
-            self.values.clear();
-            self.owner = y;
+    /// Makes this set row `y`'s: the tables of its values (as far as slots
+    /// go) and each column's. Nothing to do when it already is.
+    fn enter(&mut self, job: &Job, y: usize) {
+        if self.owner == y {
+            return;
         }
-        let s = self.slot_of[l as usize];
-        if s != NO_SLOT {
-            return Some(s as usize);
+        for &v in &self.values {
+            self.base_of[v as usize] = UNSEEN;
         }
+        self.values.clear();
+        self.owner = y;
+        let (w, stride) = (job.left.width(), job.stride);
+        let rev = &job.reversed[y * stride..(y + 1) * stride];
+        let mut ats = std::mem::take(&mut self.at);
+        for (at, &l) in ats[..w].iter_mut().zip(job.left.row(y)) {
+            let base = self.base_of[l as usize];
+            *at = if base == UNSEEN {
+                self.add(l, rev)
+            } else {
+                base
+            };
+        }
+        self.at = ats;
+    }
+
+    /// Gives value `l` (first seen in the row whose reversed right samples
+    /// are `rev`) a slot and builds its table, or [`DIRECT`] when full;
+    /// returns its table's start.
+    #[cold]
+    fn add(&mut self, l: u16, rev: &[u16]) -> u32 {
+        let tw = rev.len() / 2 + 1;
+        // The first SLOTS values have the slots.
         let s = self.values.len();
-        if s == SLOTS {
-            return None;
-        }
-        self.slot_of[l as usize] = s as u8;
         self.values.push(l);
-        let (t0, t1) = self.words[2 * s * tw..2 * (s + 1) * tw].split_at_mut(tw);
-        build_table(l, rev, t0, t1);
-        Some(s)
+        let base = if s >= SLOTS {
+            DIRECT
+        } else {
+            let (t0, t1) = self.words[2 * s * tw..2 * (s + 1) * tw].split_at_mut(tw);
+            build_table(l, rev, t0, t1);
+            (2 * s * tw) as u32
+        };
+        self.base_of[l as usize] = base;
+        base
     }
 }
 
@@ -135,77 +155,71 @@ fn columns_mut<const NW: usize>(v: &mut [u32]) -> &mut [[u32; NW]] {
     unsafe { std::slice::from_raw_parts_mut(v.as_mut_ptr().cast(), v.len() / NW) }
 }
 
+/// The words of `|l − R|` for one column: lanes `(2i, 2i + 1)` of the
+/// right samples `r`.
+#[inline(always)]
+fn direct<const NW: usize>(l: u16, r: &[u16]) -> [u32; NW] {
+    std::array::from_fn(|i| word(l.abs_diff(r[2 * i]), l.abs_diff(r[2 * i + 1])))
+}
+
 /// Adds the absolute differences of row `y` to the column sums (`NW` words
 /// each) and subtracts those of row `leaving` when given, from the tables
-/// where the values have them, skipping columns whose rows agree.
+/// where the values have them.
 fn accumulate_row<const NW: usize>(job: &Job, sb: &mut SwarBand, y: usize, leaving: Option<usize>) {
+    let ring = sb.sets.len();
+    sb.sets[y % ring].enter(job, y);
     let w = job.left.width();
-    let stride = job.stride;
-    let tw = stride / 2 + 1;
+    let tw = job.stride / 2 + 1;
+    // Column x reads its right pixels from reversed index `start(x)` on:
+    // table word `start(x) / 2` of the table of that index's parity.
     let start = |x: usize| w + job.params.min_disp - 1 - x;
-    let row = |y: usize| &job.reversed[y * stride..(y + 1) * stride];
-    let left = &job.left.row(y)[..w];
+    let row = |y: usize| &job.reversed[y * job.stride..(y + 1) * job.stride];
     let cols = columns_mut::<NW>(&mut sb.colsum);
+    let new = &sb.sets[y % ring];
+    // Every table start is `2 k · tw` with k < SLOTS, and a column reads
+    // `NW` words from `tw + start(x) / 2` past it at most: inside `words`.
+    let last = (2 * SLOTS - 1) * tw + start(0) / 2 + NW;
+    assert!(last <= new.words.len());
     let Some(s) = leaving else {
-        for (x, col) in cols.iter_mut().enumerate() {
-            let (l, r) = (left[x], &row(y)[start(x)..][..2 * NW]);
-            for (i, c) in col.iter_mut().enumerate() {
-                *c = c.wrapping_add(word(l.abs_diff(r[2 * i]), l.abs_diff(r[2 * i + 1])));
+        for (x, (col, &a)) in cols.iter_mut().zip(&new.at[..w]).enumerate() {
+            let j = start(x);
+            let n = if a < DIRECT {
+                new.words[a as usize + j / 2 + (j % 2) * tw..][..NW]
+                    .try_into()
+                    .expect("NW")
+            } else {
+                direct::<NW>(job.left.row(y)[x], &row(y)[j..])
+            };
+            for (c, n) in col.iter_mut().zip(n) {
+                *c = c.wrapping_add(n);
             }
         }
         return;
     };
-    let gone = &job.left.row(s)[..w];
-    let differ = &mut sb.differ;
-    let mut n = 0;
-    differ[0] = 0;
-    for ((c, a), b) in differ[1..].iter_mut().zip(row(y)).zip(row(s)) {
-        n += (a != b) as u32;
-        *c = n;
-    }
-    let ring = sb.sets.len();
-    let (yi, si) = (y % ring, s % ring);
-    // First where each column's two table words start (building the
-    // tables on first use), or that it is skipped or direct; then the
-    // updates, with the tables only read.
-    let plan = &mut sb.plan[..w];
-    // The table offsets of the last values seen (consecutive columns
-    // mostly share them).
-    let (mut last_n, mut last_o) = ((u16::MAX, None), (u16::MAX, None));
-    for (x, plan) in plan.iter_mut().enumerate() {
-        let (ln, lo, at) = (left[x], gone[x], start(x));
-        if ln == lo && differ[at + 2 * NW] == differ[at] {
-            *plan = (SKIP, SKIP);
-            continue;
-        }
-        if last_n.0 != ln {
-            last_n = (ln, sb.sets[yi].slot(y, ln, row(y), tw).map(|k| 2 * k * tw));
-        }
-        if last_o.0 != lo {
-            last_o = (lo, sb.sets[si].slot(s, lo, row(s), tw).map(|k| 2 * k * tw));
-        }
-        let word_of = |base: usize| (base + at % 2 * tw + at / 2) as u32;
-        *plan = match (last_n.1, last_o.1) {
-            (Some(a), Some(b)) => (word_of(a), word_of(b)),
-            _ => (DIRECT, DIRECT),
-        };
-    }
-    let (tn, to) = (&sb.sets[yi].words, &sb.sets[si].words);
-    for (x, (col, &(a, b))) in cols.iter_mut().zip(&*plan).enumerate() {
-        if a == SKIP {
-            continue;
-        }
-        if a != DIRECT {
-            let (tn, to) = (&tn[a as usize..][..NW], &to[b as usize..][..NW]);
-            add_sub(col, tn.try_into().expect("NW"), to.try_into().expect("NW"));
+    // The leaving row entered at most `block` rows ago: its set is its own.
+    let old = &sb.sets[s % ring];
+    debug_assert_eq!(old.owner, s);
+    assert!(last <= old.words.len());
+    let columns = cols.iter_mut().zip(&new.at[..w]).zip(&old.at[..w]);
+    for (x, ((col, &a), &b)) in columns.enumerate() {
+        let j = start(x);
+        let off = j / 2 + (j % 2) * tw;
+        if a.max(b) < DIRECT {
+            let (a, b) = (a as usize + off, b as usize + off);
+            // SAFETY: `a` and `b` are table starts plus `off`, so
+            // `a + NW` and `b + NW` are at most `last` (the assertion).
+            let (tn, to) = unsafe {
+                (
+                    &*new.words.as_ptr().add(a).cast::<[u32; NW]>(),
+                    &*old.words.as_ptr().add(b).cast::<[u32; NW]>(),
+                )
+            };
+            add_sub(col, tn, to);
         } else {
-            let (ln, lo, at) = (left[x], gone[x], start(x));
-            let (rn, ro) = (&row(y)[at..][..2 * NW], &row(s)[at..][..2 * NW]);
-            for (i, c) in col.iter_mut().enumerate() {
-                let new = word(ln.abs_diff(rn[2 * i]), ln.abs_diff(rn[2 * i + 1]));
-                let old = word(lo.abs_diff(ro[2 * i]), lo.abs_diff(ro[2 * i + 1]));
-                *c = c.wrapping_sub(old).wrapping_add(new);
-            }
+            let (ln, lo) = (job.left.row(y)[x], job.left.row(s)[x]);
+            let n = direct::<NW>(ln, &row(y)[j..]);
+            let o = direct::<NW>(lo, &row(s)[j..]);
+            add_sub(col, &n, &o);
         }
     }
 }
@@ -217,16 +231,15 @@ fn prepare(job: &Job, sb: &mut SwarBand) {
     let tw = job.stride / 2 + 1;
     sb.colsum.resize(w * nw, 0);
     sb.h.resize(nw, 0);
-    sb.differ.resize(job.stride + 1, 0);
-    sb.plan.resize(w, (SKIP, SKIP));
     let ring = job.params.block + 1;
     sb.sets.resize_with(ring, TableSet::default);
     for set in &mut sb.sets[..ring] {
         set.owner = usize::MAX;
-        set.slot_of.clear();
-        set.slot_of.resize(1 << job.params.gray_bits, NO_SLOT);
+        set.base_of.clear();
+        set.base_of.resize(1 << job.params.gray_bits, UNSEEN);
         set.values.clear();
         set.words.resize(2 * SLOTS * tw, 0);
+        set.at.resize(w, DIRECT);
     }
     sb.sets.truncate(ring);
 }
@@ -394,10 +407,27 @@ fn band_words<T: Disparity, const NW: usize>(job: &Job, sb: &mut SwarBand, out: 
                 }
             };
         }
-        for (x, d) in out_row.iter_mut().enumerate().skip(fast_from) {
-            let (a, s) = (&cols[(x + r).min(w - 1)], &cols[x.saturating_sub(r + 1)]);
+        // The columns `from..inner` slide without clamping: the entering
+        // column x + r is inside, the leaving one x − r − 1 too; the
+        // others clamp them.
+        let inner = (w - r).max(fast_from).max(r + 1).min(w);
+        let from = fast_from.max(r + 1).min(inner);
+        let clamped = |x: usize| (&cols[(x + r).min(w - 1)], &cols[x.saturating_sub(r + 1)]);
+        let mut pixel = |d: &mut T, (a, s): (&[u32; NW], &[u32; NW])| {
             let best = slide_argmin_all(hs, a, s);
             *d = T::winner(as_lanes(hs), 2 * NW, best, p);
+        };
+        for (x, d) in out_row.iter_mut().enumerate().take(from).skip(fast_from) {
+            pixel(d, clamped(x));
+        }
+        if from < inner {
+            let slide = cols[from + r..].iter().zip(&cols[from - r - 1..]);
+            for (d, a_s) in out_row[from..inner].iter_mut().zip(slide) {
+                pixel(d, a_s);
+            }
+        }
+        for (x, d) in out_row.iter_mut().enumerate().skip(inner) {
+            pixel(d, clamped(x));
         }
     }
 }

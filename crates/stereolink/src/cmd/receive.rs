@@ -138,12 +138,15 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         for ep in eps.iter_mut() {
             ep.dealt_with().context("link")?;
         }
-        if let (Some(dir), Event::Frame { .. }, Some((l, r))) = (&args.save, &event, board.pair()) {
-            std::fs::create_dir_all(dir)
-                .with_context(|| format!("cannot create {}", dir.display()))?;
-            stereolink_image::io::write_rgb(dir.join("received-left.png"), l)?;
-            stereolink_image::io::write_rgb(dir.join("received-right.png"), r)?;
-            stereolink_image::pfm::write(dir.join("received-disparity.pfm"), &board.disparity())?;
+        if let (Some(dir), Event::Frame { .. }) = (&args.save, &event) {
+            let disparity = board.disparity();
+            if let Some((l, r)) = board.pair() {
+                std::fs::create_dir_all(dir)
+                    .with_context(|| format!("cannot create {}", dir.display()))?;
+                stereolink_image::io::write_rgb(dir.join("received-left.png"), l)?;
+                stereolink_image::io::write_rgb(dir.join("received-right.png"), r)?;
+                stereolink_image::pfm::write(dir.join("received-disparity.pfm"), &disparity)?;
+            }
         }
         if !out.json {
             match &event {

@@ -25,14 +25,17 @@ use std::fmt::Write;
 use super::control::{Command, Control};
 use stereolink_codec::container::{self, Body, FrameDecoder, FrameRef};
 use stereolink_codec::{CodecError, Limits, Message, SegmentationKind, StereoFrame, View};
-use stereolink_display::{anaglyph_into, Anaglyph, Screen, ScreenStatus, Sink};
+use stereolink_display::{
+    anaglyph_into, anaglyph_labels_into, Anaglyph, Screen, ScreenStatus, Sink,
+};
 use stereolink_image::synth::{synthesize, SynthSpec};
 use stereolink_image::{DisparityMap, RgbImage};
 use stereolink_robot::policy::{MotionPolicy, ValidatedDistance, Watchdog};
 use stereolink_robot::{Axis, AxisError};
 use stereolink_segment::segment;
 use stereolink_stereo::wta::{
-    levels_to_disparity, luma_samples_into, Levels, Samples, WtaMatcher, WtaParams, NO_DISPARITY,
+    levels_to_disparity, luma_labels_into, luma_samples_into, Levels, Samples, WtaMatcher,
+    WtaParams, NO_DISPARITY,
 };
 
 /// What the receiver did with one message.
@@ -89,6 +92,9 @@ pub struct BoardReceiver {
     matcher: WtaMatcher,
     params: WtaParams,
     gray: (Samples, Samples),
+    /// Scratch of the views' luma and anaglyph from their labels.
+    luma_lut: Vec<u16>,
+    label_pairs: Vec<u32>,
     levels: Levels,
     /// The map rebuilt from a plane table ([`DisparitySource::Planes`]).
     planes: DisparityMap,
@@ -133,6 +139,8 @@ impl BoardReceiver {
                 subpixel: false,
             },
             gray: Default::default(),
+            luma_lut: Vec::new(),
+            label_pairs: Vec::new(),
             levels: Levels::default(),
             planes: DisparityMap::default(),
             screen: Screen::new(),
@@ -157,9 +165,15 @@ impl BoardReceiver {
         self
     }
 
-    /// The last rebuilt pair, once a frame was shown.
-    pub fn pair(&self) -> Option<(&RgbImage, &RgbImage)> {
-        self.shown.then(|| self.decoder.views())
+    /// The last rebuilt pair, once a frame was shown (an indexed pair's
+    /// colours are written on the first call after a frame: the board
+    /// itself works on its labels).
+    pub fn pair(&mut self) -> Option<(&RgbImage, &RgbImage)> {
+        if !self.shown {
+            return None;
+        }
+        self.decoder.expand_views();
+        Some(self.decoder.views())
     }
 
     /// The last disparity map computed on the board (a new map: the
@@ -258,12 +272,25 @@ impl BoardReceiver {
                 "a {w} px wide frame is narrower than the disparity range"
             )));
         }
-        self.decoder.decode_rgb(frame)?;
+        self.decoder.decode(frame)?;
+        // Indexed views (segmented: few colours) give their luma and their
+        // anaglyph through the palettes, a lookup per pixel; other views
+        // are matched and shown from their colours.
+        if self.decoder.indexed_views().is_none() {
+            self.decoder.expand_views();
+        }
         let (left, right) = self.decoder.views();
+        let indexed = self.decoder.indexed_views();
         match self.source {
             DisparitySource::Wta => {
-                luma_samples_into(left, self.params.gray_bits, &mut self.gray.0);
-                luma_samples_into(right, self.params.gray_bits, &mut self.gray.1);
+                let bits = self.params.gray_bits;
+                if let Some([(ll, lp), (rl, rp)]) = indexed {
+                    luma_labels_into(ll, lp, bits, &mut self.luma_lut, &mut self.gray.0);
+                    luma_labels_into(rl, rp, bits, &mut self.luma_lut, &mut self.gray.1);
+                } else {
+                    luma_samples_into(left, bits, &mut self.gray.0);
+                    luma_samples_into(right, bits, &mut self.gray.1);
+                }
                 if self.levels.dims() != (w, h) {
                     self.levels.reset(w, h, 0);
                 }
@@ -285,7 +312,12 @@ impl BoardReceiver {
                 super::planetable::rebuild_coded_into(labels, table, &mut self.planes)?;
             }
         }
-        anaglyph_into(left, right, self.mode, &mut self.view);
+        match indexed {
+            Some([l, r]) => {
+                anaglyph_labels_into(l, r, self.mode, &mut self.label_pairs, &mut self.view)
+            }
+            None => anaglyph_into(left, right, self.mode, &mut self.view),
+        }
         self.shown = true;
         self.status.frame_id = frame_id;
         self.status.message.clear();

@@ -405,10 +405,10 @@ impl Station {
     fn rebuild(&mut self, msg: &[u8], meta: &mut Value) -> Option<FrameImages> {
         match self.board.handle(msg) {
             Event::Frame { ms, .. } => {
+                let disparity = colorize(&self.board.disparity(), 0.0, self.cfg.max_disp as f32);
                 let (l, r) = self.board.pair()?;
                 anaglyph_into(l, r, Anaglyph::Dubois, &mut self.view3d);
                 let left = encode_png_rgb(l);
-                let disparity = colorize(&self.board.disparity(), 0.0, self.cfg.max_disp as f32);
                 meta["rebuild_ms"] = json!((ms * 10.0).round() / 10.0);
                 Some(FrameImages {
                     left,
