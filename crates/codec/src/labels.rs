@@ -723,45 +723,125 @@ fn code_pixel_strong<I: BitIo, const COND: bool>(
     Ok(l)
 }
 
-/// [`code_pixel`] in the fast mode, whose context for W needs only a few own
-/// positions (W, N, NW, NE conditioned, the eight nearest alone) and the
-/// prediction's mask: those are read first, and the whole template only
-/// when the label is not W's (the same stream, at a fraction of the reads).
+/// Codes row `y` in the fast mode. Pixels whose own template reaches W,
+/// N, NW, NE, WW, NN, NEE and NWW inside the map (and, conditioned, whose
+/// prediction template lies inside the reference) have their W decisions
+/// coded by [`w_run`], block by block, and on a 0 the rest of the pixel;
+/// the others go through [`code_pixel`].
 #[inline(always)]
-fn code_pixel_fast<I: BitIo, const COND: bool>(
+fn code_row_fast<I: BitIo, const COND: bool>(
     io: &mut I,
     model: &mut Model,
     n_labels: usize,
-    (data, w, x, y): (&[u16], usize, usize, usize),
-    rf: &[u32; 6],
-    v: u32,
-) -> Result<u16, CodecError> {
-    if x >= 2 && x + 2 < w && y >= 2 {
-        // Inside: which of W, N, NW, NE (and, coding alone, WW, NN, NEE,
-        // NWW) hold W's label, read straight from the map.
-        let (r0, r1) = (y * w + x, (y - 1) * w + x);
-        // Rows y − 2 and y − 1 at x − 2 ..= x + 2 and row y at x − 2, x − 1
-        // lie inside the map (r1 + 2 < r0 ≤ data.len()): checked once.
-        assert!(r0 <= data.len());
-        let wv = data[r0 - 1];
-        // SAFETY: every index below is at most r1 + 2 < r0 ≤ data.len() and
-        // at least r1 − w (y ≥ 2), as the test above established.
-        let eq = |i: usize| (unsafe { *data.get_unchecked(i) } == wv) as usize;
-        let mut mo = 1 | eq(r1) << 1 | eq(r1 - 1) << 2 | eq(r1 + 1) << 3;
-        if !COND {
-            mo |= eq(r0 - 2) << 4 | eq(r1 - w) << 5 | eq(r1 + 2) << 6 | eq(r1 - 2) << 7;
+    (data, w, y): (&mut [u16], usize, usize),
+    reference: Option<&LabelMap>,
+    shifts: &[u8],
+) -> Result<(), CodecError> {
+    let h = data.len() / w;
+    let mut x = 0;
+    while x < w {
+        let s = shifts[x / BLOCK] as usize;
+        let rf = |x: usize| match reference {
+            Some(r) if COND => ref_template(r, x + s, y),
+            _ => [NONE; 6],
+        };
+        // The stretch from x that [`w_run`] may code: inside the own
+        // template, the block and (conditioned) the prediction's template.
+        let mut end = match y >= 2 && x >= 2 {
+            true => w.saturating_sub(2),
+            false => x,
+        };
+        if let (true, Some(_)) = (COND, reference) {
+            let inside = y + 1 < h && x + s >= 1;
+            end = match inside {
+                true => end
+                    .min(w.saturating_sub(2 + s))
+                    .min((x / BLOCK + 1) * BLOCK),
+                false => x,
+            };
         }
-        let wv = u32::from(wv);
-        let mr = if COND { mask(rf, wv) } else { 0 };
-        if io.bit(fast_counter::<COND>(&mut model.fast, 0, mo, mr), wv == v) {
-            // W's label is one this map already holds: below `n_labels`.
-            return Ok(wv as u16);
+        let i = y * w + x;
+        if x < end {
+            let pred = reference.filter(|_| COND).map(|r| (r.as_slice(), s));
+            match w_run::<I, COND>(io, &mut model.fast, (data, w, y), x..end, pred) {
+                Some(miss) => {
+                    let own = own_template(data, w, miss, y);
+                    let v = data[y * w + miss] as u32;
+                    data[y * w + miss] =
+                        code_after_w::<I, false, COND>(io, model, n_labels, &own, &rf(miss), v)?;
+                    x = miss + 1;
+                }
+                None => x = end,
+            }
+        } else {
+            let own = own_template(data, w, x, y);
+            let v = data[i] as u32;
+            data[i] = code_pixel::<I, false, COND>(
+                io,
+                model,
+                n_labels,
+                (&own, is_flat(&own)),
+                &rf(x),
+                v,
+            )?;
+            x += 1;
         }
-        let own = own_template(data, w, x, y);
-        return code_after_w::<I, false, COND>(io, model, n_labels, &own, rf, v);
     }
-    let own = own_template(data, w, x, y);
-    code_pixel::<I, false, COND>(io, model, n_labels, (&own, is_flat(&own)), rf, v)
+    Ok(())
+}
+
+/// The fast mode's W decisions of row `y` over `run`, read straight from
+/// the map (and, conditioned, from `pred`: the reference's labels and the
+/// block's shift): each "1" writes W's label, and the first "0" ends the
+/// run at its pixel, returned (the rest of that pixel is the caller's).
+/// The context needs only W, N, NW, NE (and, coding alone, WW, NN, NEE,
+/// NWW) and the prediction's mask, so the loop holds few values.
+#[inline(always)]
+fn w_run<I: BitIo, const COND: bool>(
+    io: &mut I,
+    fast: &mut [Counter; FAST_CONTEXTS],
+    (data, w, y): (&mut [u16], usize, usize),
+    run: std::ops::Range<usize>,
+    pred: Option<(&[u16], usize)>,
+) -> Option<usize> {
+    let (above, cur) = data.split_at_mut(y * w);
+    let (cur, up, up2) = (&mut cur[..w], &above[(y - 1) * w..], &above[(y - 2) * w..]);
+    // Conditioned, the prediction's rows y − 1, y and y + 1 from x + s on.
+    let (refs, s) = pred.unwrap_or((&[], 0));
+    let rows = match COND {
+        true => [y - 1, y, y + 1].map(|r| &refs[r * w + s..(r + 1) * w]),
+        false => [&[][..]; 3],
+    };
+    // Every index below lies in x − 2 ..= x + 2 of a row (x + 2 of the
+    // prediction's, which start at x + s): inside each of them.
+    assert!(run.start >= 2 && run.end + 2 <= w && (!COND || run.end + 2 + s <= w));
+    // SAFETY: the assertion above, for every row read.
+    let g = |row: &[u16], x: usize| unsafe { *row.get_unchecked(x) };
+    for x in run {
+        let wv = g(cur, x - 1);
+        let eq = |v: u16| (v == wv) as usize;
+        let mut mo = 1 | eq(g(up, x)) << 1 | eq(g(up, x - 1)) << 2 | eq(g(up, x + 1)) << 3;
+        let mut mr = 0;
+        if COND {
+            let [above, row, below] = rows;
+            mr = eq(g(row, x))
+                | eq(g(row, x + 1)) << 1
+                | eq(g(row, x - 1)) << 2
+                | eq(g(below, x)) << 3
+                | eq(g(above, x)) << 4
+                | eq(g(row, x + 2)) << 5;
+        } else {
+            mo |= eq(g(cur, x - 2)) << 4
+                | eq(g(up2, x)) << 5
+                | eq(g(up, x + 2)) << 6
+                | eq(g(up, x - 2)) << 7;
+        }
+        if !io.bit(fast_counter::<COND>(fast, 0, mo, mr), g(cur, x) == wv) {
+            return Some(x);
+        }
+        cur[x] = wv;
+    }
+    None
 }
 
 /// The rest of [`code_pixel`] once the label is known not to be W's (or
@@ -888,35 +968,32 @@ fn code_rows<I: BitIo, const STRONG: bool, const COND: bool>(
                 }
             }
         }
-        for x in 0..w {
+        if !STRONG {
+            code_row_fast::<I, COND>(io, model, n_labels, (data, w, y), reference, shifts)?;
+        }
+        for x in (0..w).filter(|_| STRONG) {
             let rf = match reference {
                 Some(r) if COND => ref_template(r, x + shifts[x / BLOCK] as usize, y),
                 _ => [NONE; 6],
             };
             let i = y * w + x;
             let v = data[i] as u32;
-            data[i] = if STRONG {
-                // Bit length of a run, up to 7.
-                let q = |n: u32| (u32::BITS - n.leading_zeros()).min(7) as usize;
-                model.runs = q(row_run) << 3 | q(model.column_runs[x]);
-                model.outer = outer_template(data, w, x, y);
-                code_pixel_strong::<I, COND>(io, model, n_labels, (data, w, x, y), &rf, v)?
+            // Bit length of a run, up to 7.
+            let q = |n: u32| (u32::BITS - n.leading_zeros()).min(7) as usize;
+            model.runs = q(row_run) << 3 | q(model.column_runs[x]);
+            model.outer = outer_template(data, w, x, y);
+            data[i] = code_pixel_strong::<I, COND>(io, model, n_labels, (data, w, x, y), &rf, v)?;
+            let (l, runs) = (data[i], &mut model.column_runs[x]);
+            row_run = if x > 0 && l == data[i - 1] {
+                row_run + 1
             } else {
-                code_pixel_fast::<I, COND>(io, model, n_labels, (data, w, x, y), &rf, v)?
+                0
             };
-            if STRONG {
-                let (l, runs) = (data[i], &mut model.column_runs[x]);
-                row_run = if x > 0 && l == data[i - 1] {
-                    row_run + 1
-                } else {
-                    0
-                };
-                *runs = if y > 0 && l == data[i - w] {
-                    *runs + 1
-                } else {
-                    0
-                };
-            }
+            *runs = if y > 0 && l == data[i - w] {
+                *runs + 1
+            } else {
+                0
+            };
         }
         if io.overrun() {
             return Err(CodecError::Truncated("label stream"));
