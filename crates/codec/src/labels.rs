@@ -809,7 +809,12 @@ fn w_run<I: BitIo, const COND: bool>(
     // Conditioned, the prediction's rows y − 1, y and y + 1 from x + s on.
     let (refs, s) = pred.unwrap_or((&[], 0));
     let rows = match COND {
-        true => [y - 1, y, y + 1].map(|r| &refs[r * w + s..(r + 1) * w]),
+        // Three slices rather than an `array::map`, which is not inlined.
+        true => [
+            &refs[(y - 1) * w + s..y * w],
+            &refs[y * w + s..(y + 1) * w],
+            &refs[(y + 1) * w + s..(y + 2) * w],
+        ],
         false => [&[][..]; 3],
     };
     // Every index below lies in x − 2 ..= x + 2 of a row (x + 2 of the
