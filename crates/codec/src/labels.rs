@@ -795,7 +795,9 @@ fn code_row_fast<I: BitIo, const COND: bool>(
 /// block's shift): each "1" writes W's label, and the first "0" ends the
 /// run at its pixel, returned (the rest of that pixel is the caller's).
 /// The context needs only W, N, NW, NE (and, coding alone, WW, NN, NEE,
-/// NWW) and the prediction's mask, so the loop holds few values.
+/// NWW) and the prediction's mask, so the loop holds few values; after a
+/// "1" W's label is the same, so the masks shift, and only the positions
+/// entering on the right are read.
 #[inline(always)]
 fn w_run<I: BitIo, const COND: bool>(
     io: &mut I,
@@ -822,31 +824,57 @@ fn w_run<I: BitIo, const COND: bool>(
     assert!(run.start >= 2 && run.end + 2 <= w && (!COND || run.end + 2 + s <= w));
     // SAFETY: the assertion above, for every row read.
     let g = |row: &[u16], x: usize| unsafe { *row.get_unchecked(x) };
-    for x in run {
-        let wv = g(cur, x - 1);
-        let eq = |v: u16| (v == wv) as usize;
-        let mut mo = 1 | eq(g(up, x)) << 1 | eq(g(up, x - 1)) << 2 | eq(g(up, x + 1)) << 3;
-        let mut mr = 0;
-        if COND {
-            let [above, row, below] = rows;
-            mr = eq(g(row, x))
-                | eq(g(row, x + 1)) << 1
-                | eq(g(row, x - 1)) << 2
-                | eq(g(below, x)) << 3
-                | eq(g(above, x)) << 4
-                | eq(g(row, x + 2)) << 5;
-        } else {
-            mo |= eq(g(cur, x - 2)) << 4
-                | eq(g(up2, x)) << 5
-                | eq(g(up, x + 2)) << 6
-                | eq(g(up, x - 2)) << 7;
-        }
+    let [above, row, below] = rows;
+    let (mut x, end) = (run.start, run.end);
+    // W's label, the run's: each "1" writes it, so it is the next W too.
+    let wv = g(cur, x - 1);
+    let eq = |v: u16| (v == wv) as usize;
+    let mut mo = 1 | eq(g(up, x)) << 1 | eq(g(up, x - 1)) << 2 | eq(g(up, x + 1)) << 3;
+    let mut mr = 0;
+    if COND {
+        mr = eq(g(row, x))
+            | eq(g(row, x + 1)) << 1
+            | eq(g(row, x - 1)) << 2
+            | eq(g(below, x)) << 3
+            | eq(g(above, x)) << 4
+            | eq(g(row, x + 2)) << 5;
+    } else {
+        mo |= eq(g(cur, x - 2)) << 4
+            | eq(g(up2, x)) << 5
+            | eq(g(up, x + 2)) << 6
+            | eq(g(up, x - 2)) << 7;
+    }
+    loop {
         if !io.bit(fast_counter::<COND>(fast, 0, mo, mr), g(cur, x) == wv) {
             return Some(x);
         }
         cur[x] = wv;
+        x += 1;
+        if x == end {
+            return None;
+        }
+        // One pixel right: N, NW and NWW are the last NE, N and NW, NE
+        // the last NEE, WW holds wv; the prediction's W, P, E are the last
+        // P, E, EE. Only what enters on the right is read.
+        if COND {
+            mo = 1 | (mo >> 2 & 2) | (mo << 1 & 4) | eq(g(up, x + 1)) << 3;
+            mr = (mr >> 1 & 1)
+                | (mr >> 4 & 2)
+                | (mr << 2 & 4)
+                | eq(g(below, x)) << 3
+                | eq(g(above, x)) << 4
+                | eq(g(row, x + 2)) << 5;
+        } else {
+            mo = 1
+                | (mo >> 2 & 2)
+                | (mo << 1 & 4)
+                | (mo >> 3 & 8)
+                | 16
+                | eq(g(up2, x)) << 5
+                | eq(g(up, x + 2)) << 6
+                | (mo << 5 & 128);
+        }
     }
-    None
 }
 
 /// The rest of [`code_pixel`] once the label is known not to be W's (or
