@@ -188,6 +188,63 @@ pub fn anaglyph_labels_into(
     }
 }
 
+/// [`anaglyph_labels_into`] at the pixels of `rows` x `cols` only (the
+/// pixels a scaled blit reads, see [`Screen::view_shown`]): the other
+/// pixels of `out` (resized, storage reused) are left as they were. A
+/// row repeated in `rows` is computed once.
+///
+/// [`Screen::view_shown`]: crate::Screen::view_shown
+///
+/// # Panics
+/// If the maps differ in size, a row or column is beyond them, or a label
+/// does not index its palette.
+pub fn anaglyph_labels_shown_into(
+    (left, lp): (&LabelMap, &[Rgb]),
+    (right, rp): (&LabelMap, &[Rgb]),
+    mode: Anaglyph,
+    (rows, cols): (
+        impl Iterator<Item = usize>,
+        impl Iterator<Item = usize> + Clone,
+    ),
+    pairs: &mut Vec<u32>,
+    out: &mut RgbImage,
+) {
+    assert_eq!(left.dims(), right.dims(), "views differ in size");
+    if out.dims() != left.dims() {
+        out.reset(left.width(), left.height(), [0; 3]);
+    }
+    let (nr, n) = (rp.len(), lp.len() * rp.len());
+    let table = n <= MAX_PAIRS;
+    if table {
+        // As in anaglyph_labels_into: the pixel's bytes and a 1 above them.
+        pairs.clear();
+        pairs.resize(n, 0);
+    }
+    let mut last = None;
+    for y in rows {
+        if last == Some(y) {
+            continue;
+        }
+        last = Some(y);
+        let (lr, rr, o) = (left.row(y), right.row(y), out.row_mut(y));
+        for x in cols.clone() {
+            let (l, r) = (lr[x] as usize, rr[x] as usize);
+            o[x] = if table {
+                assert!(r < nr, "right label {r} beyond its palette");
+                let pair = &mut pairs[l * nr + r];
+                if *pair == 0 {
+                    let [a, b, c] = anaglyph_pixel(lp[l], rp[r], mode);
+                    *pair = u32::from_le_bytes([a, b, c, 1]);
+                }
+                let [a, b, c, _] = pair.to_le_bytes();
+                [a, b, c]
+            } else {
+                anaglyph_pixel(lp[l], rp[r], mode)
+            };
+        }
+    }
+}
+
 /// A slot in `0..64` for a colour pair.
 #[inline]
 fn colour_pair_hash(l: Rgb, r: Rgb) -> usize {
@@ -262,6 +319,47 @@ mod tests {
             ] {
                 anaglyph_labels_into((&left, &lp), (&right, &rp), mode, &mut pairs, &mut out);
                 assert_eq!(out, anaglyph(&l, &r, mode), "{nl}x{nr} {mode:?}");
+            }
+        }
+    }
+
+    /// At the pixels a screen shows only: those equal the full anaglyph's,
+    /// for views scaled down and up, with small and large palettes.
+    #[test]
+    fn shown_pixels_are_the_anaglyphs() {
+        let colour = |i: usize| [(i * 37) as u8, (i * 11) as u8, (i * i * 5) as u8];
+        for ((w, h), (nl, nr)) in [
+            ((640, 480), (3, 4)),
+            ((97, 41), (300, 260)),
+            ((9, 5), (5, 6)),
+        ] {
+            let (lp, rp): (Vec<Rgb>, Vec<Rgb>) = (
+                (0..nl).map(colour).collect(),
+                (0..nr).map(|i| colour(i + 7)).collect(),
+            );
+            let left = LabelMap::from_fn(w, h, |x, y| ((x * 7 + y * 13) % nl) as u16);
+            let right = LabelMap::from_fn(w, h, |x, y| ((x * 5 + y * y) % nr) as u16);
+            let (l, r) = (left.map(|i| lp[i as usize]), right.map(|i| rp[i as usize]));
+            for mode in [Anaglyph::Dubois, Anaglyph::Gray] {
+                let full = anaglyph(&l, &r, mode);
+                let (mut pairs, mut out) = (Vec::new(), RgbImage::default());
+                let (rows, cols) = crate::Screen::view_shown(w, h);
+                anaglyph_labels_shown_into(
+                    (&left, &lp),
+                    (&right, &rp),
+                    mode,
+                    (rows.clone(), cols.clone()),
+                    &mut pairs,
+                    &mut out,
+                );
+                let mut seen = 0;
+                for y in rows {
+                    for x in cols.clone() {
+                        assert_eq!(out.get(x, y), full.get(x, y), "{w}x{h} {mode:?} ({x}, {y})");
+                        seen += 1;
+                    }
+                }
+                assert!(seen > 0);
             }
         }
     }

@@ -12,6 +12,9 @@ pub mod screen;
 pub mod sinks;
 pub mod web;
 
-pub use anaglyph::{anaglyph, anaglyph_into, anaglyph_labels_into, side_by_side, Anaglyph};
+pub use anaglyph::{
+    anaglyph, anaglyph_into, anaglyph_labels_into, anaglyph_labels_shown_into, side_by_side,
+    Anaglyph,
+};
 pub use screen::{Screen, ScreenStatus, SCREEN_HEIGHT, SCREEN_WIDTH};
 pub use sinks::{open_sink, FramebufferSink, PixelFormat, PngSink, Sink};

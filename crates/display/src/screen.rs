@@ -84,11 +84,7 @@ fn blit_scaled<T: Copy>(
     if sw == 0 || sh == 0 {
         return;
     }
-    let scale = (w as f32 / sw as f32).min(h as f32 / sh as f32);
-    let (tw, th) = (
-        ((sw as f32 * scale) as usize).max(1),
-        ((sh as f32 * scale) as usize).max(1),
-    );
+    let (tw, th) = scaled_size(sw, sh, w, h);
     let (ox, oy) = (x0 + (w - tw.min(w)) / 2, y0 + (h - th.min(h)) / 2);
     for (y, sy) in nearest(sh, th).take(h).enumerate() {
         let row = src.row(sy);
@@ -99,11 +95,41 @@ fn blit_scaled<T: Copy>(
     }
 }
 
+/// The size `(tw, th)` a `sw` x `sh` source (neither 0) is scaled to in a
+/// `w` x `h` panel, keeping its aspect ratio.
+fn scaled_size(sw: usize, sh: usize, w: usize, h: usize) -> (usize, usize) {
+    let scale = (w as f32 / sw as f32).min(h as f32 / sh as f32);
+    (
+        ((sw as f32 * scale) as usize).max(1),
+        ((sh as f32 * scale) as usize).max(1),
+    )
+}
+
+/// The source pixels the scaled blit of a `sw` x `sh` source into a `w` x
+/// `h` panel reads: its rows (in order, repeated when scaled up) and its
+/// columns (the same for each row); none for an empty source.
+fn shown_in(
+    (sw, sh): (usize, usize),
+    (w, h): (usize, usize),
+) -> (
+    impl Iterator<Item = usize> + Clone,
+    impl Iterator<Item = usize> + Clone,
+) {
+    let (tw, th) = match (sw, sh) {
+        (0, _) | (_, 0) => (0, 0),
+        _ => scaled_size(sw, sh, w, h),
+    };
+    (nearest(sh, th).take(h), nearest(sw, tw).take(tw.min(w)))
+}
+
 /// The source indices `⌊i · n / len⌋` for `i = 0..len` of a target `len`
 /// long scaled from a source `n` long (each below `n`): stepped without a
 /// division per index, a whole step `n / len` and a carried remainder.
-fn nearest(n: usize, len: usize) -> impl Iterator<Item = usize> {
-    let (step, rem) = (n / len, n % len);
+fn nearest(n: usize, len: usize) -> impl Iterator<Item = usize> + Clone {
+    let (step, rem) = match len {
+        0 => (0, 0),
+        _ => (n / len, n % len),
+    };
     let (mut at, mut carry) = (0, 0);
     (0..len).map(move |_| {
         let i = at;
@@ -121,6 +147,20 @@ impl Screen {
     /// A blank screen.
     pub fn new() -> Self {
         Self::default()
+    }
+
+    /// The pixels of a `width` x `height` 3-D view the screen shows (it
+    /// scales the view into its panel): the rows, in order and repeated
+    /// when the view is scaled up, and the columns of each. The other
+    /// pixels of the view passed to [`render`](Self::render) are not read.
+    pub fn view_shown(
+        width: usize,
+        height: usize,
+    ) -> (
+        impl Iterator<Item = usize> + Clone,
+        impl Iterator<Item = usize> + Clone,
+    ) {
+        shown_in((width, height), (PANEL_W, PANEL_H))
     }
 
     /// The current screen image.

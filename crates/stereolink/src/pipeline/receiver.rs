@@ -26,7 +26,7 @@ use super::control::{Command, Control};
 use stereolink_codec::container::{self, Body, FrameDecoder, FrameRef};
 use stereolink_codec::{CodecError, Limits, Message, SegmentationKind, StereoFrame, View};
 use stereolink_display::{
-    anaglyph_into, anaglyph_labels_into, Anaglyph, Screen, ScreenStatus, Sink,
+    anaglyph_into, anaglyph_labels_shown_into, Anaglyph, Screen, ScreenStatus, Sink,
 };
 use stereolink_image::synth::{synthesize, SynthSpec};
 use stereolink_image::{DisparityMap, RgbImage};
@@ -101,7 +101,8 @@ pub struct BoardReceiver {
     screen: Screen,
     mode: Anaglyph,
     limits: Limits,
-    /// The last 3-D view, kept to redraw the screen when the status changes.
+    /// The last 3-D view, kept to redraw the screen when the status changes
+    /// (from labels, only the pixels the screen shows are computed).
     view: RgbImage,
     /// Whether a frame was shown (the decoder's views and `view` hold it).
     shown: bool,
@@ -313,9 +314,16 @@ impl BoardReceiver {
             }
         }
         match indexed {
-            Some([l, r]) => {
-                anaglyph_labels_into(l, r, self.mode, &mut self.label_pairs, &mut self.view)
-            }
+            // Only the pixels the screen's panel shows (the view is drawn
+            // scaled down, and nothing else reads it).
+            Some([l, r]) => anaglyph_labels_shown_into(
+                l,
+                r,
+                self.mode,
+                Screen::view_shown(w, h),
+                &mut self.label_pairs,
+                &mut self.view,
+            ),
             None => anaglyph_into(left, right, self.mode, &mut self.view),
         }
         self.shown = true;
