@@ -119,16 +119,37 @@ pub fn luma_labels_into(
     lut: &mut Vec<u16>,
     out: &mut Samples,
 ) {
+    // A lookup for every u16 label (no bounds check per pixel): the
+    // palette's luma, then NOT_IN_PALETTE (above every luma, 10 bits at most).
+    const NOT_IN_PALETTE: u16 = u16::MAX;
+    let n = palette.len();
     lut.clear();
-    lut.resize(palette.len(), 0);
-    luma(palette, bits, lut);
+    lut.resize(n.max(1 << 16), NOT_IN_PALETTE);
+    luma(palette, bits, &mut lut[..n]);
+    let lut: &[u16; 1 << 16] = lut[..1 << 16].try_into().expect("65 536 entries");
     // Every sample is written below: a plane of the size is not cleared.
     if out.dims() != labels.dims() {
         out.reset(labels.width(), labels.height(), 0);
     }
-    for (o, &l) in out.as_mut_slice().iter_mut().zip(labels.as_slice()) {
-        *o = lut[l as usize];
+    // Four pixels a step (the loop's own work shared).
+    let (out, labels) = (out.as_mut_slice(), labels.as_slice());
+    let mut seen = 0;
+    let (mut o4, mut l4) = (out.chunks_exact_mut(4), labels.chunks_exact(4));
+    for (o, l) in (&mut o4).zip(&mut l4) {
+        let v = [
+            lut[l[0] as usize],
+            lut[l[1] as usize],
+            lut[l[2] as usize],
+            lut[l[3] as usize],
+        ];
+        seen |= v[0] | v[1] | v[2] | v[3];
+        o.copy_from_slice(&v);
     }
+    for (o, &l) in o4.into_remainder().iter_mut().zip(l4.remainder()) {
+        *o = lut[l as usize];
+        seen |= *o;
+    }
+    assert!(seen != NOT_IN_PALETTE, "a label beyond its palette of {n}");
 }
 
 /// [`luma_samples_into`] into a new image.
@@ -862,6 +883,14 @@ mod tests {
             luma_labels_into(&labels, &palette, bits, &mut lut, &mut out);
             assert_eq!(out, luma_samples(&rgb, bits), "{bits} bits");
         }
+    }
+
+    #[test]
+    #[should_panic(expected = "beyond its palette")]
+    fn a_label_beyond_the_palette_panics() {
+        let labels = LabelMap::from_fn(5, 3, |x, _| x as u16);
+        let (mut lut, mut out) = (Vec::new(), Samples::default());
+        luma_labels_into(&labels, &[[9; 3]; 4], 8, &mut lut, &mut out);
     }
 
     #[test]
