@@ -151,41 +151,14 @@ const MAX_PAIRS: usize = 1 << 16;
 /// # Panics
 /// If the maps differ in size or a label does not index its palette.
 pub fn anaglyph_labels_into(
-    (left, lp): (&LabelMap, &[Rgb]),
-    (right, rp): (&LabelMap, &[Rgb]),
+    left: (&LabelMap, &[Rgb]),
+    right: (&LabelMap, &[Rgb]),
     mode: Anaglyph,
     pairs: &mut Vec<u32>,
     out: &mut RgbImage,
 ) {
-    assert_eq!(left.dims(), right.dims(), "views differ in size");
-    // Every pixel is written below: an image of the size is not cleared.
-    if out.dims() != left.dims() {
-        out.reset(left.width(), left.height(), [0; 3]);
-    }
-    let (nr, n) = (rp.len(), lp.len() * rp.len());
-    let labels = left.as_slice().iter().zip(right.as_slice());
-    let pixels = out.as_mut_slice().iter_mut().zip(labels);
-    if n > MAX_PAIRS {
-        for (o, (&l, &r)) in pixels {
-            *o = anaglyph_pixel(lp[l as usize], rp[r as usize], mode);
-        }
-        return;
-    }
-    // Pair `l · nr + r`: the pixel's bytes and a 1 above them, 0 until
-    // computed (a left label beyond its palette is beyond the table).
-    pairs.clear();
-    pairs.resize(n, 0);
-    for (o, (&l, &r)) in pixels {
-        let (l, r) = (l as usize, r as usize);
-        assert!(r < nr, "right label {r} beyond its palette");
-        let pair = &mut pairs[l * nr + r];
-        if *pair == 0 {
-            let [a, b, c] = anaglyph_pixel(lp[l], rp[r], mode);
-            *pair = u32::from_le_bytes([a, b, c, 1]);
-        }
-        let [a, b, c, _] = pair.to_le_bytes();
-        *o = [a, b, c];
-    }
+    let (w, h) = left.0.dims();
+    anaglyph_labels_shown_into(left, right, mode, (0..h, 0..w), pairs, out);
 }
 
 /// [`anaglyph_labels_into`] at the pixels of `rows` x `cols` only (the
@@ -216,7 +189,8 @@ pub fn anaglyph_labels_shown_into(
     let (nr, n) = (rp.len(), lp.len() * rp.len());
     let table = n <= MAX_PAIRS;
     if table {
-        // As in anaglyph_labels_into: the pixel's bytes and a 1 above them.
+        // Pair `l · nr + r`: the pixel's bytes and a 1 above them, 0 until
+        // computed (a left label beyond its palette is beyond the table).
         pairs.clear();
         pairs.resize(n, 0);
     }
