@@ -38,6 +38,7 @@ pub mod line_growing;
 mod median;
 pub mod planes;
 pub mod refine;
+pub mod ripple;
 pub mod sgm;
 pub mod weighted_median;
 pub mod wta;
@@ -181,6 +182,9 @@ pub struct MatchSpec {
     pub line_growing: line_growing::LineGrowingParams,
     /// Plane matcher parameters (its initial SGM map uses [`Self::sgm`]).
     pub planes: planes::PlanesParams,
+    /// SGM and planes: when to take a camera's column ripple out of the
+    /// grey views first ([`ripple`]).
+    pub ripple: ripple::RippleFilter,
     /// Post-processing steps.
     pub refine: Refinement,
 }
@@ -206,6 +210,7 @@ impl MatchSpec {
             sgm: sgm::SgmParams::default(),
             line_growing: line_growing::LineGrowingParams::default(),
             planes: planes::PlanesParams::default(),
+            ripple: ripple::RippleFilter::default(),
             refine: Refinement::default_for(algorithm),
         };
         if min_disp >= max_disp {
@@ -332,7 +337,7 @@ impl Matcher {
             }
             Algorithm::LineGrowing => line_growing::line_growing(left, right, spec),
             Algorithm::Sgm => {
-                let (l, r) = gray_pair(left, right);
+                let (l, r) = gray_pair(left, right, spec.ripple);
                 sgm::sgm(&l, &r, spec, &mut self.sgm)
             }
             Algorithm::Planes => {
@@ -348,9 +353,22 @@ impl Matcher {
     }
 }
 
-/// Both views in gray, converted in parallel.
-fn gray_pair(left: &RgbImage, right: &RgbImage) -> (GrayImage, GrayImage) {
-    rayon::join(|| color::rgb_to_gray(left), || color::rgb_to_gray(right))
+/// Both views in gray, converted in parallel, with the column ripple
+/// taken out of both when `ripple` says so for the left one.
+fn gray_pair(
+    left: &RgbImage,
+    right: &RgbImage,
+    ripple: ripple::RippleFilter,
+) -> (GrayImage, GrayImage) {
+    let (l, r) = rayon::join(|| color::rgb_to_gray(left), || color::rgb_to_gray(right));
+    if ripple.applies(&l) {
+        rayon::join(
+            || ripple::suppress_column_ripple(&l),
+            || ripple::suppress_column_ripple(&r),
+        )
+    } else {
+        (l, r)
+    }
 }
 
 /// WTA on gray views, and the left-right check when it is asked for,

@@ -203,7 +203,7 @@ pub(crate) fn match_planes_with(
         });
     }
     let params = &spec.planes;
-    let (gl, gr) = crate::gray_pair(left, right);
+    let (gl, gr) = crate::gray_pair(left, right, spec.ripple);
     let reliable = initial_disparity(&gl, &gr, spec, buffers);
     let graph = SegmentGraph::new(labels, params.tile);
     let fitted = fit_segments(&graph, &reliable, params);
