@@ -93,7 +93,7 @@ impl<'a> DataCost<'a> {
 
     /// The truncated census and grey cost of pixel `p` at disparity `d`,
     /// interpolated between whole disparities.
-    fn matching(&self, p: usize, d: f32) -> f32 {
+    pub(crate) fn matching(&self, p: usize, d: f32) -> f32 {
         let x = (p % self.width) as f32;
         let xr = x - d;
         if xr < 0.0 {

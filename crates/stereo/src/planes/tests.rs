@@ -35,19 +35,34 @@ fn slanted_scene(
     region: impl Fn(usize, usize) -> usize,
     label: impl Fn(usize, usize) -> u16,
 ) -> SlantedScene {
+    shaded_scene(w, h, planes, region, label, |_, g| g)
+}
+
+/// [`slanted_scene`] with each surface's grey `shade(region, texture)`, so
+/// that a colour edge can run along each depth edge.
+fn shaded_scene(
+    w: usize,
+    h: usize,
+    planes: &[DisparityPlane],
+    region: impl Fn(usize, usize) -> usize,
+    label: impl Fn(usize, usize) -> u16,
+    shade: impl Fn(usize, u8) -> u8,
+) -> SlantedScene {
     let truth = DisparityMap::from_fn(w, h, |x, y| planes[region(x, y)].at(x as f32, y as f32));
-    let left = RgbImage::from_fn(w, h, |x, y| [texture(x as f32, y as f32); 3]);
+    let left = RgbImage::from_fn(w, h, |x, y| {
+        [shade(region(x, y), texture(x as f32, y as f32)); 3]
+    });
     let right = RgbImage::from_fn(w, h, |xr, y| {
         // The left pixels that land nearest xr; the largest disparity is in front.
-        let mut best: Option<(f32, f32)> = None;
+        let mut best: Option<(f32, f32, usize)> = None;
         for x in xr..w {
             let d = truth.get(x, y);
             let xl = xr as f32 + d;
-            if (xl - x as f32).abs() <= 0.5 && best.is_none_or(|(bd, _)| d > bd) {
-                best = Some((d, xl));
+            if (xl - x as f32).abs() <= 0.5 && best.is_none_or(|(bd, _, _)| d > bd) {
+                best = Some((d, xl, region(x, y)));
             }
         }
-        let g = best.map_or(90, |(_, xl)| texture(xl, y as f32));
+        let g = best.map_or(90, |(_, xl, r)| shade(r, texture(xl, y as f32)));
         [g; 3]
     });
     let labels = LabelMap::from_fn(w, h, label);
@@ -91,10 +106,15 @@ fn two_planes() -> SlantedScene {
     )
 }
 
-/// The matcher without tiles: the segments are the label map's components.
+/// The matcher without tiles (the segments are the label map's
+/// components) and without the boundary step, which needs a colour edge
+/// along each depth edge: these scenes have one texture throughout, and
+/// with the step 0.8 % of their pixels (the box's edge rows) take the
+/// background's plane.
 fn spec() -> MatchSpec {
     let mut spec = MatchSpec::new(Algorithm::Planes, 0, 31).unwrap();
     spec.planes.tile = 0;
+    spec.planes.boundary.radius = 0;
     spec
 }
 
@@ -142,19 +162,54 @@ fn tiles_cut_segments_and_keep_the_planes() {
 }
 
 #[test]
-fn the_dense_map_is_the_plane_table_rendered() {
+fn without_the_boundary_step_the_dense_map_is_the_plane_table_rendered() {
     let s = two_planes();
-    let m = match_planes(&s.left, &s.right, &s.labels, &spec()).unwrap();
+    let spec = spec();
+    let m = match_planes(&s.left, &s.right, &s.labels, &spec).unwrap();
     assert_eq!(render(&m.graph.ids, &m.planes, (0.0, 31.0)), m.disparity);
     let mut matcher = crate::Matcher::new();
     let d = matcher
-        .compute_segmented(&s.left, &s.right, Some(&s.labels), &spec())
+        .compute_segmented(&s.left, &s.right, Some(&s.labels), &spec)
         .unwrap();
     assert_eq!(d, m.disparity);
     assert_eq!(
-        matcher.compute(&s.left, &s.right, &spec()),
+        matcher.compute(&s.left, &s.right, &spec),
         Err(StereoError::NoSegments)
     );
+}
+
+#[test]
+fn the_boundary_step_moves_a_misplaced_segment_edge_onto_the_depth_edge() {
+    // The box is darker than the background (grey 9–76 against 114–214),
+    // but its segment is two
+    // columns right of it: columns 60–61 of the box are labelled
+    // background, 120–121 of the background box.
+    let s = shaded_scene(
+        180,
+        120,
+        &[BACK, FRONT],
+        |x, y| in_front(x, y) as usize,
+        |x, y| u16::from((62..122).contains(&x) && (30..90).contains(&y)),
+        |r, g| if r == 1 { g / 3 } else { 100 + g / 2 },
+    );
+    let band_bad = |d: &DisparityMap| {
+        let wrong = |x: usize, y: usize| (d.get(x, y) - s.truth.get(x, y)).abs() > 1.0;
+        (35..85)
+            .flat_map(|y| [60, 61, 120, 121].map(|x| (x, y)))
+            .filter(|&(x, y)| wrong(x, y))
+            .count()
+    };
+    let mut spec = spec();
+    let kept = match_planes(&s.left, &s.right, &s.labels, &spec).unwrap();
+    spec.planes.boundary.radius = 2;
+    let moved = match_planes(&s.left, &s.right, &s.labels, &spec).unwrap();
+    // All 200 band pixels take the wrong plane without the step.
+    assert_eq!(band_bad(&kept.disparity), 200);
+    let left = band_bad(&moved.disparity);
+    assert!(left <= 20, "{left} of 200 band pixels still wrong");
+    assert_eq!(moved.planes, kept.planes, "the plane table is unchanged");
+    let bad = bad_rate(&moved.disparity, &s.truth);
+    assert!(bad < bad_rate(&kept.disparity, &s.truth), "{bad:.2} % bad");
 }
 
 #[test]

@@ -115,6 +115,11 @@ pub struct MatcherArgs {
     /// several planes.
     #[arg(long)]
     pub plane_tile: Option<usize>,
+    /// Planes: pixels within this distance (px) of another segment choose
+    /// among the nearby segments' planes by a colour-weighted cost over an
+    /// 11×11 window (default 1; 0 keeps each segment's plane).
+    #[arg(long, value_name = "RADIUS")]
+    pub plane_boundary: Option<usize>,
     /// SGM and planes: take a camera's period-2 column ripple out of both
     /// grey views first, with a two-tap average along rows. `auto` does so
     /// when the left view's second differences alternate in sign along
@@ -211,6 +216,7 @@ impl MatcherArgs {
         spec.planes.truncation = self.plane_truncation.unwrap_or(spec.planes.truncation);
         spec.planes.intensity = self.plane_intensity.unwrap_or(spec.planes.intensity);
         spec.planes.tile = self.plane_tile.unwrap_or(spec.planes.tile);
+        spec.planes.boundary.radius = self.plane_boundary.unwrap_or(spec.planes.boundary.radius);
         spec.ripple = self.ripple;
         Ok(spec)
     }

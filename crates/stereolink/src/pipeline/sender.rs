@@ -170,8 +170,12 @@ fn match_pair(
     if spec.algorithm != Algorithm::Planes {
         return Ok((Matcher::new().compute(left, right, spec)?, None));
     }
-    let matched = match_planes(left, right, left_labels, spec)?;
-    let table = planetable::table_of(&matched, spec, cfg.plane_table)?;
+    // The table carries a plane per segment: the per-pixel boundary step
+    // would be thrown away.
+    let mut spec = spec.clone();
+    spec.planes.boundary.radius = 0;
+    let matched = match_planes(left, right, left_labels, &spec)?;
+    let table = planetable::table_of(&matched, &spec, cfg.plane_table)?;
     let mut disparity = DisparityMap::default();
     planetable::rebuild_into(left_labels, &table, &mut disparity)?;
     Ok((disparity, Some(table)))
