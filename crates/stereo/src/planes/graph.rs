@@ -31,6 +31,12 @@ impl SegmentGraph {
     /// side `tile` ([`components`]).
     pub fn new(labels: &LabelMap, tile: usize) -> Self {
         let (ids, count) = components(labels, tile);
+        Self::from_ids(ids, count)
+    }
+
+    /// The graph of segments given by id per pixel (`0..count`, each
+    /// segment 4-connected, ids in raster order of first pixels).
+    pub fn from_ids(ids: Plane<u32>, count: usize) -> Self {
         let (w, h) = ids.dims();
         let id = ids.as_slice();
         // Pixel lists by counting sort: raster order within each segment.

@@ -162,6 +162,43 @@ fn tiles_cut_segments_and_keep_the_planes() {
 }
 
 #[test]
+fn a_folded_surface_is_cut_again_and_gets_a_plane_per_side() {
+    // One label over a surface folded at x = 32, in one 64 px tile: one
+    // plane cannot fit it, two can.
+    let rising = DisparityPlane {
+        a: 0.3,
+        b: 0.0,
+        c: 2.0,
+    };
+    let falling = DisparityPlane {
+        a: -0.3,
+        b: 0.0,
+        c: 21.2,
+    };
+    let s = slanted_scene(
+        64,
+        64,
+        &[rising, falling],
+        |x, _| usize::from(x >= 32),
+        |_, _| 0,
+    );
+    let mut spec = spec();
+    spec.planes.tile = 64;
+    spec.planes.split = 0.0;
+    let whole = match_planes(&s.left, &s.right, &s.labels, &spec).unwrap();
+    spec.planes.split = 0.4;
+    let cut = match_planes(&s.left, &s.right, &s.labels, &spec).unwrap();
+    assert_eq!(whole.graph.len(), 1);
+    assert_eq!(cut.graph.len(), 4, "the tile is cut in four");
+    let (before, after) = (
+        bad_rate(&whole.disparity, &s.truth),
+        bad_rate(&cut.disparity, &s.truth),
+    );
+    assert!(before > 5.0, "{before:.2} % bad with one plane per tile");
+    assert!(after < 1.0, "{after:.2} % bad after the cut");
+}
+
+#[test]
 fn without_the_boundary_step_the_dense_map_is_the_plane_table_rendered() {
     let s = two_planes();
     let spec = spec();

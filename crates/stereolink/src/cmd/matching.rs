@@ -120,6 +120,11 @@ pub struct MatcherArgs {
     /// 11×11 window (default 1; 0 keeps each segment's plane).
     #[arg(long, value_name = "RADIUS")]
     pub plane_boundary: Option<usize>,
+    /// Planes: a segment whose plane misses more than this fraction of its
+    /// reliable pixels by over 1 px is cut by tiles of half the side and
+    /// fitted again (default 0.4; 0: never).
+    #[arg(long, value_name = "FRACTION")]
+    pub plane_split: Option<f32>,
     /// SGM and planes: take a camera's period-2 column ripple out of both
     /// grey views first, with a two-tap average along rows. `auto` does so
     /// when the left view's second differences alternate in sign along

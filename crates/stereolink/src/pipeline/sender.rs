@@ -170,9 +170,11 @@ fn match_pair(
     if spec.algorithm != Algorithm::Planes {
         return Ok((Matcher::new().compute(left, right, spec)?, None));
     }
-    // The table carries a plane per segment: the per-pixel boundary step
-    // would be thrown away.
+    // The table carries a plane per segment of the labels cut by the
+    // tiles, as the receiver finds them: no further cut of bent segments,
+    // and no per-pixel boundary step, which would be thrown away.
     let mut spec = spec.clone();
+    spec.planes.split = 0.0;
     spec.planes.boundary.radius = 0;
     let matched = match_planes(left, right, left_labels, &spec)?;
     let table = planetable::table_of(&matched, &spec, cfg.plane_table)?;
