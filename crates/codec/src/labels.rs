@@ -90,7 +90,6 @@ const OWN: [(isize, isize); OWN_LEN] = [
 const OWN_LEN: usize = 12;
 /// The template of the stereo prediction around `(x + s, y)`: P, E, W, S, N, EE.
 const REF: [(isize, isize); 6] = [(0, 0), (1, 0), (-1, 0), (0, 1), (0, -1), (2, 0)];
-const CANDIDATES: usize = OWN.len() + REF.len();
 /// Ranks told apart by the contexts (later ones share the last).
 const RANKS: usize = 4;
 /// Counters of the strong mode's candidate decisions (one per context).
@@ -893,18 +892,17 @@ fn code_after_w<I: BitIo, const STRONG: bool, const COND: bool>(
         rf[5], own[8], own[9], own[10], own[11],
     ];
     let wv = own[0];
-    // The candidates listed so far, and those below 64 as bits (larger
-    // ones are looked up). Each is coded as soon as it is found, so a hit
-    // ends the scan of the template early.
+    // The candidates coded so far are W and those of `order` before `c`
+    // (NONE aside): the ones below 64 are kept as bits, larger ones are
+    // looked up there (no list to fill). Each is coded as soon as it is
+    // found, so a hit ends the scan of the template early.
     let mut seen = bit64(wv);
-    let mut list = [NONE; CANDIDATES];
-    list[0] = wv;
     let mut n = (wv != NONE) as usize;
-    for c in order {
+    for (k, &c) in order.iter().enumerate() {
         let new = if c < 64 {
             seen & bit64(c) == 0
         } else {
-            c != NONE && !list[..n].contains(&c)
+            c != NONE && c != wv && !order[..k].contains(&c)
         };
         if new {
             // The fast context reads only the eight nearest own positions.
@@ -916,7 +914,6 @@ fn code_after_w<I: BitIo, const STRONG: bool, const COND: bool>(
             if code_candidate::<I, STRONG, COND>(io, model, n, c, (own, rf), masks, c == v) {
                 return checked(c, n_labels);
             }
-            list[n] = c;
             n += 1;
             seen |= bit64(c);
         }
