@@ -854,65 +854,76 @@ fn w_run<I: BitIo, const COND: bool>(
         }
         (mo, mr)
     };
+    // The masks one pixel right of x − 1, whose label `l` is now W's: N,
+    // NW and NWW are the last NE, N and NW, NE the last NEE, WW is the
+    // last W (`ww`: its bit, set in a run); the prediction's W, P, E are
+    // the last P, E, EE. Only what enters on the right is read.
+    let step = |(mo, mr): (usize, usize), x: usize, l: u16, ww: usize| {
+        if COND {
+            let mo = 1 | (mo >> 2 & 2) | (mo << 1 & 4) | eq(g(up, x + 1), l) << 3;
+            let mr = (mr >> 1 & 1)
+                | (mr >> 4 & 2)
+                | (mr << 2 & 4)
+                | eq(g(below, x), l) << 3
+                | eq(g(above, x), l) << 4
+                | eq(g(row, x + 2), l) << 5;
+            (mo, mr)
+        } else {
+            let mo = 1
+                | (mo >> 2 & 2)
+                | (mo << 1 & 4)
+                | (mo >> 3 & 8)
+                | ww
+                | eq(g(up2, x), l) << 5
+                | eq(g(up, x + 2), l) << 6
+                | (mo << 5 & 128);
+            (mo, mr)
+        }
+    };
     let (mut x, end) = (run.start, run.end);
     // W's label, the run's: each "1" writes it, so it is the next W too.
     let mut wv = g(cur, x - 1);
-    let (mut mo, mut mr) = masks(cur, x, wv);
+    let mut m = masks(cur, x, wv);
     loop {
-        if io.bit(fast_counter::<COND>(fast, 0, mo, mr), g(cur, x) == wv) {
+        if io.bit(fast_counter::<COND>(fast, 0, m.0, m.1), g(cur, x) == wv) {
             cur[x] = wv;
             x += 1;
             if x == end {
                 return Ok(None);
             }
-            // One pixel right: N, NW and NWW are the last NE, N and NW, NE
-            // the last NEE, WW holds wv; the prediction's W, P, E are the
-            // last P, E, EE. Only what enters on the right is read.
-            if COND {
-                mo = 1 | (mo >> 2 & 2) | (mo << 1 & 4) | eq(g(up, x + 1), wv) << 3;
-                mr = (mr >> 1 & 1)
-                    | (mr >> 4 & 2)
-                    | (mr << 2 & 4)
-                    | eq(g(below, x), wv) << 3
-                    | eq(g(above, x), wv) << 4
-                    | eq(g(row, x + 2), wv) << 5;
-            } else {
-                mo = 1
-                    | (mo >> 2 & 2)
-                    | (mo << 1 & 4)
-                    | (mo >> 3 & 8)
-                    | 16
-                    | eq(g(up2, x), wv) << 5
-                    | eq(g(up, x + 2), wv) << 6
-                    | (mo << 5 & 128);
-            }
+            m = step(m, x, wv, 16);
             continue;
         }
-        // The candidates of [`code_after_w`]'s order that lie within
-        // x ± 2 (coding alone, the prediction's stand as W's label, which
-        // is never a candidate): the first other than W's is the second.
+        // The first candidate after W: of [`code_after_w`]'s order, the
+        // first label other than W's. Nearly always P (conditioned) or N;
+        // else the positions within x ± 2 are looked at (coding alone,
+        // the prediction's stand as W's label, never a candidate).
         let rf = |row: &[u16], x: usize| if COND { g(row, x) } else { wv };
-        let near = [
-            rf(row, x),
-            g(up, x),
-            g(up, x + 1),
-            g(up, x - 1),
-            g(cur, x - 2),
-            g(up2, x),
-            g(up, x + 2),
-            g(up, x - 2),
-            rf(row, x + 1),
-            rf(row, x - 1),
-            rf(below, x),
-            rf(above, x),
-            rf(row, x + 2),
-        ];
-        let Some(k) = near.iter().position(|&c| c != wv) else {
-            return Ok(Some((x, Scan::after(wv.into()).from(near.len()))));
+        let (k, c) = match (rf(row, x), g(up, x)) {
+            (p, _) if p != wv => (0, p),
+            (_, n) if n != wv => (1, n),
+            _ => {
+                let near = [
+                    g(up, x + 1),
+                    g(up, x - 1),
+                    g(cur, x - 2),
+                    g(up2, x),
+                    g(up, x + 2),
+                    g(up, x - 2),
+                    rf(row, x + 1),
+                    rf(row, x - 1),
+                    rf(below, x),
+                    rf(above, x),
+                    rf(row, x + 2),
+                ];
+                match near.iter().position(|&c| c != wv) {
+                    Some(k) => (k + 2, near[k]),
+                    None => return Ok(Some((x, Scan::after(wv.into()).from(near.len() + 2)))),
+                }
+            }
         };
-        let c = near[k];
-        let (co, cr) = masks(cur, x, c);
-        if !io.bit(fast_counter::<COND>(fast, 1, co, cr), g(cur, x) == c) {
+        let mc = masks(cur, x, c);
+        if !io.bit(fast_counter::<COND>(fast, 1, mc.0, mc.1), g(cur, x) == c) {
             return Ok(Some((x, Scan::after(wv.into()).refused(k, c.into()))));
         }
         cur[x] = checked(c.into(), n_labels)?;
@@ -921,7 +932,8 @@ fn w_run<I: BitIo, const COND: bool>(
         if x == end {
             return Ok(None);
         }
-        (mo, mr) = masks(cur, x, wv);
+        // WW holds the last W's label, not `c`.
+        m = step(mc, x, wv, 0);
     }
 }
 
