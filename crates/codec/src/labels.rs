@@ -90,7 +90,6 @@ const OWN: [(isize, isize); OWN_LEN] = [
 const OWN_LEN: usize = 12;
 /// The template of the stereo prediction around `(x + s, y)`: P, E, W, S, N, EE.
 const REF: [(isize, isize); 6] = [(0, 0), (1, 0), (-1, 0), (0, 1), (0, -1), (2, 0)];
-const CANDIDATES: usize = OWN.len() + REF.len();
 /// Ranks told apart by the contexts (later ones share the last).
 const RANKS: usize = 4;
 /// Counters of the strong mode's candidate decisions (one per context).
@@ -690,7 +689,7 @@ fn code_pixel<I: BitIo, const STRONG: bool, const COND: bool>(
             return checked(wv, n_labels);
         }
     }
-    code_after_w::<I, STRONG, COND>(io, model, n_labels, own, rf, v)
+    code_after_w::<I, STRONG, COND>(io, model, n_labels, own, rf, v, Scan::after(wv))
 }
 
 /// [`code_pixel`] in the strong mode: the channel models prepare the pixel
@@ -725,9 +724,10 @@ fn code_pixel_strong<I: BitIo, const COND: bool>(
 
 /// Codes row `y` in the fast mode. Pixels whose own template reaches W,
 /// N, NW, NE, WW, NN, NEE and NWW inside the map (and, conditioned, whose
-/// prediction template lies inside the reference) have their W decisions
-/// coded by [`w_run`], block by block, and on a 0 the rest of the pixel;
-/// the others go through [`code_pixel`].
+/// prediction template lies inside the reference) have their W decisions,
+/// and after a 0 the next candidate's, coded by [`w_run`], block by block,
+/// and after two 0s the rest of the pixel; the others go through
+/// [`code_pixel`].
 #[inline(always)]
 fn code_row_fast<I: BitIo, const COND: bool>(
     io: &mut I,
@@ -763,12 +763,14 @@ fn code_row_fast<I: BitIo, const COND: bool>(
         let i = y * w + x;
         if x < end {
             let pred = reference.filter(|_| COND).map(|r| (r.as_slice(), s));
-            match w_run::<I, COND>(io, &mut model.fast, (data, w, y), x..end, pred) {
-                Some(miss) => {
+            let fast = &mut model.fast;
+            match w_run::<I, COND>(io, fast, n_labels, (data, w, y), x..end, pred)? {
+                Some((miss, scan)) => {
                     let own = own_template(data, w, miss, y);
                     let v = data[y * w + miss] as u32;
+                    let rf = &rf(miss);
                     data[y * w + miss] =
-                        code_after_w::<I, false, COND>(io, model, n_labels, &own, &rf(miss), v)?;
+                        code_after_w::<I, false, COND>(io, model, n_labels, &own, rf, v, scan)?;
                     x = miss + 1;
                 }
                 None => x = end,
@@ -792,8 +794,11 @@ fn code_row_fast<I: BitIo, const COND: bool>(
 
 /// The fast mode's W decisions of row `y` over `run`, read straight from
 /// the map (and, conditioned, from `pred`: the reference's labels and the
-/// block's shift): each "1" writes W's label, and the first "0" ends the
-/// run at its pixel, returned (the rest of that pixel is the caller's).
+/// block's shift): each "1" writes W's label. On a "0" the pixel's first
+/// candidate after W (nearly always the prediction P, conditioned) is
+/// coded here too, and on a "1" its label is written and the run goes on
+/// with it as W; else the run ends at the pixel, returned with where the
+/// scan of its candidates stands (the rest of that pixel is the caller's).
 /// The context needs only W, N, NW, NE (and, coding alone, WW, NN, NEE,
 /// NWW) and the prediction's mask, so the loop holds few values; after a
 /// "1" W's label is the same, so the masks shift, and only the positions
@@ -802,10 +807,11 @@ fn code_row_fast<I: BitIo, const COND: bool>(
 fn w_run<I: BitIo, const COND: bool>(
     io: &mut I,
     fast: &mut [Counter; FAST_CONTEXTS],
+    n_labels: usize,
     (data, w, y): (&mut [u16], usize, usize),
     run: std::ops::Range<usize>,
     pred: Option<(&[u16], usize)>,
-) -> Option<usize> {
+) -> Result<Option<(usize, Scan)>, CodecError> {
     let (above, cur) = data.split_at_mut(y * w);
     let (cur, up, up2) = (&mut cur[..w], &above[(y - 1) * w..], &above[(y - 2) * w..]);
     // Conditioned, the prediction's rows y − 1, y and y + 1 from x + s on.
@@ -825,54 +831,146 @@ fn w_run<I: BitIo, const COND: bool>(
     // SAFETY: the assertion above, for every row read.
     let g = |row: &[u16], x: usize| unsafe { *row.get_unchecked(x) };
     let [above, row, below] = rows;
-    let (mut x, end) = (run.start, run.end);
-    // W's label, the run's: each "1" writes it, so it is the next W too.
-    let wv = g(cur, x - 1);
-    let eq = |v: u16| (v == wv) as usize;
-    let mut mo = 1 | eq(g(up, x)) << 1 | eq(g(up, x - 1)) << 2 | eq(g(up, x + 1)) << 3;
-    let mut mr = 0;
-    if COND {
-        mr = eq(g(row, x))
-            | eq(g(row, x + 1)) << 1
-            | eq(g(row, x - 1)) << 2
-            | eq(g(below, x)) << 3
-            | eq(g(above, x)) << 4
-            | eq(g(row, x + 2)) << 5;
-    } else {
-        mo |= eq(g(cur, x - 2)) << 4
-            | eq(g(up2, x)) << 5
-            | eq(g(up, x + 2)) << 6
-            | eq(g(up, x - 2)) << 7;
-    }
-    loop {
-        if !io.bit(fast_counter::<COND>(fast, 0, mo, mr), g(cur, x) == wv) {
-            return Some(x);
-        }
-        cur[x] = wv;
-        x += 1;
-        if x == end {
-            return None;
-        }
-        // One pixel right: N, NW and NWW are the last NE, N and NW, NE
-        // the last NEE, WW holds wv; the prediction's W, P, E are the last
-        // P, E, EE. Only what enters on the right is read.
+    let eq = |v: u16, l: u16| (v == l) as usize;
+    // The masks of label `l` at x (W's bit set when W holds `l`).
+    let masks = |cur: &[u16], x: usize, l: u16| {
+        let mut mo = eq(g(cur, x - 1), l)
+            | eq(g(up, x), l) << 1
+            | eq(g(up, x - 1), l) << 2
+            | eq(g(up, x + 1), l) << 3;
+        let mut mr = 0;
         if COND {
-            mo = 1 | (mo >> 2 & 2) | (mo << 1 & 4) | eq(g(up, x + 1)) << 3;
-            mr = (mr >> 1 & 1)
+            mr = eq(g(row, x), l)
+                | eq(g(row, x + 1), l) << 1
+                | eq(g(row, x - 1), l) << 2
+                | eq(g(below, x), l) << 3
+                | eq(g(above, x), l) << 4
+                | eq(g(row, x + 2), l) << 5;
+        } else {
+            mo |= eq(g(cur, x - 2), l) << 4
+                | eq(g(up2, x), l) << 5
+                | eq(g(up, x + 2), l) << 6
+                | eq(g(up, x - 2), l) << 7;
+        }
+        (mo, mr)
+    };
+    // The masks one pixel right of x − 1, whose label `l` is now W's: N,
+    // NW and NWW are the last NE, N and NW, NE the last NEE, WW is the
+    // last W (`ww`: its bit, set in a run); the prediction's W, P, E are
+    // the last P, E, EE. Only what enters on the right is read.
+    let step = |(mo, mr): (usize, usize), x: usize, l: u16, ww: usize| {
+        if COND {
+            let mo = 1 | (mo >> 2 & 2) | (mo << 1 & 4) | eq(g(up, x + 1), l) << 3;
+            let mr = (mr >> 1 & 1)
                 | (mr >> 4 & 2)
                 | (mr << 2 & 4)
-                | eq(g(below, x)) << 3
-                | eq(g(above, x)) << 4
-                | eq(g(row, x + 2)) << 5;
+                | eq(g(below, x), l) << 3
+                | eq(g(above, x), l) << 4
+                | eq(g(row, x + 2), l) << 5;
+            (mo, mr)
         } else {
-            mo = 1
+            let mo = 1
                 | (mo >> 2 & 2)
                 | (mo << 1 & 4)
                 | (mo >> 3 & 8)
-                | 16
-                | eq(g(up2, x)) << 5
-                | eq(g(up, x + 2)) << 6
+                | ww
+                | eq(g(up2, x), l) << 5
+                | eq(g(up, x + 2), l) << 6
                 | (mo << 5 & 128);
+            (mo, mr)
+        }
+    };
+    let (mut x, end) = (run.start, run.end);
+    // W's label, the run's: each "1" writes it, so it is the next W too.
+    let mut wv = g(cur, x - 1);
+    let mut m = masks(cur, x, wv);
+    loop {
+        if io.bit(fast_counter::<COND>(fast, 0, m.0, m.1), g(cur, x) == wv) {
+            cur[x] = wv;
+            x += 1;
+            if x == end {
+                return Ok(None);
+            }
+            m = step(m, x, wv, 16);
+            continue;
+        }
+        // The first candidate after W: of [`code_after_w`]'s order, the
+        // first label other than W's. Nearly always P (conditioned) or N;
+        // else the positions within x ± 2 are looked at (coding alone,
+        // the prediction's stand as W's label, never a candidate).
+        let rf = |row: &[u16], x: usize| if COND { g(row, x) } else { wv };
+        let (k, c) = match (rf(row, x), g(up, x)) {
+            (p, _) if p != wv => (0, p),
+            (_, n) if n != wv => (1, n),
+            _ => {
+                let near = [
+                    g(up, x + 1),
+                    g(up, x - 1),
+                    g(cur, x - 2),
+                    g(up2, x),
+                    g(up, x + 2),
+                    g(up, x - 2),
+                    rf(row, x + 1),
+                    rf(row, x - 1),
+                    rf(below, x),
+                    rf(above, x),
+                    rf(row, x + 2),
+                ];
+                match near.iter().position(|&c| c != wv) {
+                    Some(k) => (k + 2, near[k]),
+                    None => return Ok(Some((x, Scan::after(wv.into()).from(near.len() + 2)))),
+                }
+            }
+        };
+        let mc = masks(cur, x, c);
+        if !io.bit(fast_counter::<COND>(fast, 1, mc.0, mc.1), g(cur, x) == c) {
+            return Ok(Some((x, Scan::after(wv.into()).refused(k, c.into()))));
+        }
+        cur[x] = checked(c.into(), n_labels)?;
+        wv = c;
+        x += 1;
+        if x == end {
+            return Ok(None);
+        }
+        // WW holds the last W's label, not `c`.
+        m = step(mc, x, wv, 0);
+    }
+}
+
+/// Where [`code_after_w`] takes up the scan of a pixel's candidates: the
+/// next position of its order, the rank of the next candidate, and the
+/// labels below 64 coded so far, as bits.
+#[derive(Clone, Copy)]
+struct Scan {
+    next: usize,
+    rank: usize,
+    seen: u64,
+}
+
+impl Scan {
+    /// The scan once W's label `wv` (NONE: no W) is coded.
+    #[inline(always)]
+    fn after(wv: u32) -> Self {
+        Scan {
+            next: 0,
+            rank: (wv != NONE) as usize,
+            seen: bit64(wv),
+        }
+    }
+
+    /// From position `next`, the ones before holding no other candidate.
+    #[inline(always)]
+    fn from(self, next: usize) -> Self {
+        Scan { next, ..self }
+    }
+
+    /// Once the candidate `c` at position `k` is coded and refused.
+    #[inline(always)]
+    fn refused(self, k: usize, c: u32) -> Self {
+        Scan {
+            next: k + 1,
+            rank: self.rank + 1,
+            seen: self.seen | bit64(c),
         }
     }
 }
@@ -887,24 +985,27 @@ fn code_after_w<I: BitIo, const STRONG: bool, const COND: bool>(
     own: &[u32; OWN_LEN],
     rf: &[u32; 6],
     v: u32,
+    scan: Scan,
 ) -> Result<u16, CodecError> {
     let order = [
         rf[0], own[1], own[3], own[2], own[4], own[5], own[6], own[7], rf[1], rf[2], rf[3], rf[4],
         rf[5], own[8], own[9], own[10], own[11],
     ];
     let wv = own[0];
-    // The candidates listed so far, and those below 64 as bits (larger
-    // ones are looked up). Each is coded as soon as it is found, so a hit
-    // ends the scan of the template early.
-    let mut seen = bit64(wv);
-    let mut list = [NONE; CANDIDATES];
-    list[0] = wv;
-    let mut n = (wv != NONE) as usize;
-    for c in order {
+    // The candidates coded so far are W and those of `order` before `c`
+    // (NONE aside): the ones below 64 are kept as bits, larger ones are
+    // looked up there (no list to fill). Each is coded as soon as it is
+    // found, so a hit ends the scan of the template early.
+    let Scan {
+        next,
+        rank: mut n,
+        mut seen,
+    } = scan;
+    for (k, &c) in order.iter().enumerate().skip(next) {
         let new = if c < 64 {
             seen & bit64(c) == 0
         } else {
-            c != NONE && !list[..n].contains(&c)
+            c != NONE && c != wv && !order[..k].contains(&c)
         };
         if new {
             // The fast context reads only the eight nearest own positions.
@@ -916,7 +1017,6 @@ fn code_after_w<I: BitIo, const STRONG: bool, const COND: bool>(
             if code_candidate::<I, STRONG, COND>(io, model, n, c, (own, rf), masks, c == v) {
                 return checked(c, n_labels);
             }
-            list[n] = c;
             n += 1;
             seen |= bit64(c);
         }
@@ -994,12 +1094,7 @@ fn code_rows<I: BitIo, const STRONG: bool, const COND: bool>(
         // How many pixels left of W hold W's label.
         let mut row_run = 0u32;
         if reference.is_some() {
-            for (b, s) in shifts.iter_mut().enumerate() {
-                let want = plan.get(y * blocks + b).copied().unwrap_or(0);
-                if !io.bit(&mut model.same_shift, want == *s) {
-                    *s = tree(io, &mut model.shift, 8, want as u32) as u8;
-                }
-            }
+            code_shifts(io, model, plan.get(y * blocks..).unwrap_or(&[]), shifts);
         }
         if !STRONG {
             code_row_fast::<I, COND>(io, model, n_labels, (data, w, y), reference, shifts)?;
@@ -1033,6 +1128,18 @@ fn code_rows<I: BitIo, const STRONG: bool, const COND: bool>(
         }
     }
     Ok(())
+}
+
+/// Codes a row's block shifts, each as the same as the block's in the row
+/// above or else in 8 bits: `plan` holds the encoder's from the row's
+/// first block on (the decoder's is empty).
+fn code_shifts<I: BitIo>(io: &mut I, model: &mut Model, plan: &[u8], shifts: &mut [u8]) {
+    for (b, s) in shifts.iter_mut().enumerate() {
+        let want = plan.get(b).copied().unwrap_or(0);
+        if !io.bit(&mut model.same_shift, want == *s) {
+            *s = tree(io, &mut model.shift, 8, want as u32) as u8;
+        }
+    }
 }
 
 /// How many more pixels a new shift must predict than the block's current
@@ -1229,22 +1336,50 @@ mod tests {
         })
     }
 
+    /// A right view of `left`: shifted by 3, plus sparse noise of labels below `n`.
+    fn noisy_right(left: &LabelMap, n: u16, noise: u64) -> LabelMap {
+        let (w, h) = left.dims();
+        let mut s = noise | 1;
+        LabelMap::from_fn(w, h, |x, y| {
+            s ^= s << 13;
+            s ^= s >> 7;
+            s ^= s << 17;
+            if s % 17 == 0 {
+                (s >> 20) as u16 % n
+            } else {
+                left.get((x + 3).min(w - 1), y)
+            }
+        })
+    }
+
     proptest! {
         #[test]
         fn round_trip_alone_and_conditioned(w in 1usize..70, h in 1usize..20, n in 1u16..100, seed in any::<u64>(), noise in any::<u64>(), strong in any::<bool>()) {
             let mode = if strong { Mode::Strong } else { Mode::Fast };
             let left = blobs(w, h, n, seed);
-            // The right view: the left shifted by 3, plus sparse noise.
-            let mut s = noise | 1;
-            let right = LabelMap::from_fn(w, h, |x, y| {
-                s ^= s << 13; s ^= s >> 7; s ^= s << 17;
-                if s % 17 == 0 { (s >> 20) as u16 % n } else { left.get((x + 3).min(w - 1), y) }
-            });
+            let right = noisy_right(&left, n, noise);
             let a = encode(&left, &palette(n as usize), None, 0, mode);
             prop_assert_eq!(a[0], mode as u8);
             prop_assert_eq!(decode(&a, w, h, &palette(n as usize), None).unwrap(), left.clone());
             let b = encode(&right, &palette(n as usize), Some(&left), 16, mode);
             prop_assert_eq!(decode(&b, w, h, &palette(n as usize), Some(&left)).unwrap(), right);
+        }
+
+        /// The fast mode's W runs (and the candidate after W they code)
+        /// give the stream of [`code_pixel`] over every pixel, alone and
+        /// conditioned.
+        #[test]
+        fn fast_runs_code_the_stream_of_pixels(w in 1usize..70, h in 1usize..24, n in 1u16..100, seed in any::<u64>(), noise in any::<u64>()) {
+            let (left, palette) = (blobs(w, h, n, seed), palette(n as usize));
+            let right = noisy_right(&left, n, noise);
+            prop_assert_eq!(
+                encode(&left, &palette, None, 0, Mode::Fast),
+                fast_stream_per_pixel(&left, &palette, None, &[])
+            );
+            prop_assert_eq!(
+                encode(&right, &palette, Some(&left), 16, Mode::Fast),
+                fast_stream_per_pixel(&right, &palette, Some(&left), &plan_shifts(&right, &left, 16))
+            );
         }
 
         #[test]
@@ -1256,6 +1391,43 @@ mod tests {
             let reference = LabelMap::from_fn(w, h, |x, y| ((x * 7 + y) % (n + 3)) as u16);
             let _ = decode(&stream, w, h, &palette(n), Some(&reference));
         }
+    }
+
+    /// The fast mode's stream of `map` coded pixel by pixel through
+    /// [`code_pixel`] (its definition: no W runs, every template gathered).
+    fn fast_stream_per_pixel(
+        map: &LabelMap,
+        palette: &[Rgb],
+        reference: Option<&LabelMap>,
+        plan: &[u8],
+    ) -> Vec<u8> {
+        let (w, h) = map.dims();
+        let (mut enc, model) = (Encoder::new(), &mut Model::new());
+        model.reset(palette, false);
+        let mut data = map.as_slice().to_vec();
+        let blocks = w.div_ceil(BLOCK);
+        let mut shifts = vec![0; blocks];
+        for y in 0..h {
+            if reference.is_some() {
+                code_shifts(&mut enc, model, &plan[y * blocks..], &mut shifts);
+            }
+            for x in 0..w {
+                let (i, own) = (y * w + x, own_template(&data, w, x, y));
+                let (args, v) = ((&own, is_flat(&own)), data[i] as u32);
+                let (io, n) = (&mut enc, palette.len());
+                data[i] = match reference {
+                    Some(r) => {
+                        let rf = ref_template(r, x + shifts[x / BLOCK] as usize, y);
+                        code_pixel::<_, false, true>(io, model, n, args, &rf, v)
+                    }
+                    None => code_pixel::<_, false, false>(io, model, n, args, &[NONE; 6], v),
+                }
+                .unwrap();
+            }
+        }
+        let mut out = vec![Mode::Fast as u8];
+        out.extend(enc.finish());
+        out
     }
 
     /// Pins the label streams of `docs/wire-format.md`'s example: a 6×3 map

@@ -73,6 +73,37 @@ impl Default for Screen {
     }
 }
 
+/// `pixels.fill(c)` a word at a time: the colour's bytes repeat every
+/// three, so three words hold four pixels (an ARMv5 stores no unaligned
+/// word, and a pixel at a time takes three byte stores).
+fn fill_rgb(pixels: &mut [Rgb], c: Rgb) {
+    let bytes = pixels.as_flattened_mut();
+    // SAFETY: any four bytes are a valid u32, and any u32 four valid bytes.
+    let (head, words, tail) = unsafe { bytes.align_to_mut::<u32>() };
+    // Byte `i` of the pixels is c[i % 3].
+    let at = |i: usize| c[i % 3];
+    for (i, b) in head.iter_mut().enumerate() {
+        *b = at(i);
+    }
+    let start = head.len();
+    let word = |k: usize| {
+        let i = start + 4 * k;
+        u32::from_ne_bytes([at(i), at(i + 1), at(i + 2), at(i + 3)])
+    };
+    let pattern = [word(0), word(1), word(2)];
+    let mut threes = words.chunks_exact_mut(3);
+    for three in &mut threes {
+        three.copy_from_slice(&pattern);
+    }
+    for (w, p) in threes.into_remainder().iter_mut().zip(pattern) {
+        *w = p;
+    }
+    let end = start + 4 * words.len();
+    for (i, b) in tail.iter_mut().enumerate() {
+        *b = at(end + i);
+    }
+}
+
 /// Nearest-neighbour scale of `src`, painted by `paint`, into the panel at
 /// `(x0, y0)`, keeping the aspect ratio: only the pixels shown are painted.
 fn blit_scaled<T: Copy>(
@@ -235,7 +266,7 @@ impl Screen {
         let turbo = colormap::turbo_table();
         let paint = |t: f32| turbo[colormap::turbo_index(t)];
         let img = &mut self.image;
-        img.as_mut_slice().fill(BACKGROUND);
+        fill_rgb(img.as_mut_slice(), BACKGROUND);
         draw_text(img, MARGIN + 2, MARGIN + 1, "3-D VIEW", ACCENT);
         draw_text(
             img,
@@ -329,6 +360,18 @@ impl Screen {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn fill_rgb_is_fill() {
+        // Every length up to ten words, from each alignment of the pixels.
+        for (len, skip) in (0..40).flat_map(|n| (0..4).map(move |k| (n, k))) {
+            let mut pixels: Vec<Rgb> = (0..len + skip).map(|i| [i as u8, 7, 9]).collect();
+            let mut want = pixels.clone();
+            fill_rgb(&mut pixels[skip..], BACKGROUND);
+            want[skip..].fill(BACKGROUND);
+            assert_eq!(pixels, want, "{len} pixels after {skip}");
+        }
+    }
 
     #[test]
     fn nearest_indices_are_the_divisions() {

@@ -24,6 +24,8 @@
 //! subtracting (modulo 2^32, the words never borrow between lanes in the
 //! end result).
 
+use std::mem::take;
+
 use super::{lanes, Disparity, Job};
 use crate::lanes::word;
 
@@ -80,36 +82,35 @@ impl TableSet {
         self.owner = y;
         let (w, stride) = (job.left.width(), job.stride);
         let rev = &job.reversed[y * stride..(y + 1) * stride];
-        let mut ats = std::mem::take(&mut self.at);
+        // Taken out while the row is read, so that the loop holds them
+        // (`add` touches neither).
+        let (mut ats, mut base_of) = (take(&mut self.at), take(&mut self.base_of));
         for (at, &l) in ats[..w].iter_mut().zip(job.left.row(y)) {
-            let base = self.base_of[l as usize];
-            *at = if base == UNSEEN {
-                self.add(l, rev)
-            } else {
-                base
-            };
+            let base = &mut base_of[l as usize];
+            if *base == UNSEEN {
+                *base = self.add(l, rev);
+            }
+            *at = *base;
         }
-        self.at = ats;
+        (self.at, self.base_of) = (ats, base_of);
     }
 
     /// Gives value `l` (first seen in the row whose reversed right samples
     /// are `rev`) a slot and builds its table, or [`DIRECT`] when full;
-    /// returns its table's start.
+    /// returns its table's start, for [`TableSet::base_of`].
     #[cold]
     fn add(&mut self, l: u16, rev: &[u16]) -> u32 {
         let tw = rev.len() / 2 + 1;
         // The first SLOTS values have the slots.
         let s = self.values.len();
         self.values.push(l);
-        let base = if s >= SLOTS {
+        if s >= SLOTS {
             DIRECT
         } else {
             let (t0, t1) = self.words[2 * s * tw..2 * (s + 1) * tw].split_at_mut(tw);
             build_table(l, rev, t0, t1);
             (2 * s * tw) as u32
-        };
-        self.base_of[l as usize] = base;
-        base
+        }
     }
 }
 
