@@ -48,6 +48,9 @@ fn stages(c: &mut Criterion) {
     g.bench_function("cluster", |b| {
         b.iter(|| assign::cluster(&graph, black_box(&fitted), &reliable, params))
     });
+    g.bench_function("split", |b| {
+        b.iter(|| planes::split_bent(&labels, &graph, black_box(&fitted), &reliable, params))
+    });
     g.bench_function("census", |b| b.iter(census));
     g.bench_function("assign", |b| {
         b.iter(|| {
@@ -58,6 +61,33 @@ fn stages(c: &mut Criterion) {
                 &clusters.of_segment,
                 params,
             )
+        })
+    });
+    let of_segment: Vec<planes::DisparityPlane> = assign::assign(
+        &graph,
+        &cost,
+        &clusters.planes,
+        &clusters.of_segment,
+        params,
+    )
+    .unwrap()
+    .iter()
+    .map(|&k| clusters.planes[k as usize])
+    .collect();
+    let rendered = planes::render(&graph.ids, &of_segment, (0.0, 31.0));
+    g.bench_function("boundary", |b| {
+        b.iter(|| {
+            let mut d = rendered.clone();
+            planes::boundary::refine(
+                &graph.ids,
+                &of_segment,
+                &cost,
+                gl.as_slice(),
+                (0.0, 31.0),
+                &params.boundary,
+                &mut d,
+            );
+            d
         })
     });
     g.bench_function("whole", |b| {

@@ -279,7 +279,7 @@ pub(crate) fn match_planes_with(
 /// the tiles are off). A segment is not planar when its own plane leaves
 /// more than the fraction `params.split` of its reliable pixels more than
 /// `fit.inlier` off.
-fn split_bent(
+pub fn split_bent(
     labels: &LabelMap,
     graph: &SegmentGraph,
     fitted: &[Option<DisparityPlane>],
