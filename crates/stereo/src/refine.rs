@@ -86,10 +86,11 @@ impl Refinement {
             // WTA: the LR check asks for equal disparities (tolerance 0.5
             // on whole pixels), then the colour-weighted median
             // (`WeightedMedian::DEFAULT`) before (valid pixels only) and
-            // after the fill: bad > 1 px 3.60 / 0.87 / 15.35 / 6.85 % on
+            // after the fill: bad > 1 px 3.57 / 0.83 / 15.37 / 6.74 % on
             // Tsukuba / Venus / Teddy / Cones, below the SSD+MF baseline of
-            // 5.23 / 3.74 / 16.5 / 10.6 %, and 26.93 % over the 20 scenes
-            // (27.25 % when the first pass filled holes too). A 5×5 median in its
+            // 5.23 / 3.74 / 16.5 / 10.6 %, and 26.99 % over the 20 scenes
+            // (with Gaussian weights 3.60 / 0.87 / 15.35 / 6.85 % and
+            // 26.93 %; 27.25 % when the first pass filled holes too). A 5×5 median in its
             // place takes 0.54–0.64x the time on the four (Cones, in
             // alternating rounds: 3.97 against 6.72 ms) but gives 5.89 /
             // 3.73 / 18.44 / 10.09 % and 29.14 % (`--weighted-median 0
@@ -169,8 +170,9 @@ pub fn postprocess(
         None => wm.insert(WeightedMedianGuide::new(guide, &p)),
     });
     if let Some(wm) = &mut wm {
-        // Holes left to the fill: measured on the Middlebury scenes, this
-        // beats filling them with the median too (after WTA, bad > 1 px
+        // Holes left to the fill: measured on the Middlebury scenes (with
+        // Gaussian weights), this beats filling them with the median too
+        // (after WTA, bad > 1 px
         // 3.60 / 0.87 / 15.35 / 6.85 % against 3.60 / 1.03 / 15.71 /
         // 7.25 % on Tsukuba / Venus / Teddy / Cones, 26.93 against 27.25 %
         // over the 20 scenes), and it costs less.
