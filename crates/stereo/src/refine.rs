@@ -27,9 +27,10 @@ pub struct Refinement {
     pub median: usize,
     /// Colour-weighted median guided by the left view: once on the checked
     /// map and once after the fill (it cleans the fill's streaks). Before a
-    /// fill, only the valid pixels take the median (the holes are the
-    /// fill's); without one, the holes take it too (valid pixels vote, so
-    /// it fills holes among similar colours).
+    /// fill, only the valid pixels next to a hole take the median (those
+    /// whose values the fill spreads; the holes are the fill's); without
+    /// one, all pixels take it, holes too (valid pixels vote, so it fills
+    /// holes among similar colours).
     pub weighted_median: Option<WeightedMedian>,
     /// How invalid pixels are filled, if at all.
     pub fill: Option<HoleFill>,
@@ -86,11 +87,13 @@ impl Refinement {
             // WTA: the LR check asks for equal disparities (tolerance 0.5
             // on whole pixels), then the colour-weighted median
             // (`WeightedMedian::DEFAULT`) before (valid pixels only) and
-            // after the fill: bad > 1 px 3.57 / 0.83 / 15.37 / 6.74 % on
+            // after the fill: bad > 1 px 3.63 / 0.90 / 15.47 / 6.69 % on
             // Tsukuba / Venus / Teddy / Cones, below the SSD+MF baseline of
-            // 5.23 / 3.74 / 16.5 / 10.6 %, and 26.99 % over the 20 scenes
-            // (with Gaussian weights 3.60 / 0.87 / 15.35 / 6.85 % and
-            // 26.93 %; 27.25 % when the first pass filled holes too). A 5×5 median in its
+            // 5.23 / 3.74 / 16.5 / 10.6 %, and 26.82 % over the 20 scenes
+            // (with the first pass on all valid pixels 3.57 / 0.83 / 15.37 /
+            // 6.74 % and 26.99 %; with Gaussian weights 3.60 / 0.87 / 15.35
+            // / 6.85 % and 26.93 %; 27.25 % when the first pass filled holes
+            // too). A 5×5 median in its
             // place takes 0.54–0.64x the time on the four (Cones, in
             // alternating rounds: 3.97 against 6.72 ms) but gives 5.89 /
             // 3.73 / 18.44 / 10.09 % and 29.14 % (`--weighted-median 0
@@ -170,14 +173,18 @@ pub fn postprocess(
         None => wm.insert(WeightedMedianGuide::new(guide, &p)),
     });
     if let Some(wm) = &mut wm {
-        // Holes left to the fill: measured on the Middlebury scenes (with
-        // Gaussian weights), this beats filling them with the median too
-        // (after WTA, bad > 1 px
+        // Holes left to the fill, and only the pixels next to them, which
+        // the fill reads (measured after WTA: 26.82 against 26.99 % over the
+        // 20 scenes when all valid pixels take the median, at about 0.8x
+        // the first pass's time on Cones, where 71 % of the 16-pixel
+        // chunks hold such a pixel). With Gaussian weights, leaving holes
+        // to the fill beat filling them with the median too (after WTA,
+        // bad > 1 px
         // 3.60 / 0.87 / 15.35 / 6.85 % against 3.60 / 1.03 / 15.71 /
         // 7.25 % on Tsukuba / Venus / Teddy / Cones, 26.93 against 27.25 %
         // over the 20 scenes), and it costs less.
         match r.fill {
-            Some(_) => wm.filter_valid(&d, spare),
+            Some(_) => wm.filter_borders(&d, spare),
             None => wm.filter(&d, spare),
         }
         std::mem::swap(&mut d, spare);

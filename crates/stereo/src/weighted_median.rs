@@ -210,17 +210,21 @@ impl WeightedMedianGuide {
         self.filter_with(map, out, false)
     }
 
-    /// As [`Self::filter`], but only valid pixels take the median: invalid
-    /// ones stay invalid (for a hole fill that follows) and need no work.
+    /// As [`Self::filter`], but only the valid pixels next to a hole (one
+    /// of their 8 neighbours invalid) take the median, the others stay as
+    /// they are: before a hole fill that takes each hole's nearest valid
+    /// pixels along rows, columns and diagonals ([`crate::refine::HoleFill::Directions`]),
+    /// which are next to holes, these are the pixels whose values it
+    /// spreads. The rest need no work.
     ///
     /// # Panics
     /// If `map` is not the guide's size.
-    pub fn filter_valid(&mut self, map: &DisparityMap, out: &mut DisparityMap) {
+    pub fn filter_borders(&mut self, map: &DisparityMap, out: &mut DisparityMap) {
         self.filter_with(map, out, true)
     }
 
-    /// [`Self::filter`], or [`Self::filter_valid`] if `keep_holes`.
-    fn filter_with(&mut self, map: &DisparityMap, out: &mut DisparityMap, keep_holes: bool) {
+    /// [`Self::filter`], or [`Self::filter_borders`] if `borders`.
+    fn filter_with(&mut self, map: &DisparityMap, out: &mut DisparityMap, borders: bool) {
         assert_eq!(map.dims(), self.dims);
         if out.dims() != map.dims() {
             out.reset(map.width(), map.height(), 0.0);
@@ -267,7 +271,7 @@ impl WeightedMedianGuide {
             bin_pad: &bin_pad,
             lo,
             invalid,
-            keep_holes,
+            borders,
         };
         out.as_mut_slice()
             .par_chunks_mut(w)
@@ -292,8 +296,9 @@ struct MapJob<'a> {
     lo: f32,
     /// The bin of invalid pixels, one past the last valid one.
     invalid: u16,
-    /// Whether invalid pixels stay invalid ([`WeightedMedianGuide::filter_valid`]).
-    keep_holes: bool,
+    /// Whether only valid pixels next to holes take the median
+    /// ([`WeightedMedianGuide::filter_borders`]).
+    borders: bool,
 }
 
 /// [`filter_row`] compiled for AVX2 (a function of its own: LLVM does not
@@ -331,19 +336,94 @@ fn filter_row(job: &MapJob, y: usize, row: &mut [f32], scratch: &mut RowScratch)
         left = if b != invalid { b } else { left };
         left
     }));
+    // The pixels that stay as they are: with `borders`, all but the valid
+    // ones with an invalid pixel among their 8 neighbours (the padded
+    // bins replicate the border as the window does).
+    let stay = &mut scratch.stay;
+    stay.clear();
+    if job.borders {
+        let near = &mut scratch.near_hole;
+        let rows =
+            [centre - wp - 1, centre - 1, centre + wp - 1].map(|s| &job.bin_pad[s..s + w + 2]);
+        near.clear();
+        near.extend(
+            (rows[0].iter().zip(rows[1]).zip(rows[2]))
+                .map(|((&a, &b), &c)| (a == invalid) | (b == invalid) | (c == invalid)),
+        );
+        stay.extend(
+            own.iter()
+                .zip(near.windows(3))
+                .map(|(&b, n)| (b == invalid) | !(n[0] | n[1] | n[2])),
+        );
+    } else {
+        stay.resize(w, false);
+    }
+    // Whole chunks of `LANES`, the last one overlapping its predecessor; a
+    // narrower row pixel by pixel. A chunk where all stay needs no sums
+    // (no weight: they stay).
+    let (candidates, stay) = (&scratch.candidates[..], &scratch.stay[..]);
+    let s = &mut scratch.sums;
+    for v in [
+        &mut s.total,
+        &mut s.below,
+        &mut s.at,
+        &mut s.lower,
+        &mut s.upper,
+    ] {
+        v.resize(w, 0);
+    }
+    let n = if w >= LANES { LANES } else { 1 };
+    for x in (0..w).step_by(n).map(|x| x.min(w - n)) {
+        let at = x..x + n;
+        let sums = [
+            &mut s.total,
+            &mut s.below,
+            &mut s.at,
+            &mut s.lower,
+            &mut s.upper,
+        ]
+        .map(|v| &mut v[at.clone()]);
+        if stay[at.clone()].iter().all(|&s| s) {
+            sums[0].fill(0);
+        } else if n == LANES {
+            settle::<LANES>(job, centre + x, &candidates[at], sums);
+        } else {
+            settle::<1>(job, centre + x, &candidates[at], sums);
+        }
+    }
+    // Which of `c`, `c − 1`, `c + 1` is the median, for the whole row at
+    // once (branch-free selects, so that it vectorises): bin `c` is when
+    // twice the sum below it is under the total and twice the sum up to
+    // it is at least the total; `c − 1` and `c + 1` likewise. A pixel
+    // that stays, or without weight, keeps its bin; those that none
+    // settles are [`HARD`].
     let medians = &mut scratch.medians;
     medians.resize(w, 0);
-    // Whole chunks of `LANES`, the last one overlapping its predecessor; a
-    // narrower row pixel by pixel.
-    if w >= LANES {
-        for x in (0..w).step_by(LANES).map(|x| x.min(w - LANES)) {
-            let at = x..x + LANES;
-            settle::<LANES>(job, centre + x, &candidates[at.clone()], &mut medians[at]);
-        }
-    } else {
-        for x in 0..w {
-            settle::<1>(job, centre + x, &candidates[x..=x], &mut medians[x..=x]);
-        }
+    let lanes = (s.total.iter().zip(&s.below).zip(&s.at))
+        .zip(s.lower.iter().zip(&s.upper))
+        .zip(candidates.iter().zip(own).zip(stay));
+    for (m, ((((&t, &b), &a), (&lw, &up)), ((&c, &own), &stay))) in medians.iter_mut().zip(lanes) {
+        let (t, b, a) = (u32::from(t), u32::from(b), u32::from(a));
+        let (lw, up) = (u32::from(lw), u32::from(up));
+        // `c` is `invalid` only in a row without valid pixels; its sums
+        // are then those of no bin.
+        let known = c != invalid;
+        let at_c = known & (2 * b < t) & (2 * (b + a) >= t);
+        let at_lower = known & (2 * (b - lw) < t) & (2 * b >= t);
+        let at_upper = known & (2 * (b + a) < t) & (2 * (b + a + up) >= t);
+        let pick = if at_c {
+            c
+        } else if at_lower {
+            c.wrapping_sub(1)
+        } else {
+            c.wrapping_add(1)
+        };
+        let pick = if at_c | at_lower | at_upper {
+            pick
+        } else {
+            HARD
+        };
+        *m = if (t == 0) | stay { own } else { pick };
     }
     for ((d, &m), &b) in row.iter_mut().zip(medians.iter()).zip(own) {
         // `HARD` and `invalid` are above every valid bin.
@@ -362,19 +442,24 @@ fn filter_row(job: &MapJob, y: usize, row: &mut [f32], scratch: &mut RowScratch)
     }
 }
 
-/// The median bins of the `N` pixels from padded index `p` on, with
-/// candidate bins `candidates`, into `medians` ([`HARD`] where none of
-/// `c`, `c − 1`, `c + 1` is the median; the pixel's own bin where it is to
-/// stay as it is).
-///
-/// Per pixel, the weights of the valid samples are summed in all, below
-/// `c`, in `c`, in `c − 1` and in `c + 1`, in `u16` lanes kept in
-/// registers for the whole window (branch-free selects on bins relative to
-/// `c`, as `i16`). With those, bin `c` is the median when twice the sum
-/// below it is under the total and twice the sum up to it is at least the
-/// total; `c − 1` and `c + 1` likewise.
+/// Per pixel, the weights of the valid samples in all, below `c`, in `c`,
+/// in `c − 1` and in `c + 1` for the candidate bin `c` (apart, so that
+/// the decisions over a row vectorise).
+#[derive(Default)]
+struct Sums {
+    total: Vec<u16>,
+    below: Vec<u16>,
+    at: Vec<u16>,
+    lower: Vec<u16>,
+    upper: Vec<u16>,
+}
+
+/// The [`Sums`] of the `N` pixels from padded index `p` on, with candidate
+/// bins `candidates`, into `sums` (slices of `N`), in `u16` lanes kept in
+/// registers for the whole window: branch-free selects on bins relative
+/// to `c`, as `i16`.
 #[inline(always)]
-fn settle<const N: usize>(job: &MapJob, p: usize, candidates: &[u16], medians: &mut [u16]) {
+fn settle<const N: usize>(job: &MapJob, p: usize, candidates: &[u16], sums: [&mut [u16]; 5]) {
     let guide = job.guide;
     let (invalid, reach, shift) = (job.invalid, guide.p.color_reach, guide.shift);
     let c: &[u16; N] = candidates.try_into().expect("N candidates");
@@ -409,31 +494,8 @@ fn settle<const N: usize>(job: &MapJob, p: usize, candidates: &[u16], medians: &
             upper[l] += if rel == 1 { w } else { 0 };
         }
     }
-    let own = &job.bin_pad[p..p + N];
-    for l in 0..N {
-        let (t, b, a) = (u32::from(total[l]), u32::from(below[l]), u32::from(at[l]));
-        let (lw, up) = (u32::from(lower[l]), u32::from(upper[l]));
-        let c = c[l];
-        // `c` is `invalid` only in a row without valid pixels; its sums
-        // are then those of no bin.
-        let known = c != invalid;
-        let at_c = known & (2 * b < t) & (2 * (b + a) >= t);
-        let at_lower = known & (2 * (b - lw) < t) & (2 * b >= t);
-        let at_upper = known & (2 * (b + a) < t) & (2 * (b + a + up) >= t);
-        let pick = if at_c {
-            c
-        } else if at_lower {
-            c.wrapping_sub(1)
-        } else {
-            c.wrapping_add(1)
-        };
-        let pick = if at_c | at_lower | at_upper {
-            pick
-        } else {
-            HARD
-        };
-        let keep = (t == 0) | (job.keep_holes & (own[l] == invalid));
-        medians[l] = if keep { own[l] } else { pick };
+    for (out, lanes) in sums.into_iter().zip([total, below, at, lower, upper]) {
+        out.copy_from_slice(&lanes);
     }
 }
 
@@ -479,8 +541,15 @@ fn exact_median(job: &MapJob, p: usize, hist: &mut [u32]) -> Option<u16> {
 struct RowScratch {
     /// The bins tested for the row's pixels.
     candidates: Vec<u16>,
-    /// The bin each pixel of the row takes, as [`settle`] settles it.
+    /// The [`settle`] sums of the row's pixels.
+    sums: Sums,
+    /// The bin each pixel of the row takes, as its sums settle it.
     medians: Vec<u16>,
+    /// Whether each pixel of the row stays as it is.
+    stay: Vec<bool>,
+    /// Whether each column from −1 to `w` has a hole in the rows `y − 1`,
+    /// `y`, `y + 1`.
+    near_hole: Vec<bool>,
     /// For [`exact_median`], a bin for each of `0..=invalid`.
     hist: Vec<u32>,
 }
@@ -592,13 +661,13 @@ mod tests {
         );
     }
 
-    /// The definition, pixel by pixel, in `u32`; holes stay holes if
-    /// `keep_holes`.
+    /// The definition, pixel by pixel, in `u32`; if `borders`, only valid
+    /// pixels with an invalid 8-neighbour take the median.
     fn naive(
         map: &DisparityMap,
         guide: &RgbImage,
         p: &WeightedMedian,
-        keep_holes: bool,
+        borders: bool,
     ) -> DisparityMap {
         let (w, h) = map.dims();
         let finite: Vec<f32> = map
@@ -618,7 +687,13 @@ mod tests {
             )
         };
         DisparityMap::from_fn(w, h, |x, y| {
-            if keep_holes && !map.get(x, y).is_finite() {
+            let next_to_hole = (-1..=1).any(|dy| {
+                (-1..=1).any(|dx| {
+                    let (qx, qy) = at(x as isize + dx, y as isize + dy);
+                    !map.get(qx, qy).is_finite()
+                })
+            });
+            if borders && !(map.get(x, y).is_finite() && next_to_hole) {
                 return map.get(x, y);
             }
             let c = guide.get(x, y);
@@ -691,9 +766,9 @@ mod tests {
         portable.filter(map, &mut out);
         proptest::prop_assert_eq!(bits(&out), want);
         let want = bits(&naive(map, guide, p, true));
-        WeightedMedianGuide::new(guide, p).filter_valid(map, &mut out);
+        WeightedMedianGuide::new(guide, p).filter_borders(map, &mut out);
         proptest::prop_assert_eq!(bits(&out), want.clone());
-        portable.filter_valid(map, &mut out);
+        portable.filter_borders(map, &mut out);
         proptest::prop_assert_eq!(bits(&out), want);
         Ok(())
     }
