@@ -138,12 +138,13 @@ pub struct Raw {
 }
 
 /// The buffers of [`postprocess`], kept from one call to the next (the
-/// weighted median's guide and a second map): refining frames of an
-/// unchanged size allocates only the map it returns.
+/// weighted median's guide, a second map and the fill's lists): refining
+/// frames of an unchanged size allocates only the map it returns.
 #[derive(Default)]
 pub struct RefineBuffers {
     guide: Option<WeightedMedianGuide>,
     spare: DisparityMap,
+    fill: FillBuffers,
 }
 
 /// Runs the refinement steps of `spec` on a raw result; `guide` is the
@@ -164,7 +165,11 @@ pub fn postprocess(
     }
     // One guide serves both weighted-median passes; each filters from `d`
     // into the spare map, which then changes places with `d`.
-    let RefineBuffers { guide: wm, spare } = buffers;
+    let RefineBuffers {
+        guide: wm,
+        spare,
+        fill,
+    } = buffers;
     let mut wm = r.weighted_median.map(|p| match wm {
         Some(wm) => {
             wm.rebuild(guide, &p);
@@ -191,7 +196,7 @@ pub fn postprocess(
     }
     match r.fill {
         Some(HoleFill::Row) => fill_holes(&mut d),
-        Some(HoleFill::Directions) => fill_from_directions(&mut d),
+        Some(HoleFill::Directions) => fill_from_directions_with(&mut d, fill),
         None => {}
     }
     if let (Some(wm), Some(_)) = (&mut wm, r.fill) {
@@ -293,35 +298,56 @@ fn fill_row(row: &mut [f32]) -> bool {
 /// from the south and east. Each lists its four values per invalid pixel,
 /// and the median of the eight comes from a sorting network.
 pub fn fill_from_directions(map: &mut DisparityMap) {
+    fill_from_directions_with(map, &mut FillBuffers::default())
+}
+
+/// The lists of [`fill_from_directions_with`], kept from one call to the
+/// next.
+#[derive(Default)]
+pub struct FillBuffers {
+    /// Per pass (forward, backward), the holes' indices and nearest values.
+    found: [Vec<(usize, [f32; 4])>; 2],
+    medians: Vec<f32>,
+}
+
+/// [`fill_from_directions`] in the lists of `buffers` (cleared, storage
+/// reused: no allocation, nor page faults, for maps of a size seen before).
+pub fn fill_from_directions_with(map: &mut DisparityMap, buffers: &mut FillBuffers) {
     let w = map.width();
     if w == 0 {
         return;
     }
-    let (forward, backward) =
-        rayon::join(|| nearest_valid(map, false), || nearest_valid(map, true));
+    let FillBuffers {
+        found: [forward, backward],
+        medians,
+    } = buffers;
+    rayon::join(
+        || nearest_valid(map, false, forward),
+        || nearest_valid(map, true, backward),
+    );
     // The backward pass lists the holes in reverse raster order.
-    let medians: Vec<f32> = forward
+    forward
         .par_iter()
         .zip(backward.par_iter().rev())
         .map(|((_, [a, b, c, d]), (_, [e, f, g, h]))| {
             median_of_valid(&mut [*a, *b, *c, *d, *e, *f, *g, *h])
         })
-        .collect();
+        .collect_into_vec(medians);
     let values = map.as_mut_slice();
-    for (&(at, _), m) in forward.iter().zip(medians) {
+    for (&(at, _), &m) in forward.iter().zip(medians.iter()) {
         values[at] = m;
     }
     fill_holes(map);
 }
 
-/// For every invalid pixel (as its index, in raster order or, `backward`,
-/// the reverse), the nearest valid values along the row (west, or east when
-/// `backward`), its diagonal through the left neighbour's row, straight, and
-/// the diagonal through the right; the rows before it are those above (or
-/// below).
-fn nearest_valid(map: &DisparityMap, backward: bool) -> Vec<(usize, [f32; 4])> {
+/// Lists in `found` (cleared), for every invalid pixel (as its index, in
+/// raster order or, `backward`, the reverse), the nearest valid values
+/// along the row (west, or east when `backward`), its diagonal through the
+/// left neighbour's row, straight, and the diagonal through the right; the
+/// rows before it are those above (or below).
+fn nearest_valid(map: &DisparityMap, backward: bool, found: &mut Vec<(usize, [f32; 4])>) {
     let (w, h) = map.dims();
-    let mut found = Vec::new();
+    found.clear();
     let mut pass = DirectionPass::new(w);
     for i in 0..h {
         let y = if backward { h - 1 - i } else { i };
@@ -348,7 +374,6 @@ fn nearest_valid(map: &DisparityMap, backward: bool) -> Vec<(usize, [f32; 4])> {
         }
         pass.advance(row);
     }
-    found
 }
 
 /// Whether `d` is a valid (finite, disparities are never NaN) disparity,
