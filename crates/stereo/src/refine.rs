@@ -27,9 +27,10 @@ pub struct Refinement {
     pub median: usize,
     /// Colour-weighted median guided by the left view: once on the checked
     /// map and once after the fill (it cleans the fill's streaks). Before a
-    /// fill, only the valid pixels take the median (the holes are the
-    /// fill's); without one, the holes take it too (valid pixels vote, so
-    /// it fills holes among similar colours).
+    /// fill, only the valid pixels next to a hole take the median (those
+    /// whose values the fill spreads; the holes are the fill's); without
+    /// one, all pixels take it, holes too (valid pixels vote, so it fills
+    /// holes among similar colours).
     pub weighted_median: Option<WeightedMedian>,
     /// How invalid pixels are filled, if at all.
     pub fill: Option<HoleFill>,
@@ -86,14 +87,16 @@ impl Refinement {
             // WTA: the LR check asks for equal disparities (tolerance 0.5
             // on whole pixels), then the colour-weighted median
             // (`WeightedMedian::DEFAULT`) before (valid pixels only) and
-            // after the fill: bad > 1 px 3.60 / 0.87 / 15.35 / 6.85 % on
+            // after the fill: bad > 1 px 3.63 / 0.90 / 15.47 / 6.69 % on
             // Tsukuba / Venus / Teddy / Cones, below the SSD+MF baseline of
-            // 5.23 / 3.74 / 16.5 / 10.6 %, and 26.93 % over the 20 scenes
-            // (27.25 % when the first pass filled holes too). A 5×5 median in its
-            // place takes 0.54–0.64x the time on the four (Cones, in
-            // alternating rounds: 3.97 against 6.72 ms) but gives 5.89 /
-            // 3.73 / 18.44 / 10.09 % and 29.14 % (`--weighted-median 0
-            // --median 5`).
+            // 5.23 / 3.74 / 16.5 / 10.6 %, and 26.82 % over the 20 scenes
+            // (with the first pass on all valid pixels 3.57 / 0.83 / 15.37 /
+            // 6.74 % and 26.99 %; with Gaussian weights 3.60 / 0.87 / 15.35
+            // / 6.85 % and 26.93 %; 27.25 % when the first pass filled holes
+            // too). A 5×5 median in its place takes 0.87–0.90x the time
+            // on Cones in alternating rounds (0.54–0.64x of the earlier,
+            // Gaussian weighted median's) but gives 5.89 / 3.73 / 18.44 /
+            // 10.09 % and 29.14 % (`--weighted-median 0 --median 5`).
             Algorithm::Wta => Refinement {
                 lr_check: Some(0.5),
                 subpixel: false,
@@ -134,12 +137,13 @@ pub struct Raw {
 }
 
 /// The buffers of [`postprocess`], kept from one call to the next (the
-/// weighted median's guide and a second map): refining frames of an
-/// unchanged size allocates only the map it returns.
+/// weighted median's guide, a second map and the fill's lists): refining
+/// frames of an unchanged size allocates only the map it returns.
 #[derive(Default)]
 pub struct RefineBuffers {
     guide: Option<WeightedMedianGuide>,
     spare: DisparityMap,
+    fill: FillBuffers,
 }
 
 /// Runs the refinement steps of `spec` on a raw result; `guide` is the
@@ -160,7 +164,11 @@ pub fn postprocess(
     }
     // One guide serves both weighted-median passes; each filters from `d`
     // into the spare map, which then changes places with `d`.
-    let RefineBuffers { guide: wm, spare } = buffers;
+    let RefineBuffers {
+        guide: wm,
+        spare,
+        fill,
+    } = buffers;
     let mut wm = r.weighted_median.map(|p| match wm {
         Some(wm) => {
             wm.rebuild(guide, &p);
@@ -169,20 +177,25 @@ pub fn postprocess(
         None => wm.insert(WeightedMedianGuide::new(guide, &p)),
     });
     if let Some(wm) = &mut wm {
-        // Holes left to the fill: measured on the Middlebury scenes, this
-        // beats filling them with the median too (after WTA, bad > 1 px
+        // Holes left to the fill, and only the pixels next to them, which
+        // the fill reads (measured after WTA: 26.82 against 26.99 % over the
+        // 20 scenes when all valid pixels take the median, at about 0.8x
+        // the first pass's time on Cones, where 71 % of the 16-pixel
+        // chunks hold such a pixel). With Gaussian weights, leaving holes
+        // to the fill beat filling them with the median too (after WTA,
+        // bad > 1 px
         // 3.60 / 0.87 / 15.35 / 6.85 % against 3.60 / 1.03 / 15.71 /
         // 7.25 % on Tsukuba / Venus / Teddy / Cones, 26.93 against 27.25 %
         // over the 20 scenes), and it costs less.
         match r.fill {
-            Some(_) => wm.filter_valid(&d, spare),
+            Some(_) => wm.filter_borders(&d, spare),
             None => wm.filter(&d, spare),
         }
         std::mem::swap(&mut d, spare);
     }
     match r.fill {
         Some(HoleFill::Row) => fill_holes(&mut d),
-        Some(HoleFill::Directions) => fill_from_directions(&mut d),
+        Some(HoleFill::Directions) => fill_from_directions_with(&mut d, fill),
         None => {}
     }
     if let (Some(wm), Some(_)) = (&mut wm, r.fill) {
@@ -284,35 +297,56 @@ fn fill_row(row: &mut [f32]) -> bool {
 /// from the south and east. Each lists its four values per invalid pixel,
 /// and the median of the eight comes from a sorting network.
 pub fn fill_from_directions(map: &mut DisparityMap) {
+    fill_from_directions_with(map, &mut FillBuffers::default())
+}
+
+/// The lists of [`fill_from_directions_with`], kept from one call to the
+/// next.
+#[derive(Default)]
+pub struct FillBuffers {
+    /// Per pass (forward, backward), the holes' indices and nearest values.
+    found: [Vec<(usize, [f32; 4])>; 2],
+    medians: Vec<f32>,
+}
+
+/// [`fill_from_directions`] in the lists of `buffers` (cleared, storage
+/// reused: no allocation, nor page faults, for maps of a size seen before).
+pub fn fill_from_directions_with(map: &mut DisparityMap, buffers: &mut FillBuffers) {
     let w = map.width();
     if w == 0 {
         return;
     }
-    let (forward, backward) =
-        rayon::join(|| nearest_valid(map, false), || nearest_valid(map, true));
+    let FillBuffers {
+        found: [forward, backward],
+        medians,
+    } = buffers;
+    rayon::join(
+        || nearest_valid(map, false, forward),
+        || nearest_valid(map, true, backward),
+    );
     // The backward pass lists the holes in reverse raster order.
-    let medians: Vec<f32> = forward
+    forward
         .par_iter()
         .zip(backward.par_iter().rev())
         .map(|((_, [a, b, c, d]), (_, [e, f, g, h]))| {
             median_of_valid(&mut [*a, *b, *c, *d, *e, *f, *g, *h])
         })
-        .collect();
+        .collect_into_vec(medians);
     let values = map.as_mut_slice();
-    for (&(at, _), m) in forward.iter().zip(medians) {
+    for (&(at, _), &m) in forward.iter().zip(medians.iter()) {
         values[at] = m;
     }
     fill_holes(map);
 }
 
-/// For every invalid pixel (as its index, in raster order or, `backward`,
-/// the reverse), the nearest valid values along the row (west, or east when
-/// `backward`), its diagonal through the left neighbour's row, straight, and
-/// the diagonal through the right; the rows before it are those above (or
-/// below).
-fn nearest_valid(map: &DisparityMap, backward: bool) -> Vec<(usize, [f32; 4])> {
+/// Lists in `found` (cleared), for every invalid pixel (as its index, in
+/// raster order or, `backward`, the reverse), the nearest valid values
+/// along the row (west, or east when `backward`), its diagonal through the
+/// left neighbour's row, straight, and the diagonal through the right; the
+/// rows before it are those above (or below).
+fn nearest_valid(map: &DisparityMap, backward: bool, found: &mut Vec<(usize, [f32; 4])>) {
     let (w, h) = map.dims();
-    let mut found = Vec::new();
+    found.clear();
     let mut pass = DirectionPass::new(w);
     for i in 0..h {
         let y = if backward { h - 1 - i } else { i };
@@ -339,7 +373,6 @@ fn nearest_valid(map: &DisparityMap, backward: bool) -> Vec<(usize, [f32; 4])> {
         }
         pass.advance(row);
     }
-    found
 }
 
 /// Whether `d` is a valid (finite, disparities are never NaN) disparity,

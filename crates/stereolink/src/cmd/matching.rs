@@ -47,15 +47,16 @@ pub struct MatcherArgs {
     pub median: Option<usize>,
     /// Colour-weighted median guided by the left view, radius in pixels; it
     /// runs before and after the fill and replaces the plain median unless
-    /// --median is given too. Default 8 for wta (bad > 1 px 3.60 / 0.87 /
-    /// 15.35 / 6.85 % on Tsukuba / Venus / Teddy / Cones; `0 --median 5`
-    /// takes about 0.6x the time at 5.89 / 3.73 / 18.44 / 10.09 %), off
+    /// --median is given too. Default 8 for wta (bad > 1 px 3.63 / 0.90 /
+    /// 15.47 / 6.69 % on Tsukuba / Venus / Teddy / Cones; `0 --median 5`
+    /// takes about 0.9x the time at 5.89 / 3.73 / 18.44 / 10.09 %), off
     /// (0) for lg and sgm.
     #[arg(long, value_name = "RADIUS")]
     pub weighted_median: Option<usize>,
-    /// Colour scale σ of the weighted median (summed RGB levels; default 50).
-    #[arg(long)]
-    pub wm_sigma: Option<f32>,
+    /// Colour reach of the weighted median: the summed RGB difference at
+    /// which a neighbour's weight falls to zero (1–255; default 150).
+    #[arg(long, value_parser = clap::value_parser!(u8).range(1..))]
+    pub wm_reach: Option<u8>,
     /// Sampling step inside the weighted median's window (default 4).
     #[arg(long)]
     pub wm_step: Option<usize>,
@@ -203,7 +204,7 @@ impl MatcherArgs {
             });
         }
         if let Some(wm) = spec.refine.weighted_median.as_mut() {
-            wm.sigma_color = self.wm_sigma.unwrap_or(wm.sigma_color);
+            wm.color_reach = self.wm_reach.unwrap_or(wm.color_reach);
             wm.step = self.wm_step.unwrap_or(wm.step);
         }
         if let Some(f) = self.fill {
