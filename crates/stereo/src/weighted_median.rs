@@ -141,8 +141,8 @@ pub struct WeightedMedianGuide {
     offsets: Vec<isize>,
     /// [`weight_shift`] of the window.
     shift: u32,
-    /// The kernels' instruction set (same results with any).
-    kernel: Kernel,
+    /// Whether the kernels run with AVX2 (same results either way).
+    avx2: bool,
     /// The bins of the map being filtered, padded as the colour planes.
     bin_pad: Vec<u16>,
 }
@@ -150,18 +150,19 @@ pub struct WeightedMedianGuide {
 impl WeightedMedianGuide {
     /// The guide of `guide` for `p`.
     pub fn new(guide: &RgbImage, p: &WeightedMedian) -> Self {
-        Self::with_kernel(guide, p, Kernel::detect())
+        Self::with_avx2(guide, p, crate::wta::avx2_available())
     }
 
-    /// [`Self::new`] with the kernels of `kernel` (only one the CPU has).
-    fn with_kernel(guide: &RgbImage, p: &WeightedMedian, kernel: Kernel) -> Self {
+    /// [`Self::new`] with the AVX2 kernels (`avx2`, only if the CPU has it)
+    /// or the portable ones.
+    fn with_avx2(guide: &RgbImage, p: &WeightedMedian, avx2: bool) -> Self {
         let mut g = WeightedMedianGuide {
             p: *p,
             dims: (0, 0),
             planes: Default::default(),
             offsets: Vec::new(),
             shift: 0,
-            kernel,
+            avx2,
             bin_pad: Vec::new(),
         };
         g.rebuild(guide, p);
@@ -263,9 +264,7 @@ impl WeightedMedianGuide {
         let invalid = bins as u16;
         let mut bin_pad = std::mem::take(&mut self.bin_pad);
         pad_into(&mut bin_pad, map.as_slice(), self.dims, r, |row, src| {
-            with_avx2(self.kernel != Kernel::Portable, || {
-                bin_row(row, src, lo, invalid)
-            })
+            with_avx2(self.avx2, || bin_row(row, src, lo, invalid))
         });
         let job = MapJob {
             guide: self,
@@ -278,14 +277,12 @@ impl WeightedMedianGuide {
             .par_chunks_mut(w)
             .enumerate()
             .for_each_init(RowScratch::default, |scratch, (y, row)| {
-                match self.kernel {
-                    // SAFETY: a kernel only when the CPU has it.
-                    #[cfg(target_arch = "x86_64")]
-                    Kernel::Avx512 => unsafe { filter_row_avx512(&job, y, row, scratch) },
-                    #[cfg(target_arch = "x86_64")]
-                    Kernel::Avx2 => unsafe { filter_row_avx2(&job, y, row, scratch) },
-                    _ => filter_row::<16>(&job, y, row, scratch),
+                #[cfg(target_arch = "x86_64")]
+                if self.avx2 {
+                    // SAFETY: `avx2` only when the CPU has it.
+                    return unsafe { filter_row_avx2(&job, y, row, scratch) };
                 }
+                filter_row(&job, y, row, scratch)
             });
         self.bin_pad = bin_pad;
     }
@@ -304,76 +301,25 @@ struct MapJob<'a> {
     borders: bool,
 }
 
-/// The instruction sets of the weighted median's kernels: the same loops,
-/// compiled for each, in wider vectors.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Kernel {
-    /// The target's baseline (SSE2 on x86-64).
-    Portable,
-    /// AVX2: [`settle`] on 16 pixels a step, one 256-bit register per sum.
-    Avx2,
-    /// AVX-512 (F, BW, VL) with AVX2: 32 pixels a step, one 512-bit
-    /// register per sum (on Cones, 0.91–0.92x the CPU time of the whole
-    /// default WTA with AVX2).
-    Avx512,
-}
-
-impl Kernel {
-    /// The widest kernel the CPU has.
-    fn detect() -> Kernel {
-        if avx512_available() {
-            Kernel::Avx512
-        } else if crate::wta::avx2_available() {
-            Kernel::Avx2
-        } else {
-            Kernel::Portable
-        }
-    }
-}
-
-/// Whether the CPU has AVX2 and the AVX-512 subsets of [`Kernel::Avx512`].
-fn avx512_available() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        crate::wta::avx2_available()
-            && std::is_x86_feature_detected!("avx512f")
-            && std::is_x86_feature_detected!("avx512bw")
-            && std::is_x86_feature_detected!("avx512vl")
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
-}
-
 /// [`filter_row`] compiled for AVX2 (a function of its own: LLVM does not
 /// always inline a closure this large into [`with_avx2`]'s).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 unsafe fn filter_row_avx2(job: &MapJob, y: usize, row: &mut [f32], scratch: &mut RowScratch) {
-    filter_row::<16>(job, y, row, scratch)
+    filter_row(job, y, row, scratch)
 }
 
-/// [`filter_row`] compiled for AVX-512, 32 pixels a step.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,avx512f,avx512bw,avx512vl")]
-unsafe fn filter_row_avx512(job: &MapJob, y: usize, row: &mut [f32], scratch: &mut RowScratch) {
-    filter_row::<32>(job, y, row, scratch)
-}
+/// Pixels whose sums [`settle`] keeps in registers together.
+const LANES: usize = 16;
 
 /// A bin above every valid one and `invalid`: the pixel is left to
 /// [`exact_median`].
 const HARD: u16 = u16::MAX;
 
 /// [`WeightedMedianGuide::filter`] for row `y` of the output, `row` (a
-/// copy of the map's), [`settle`] on `LANES` pixels a step.
+/// copy of the map's).
 #[inline(always)]
-fn filter_row<const LANES: usize>(
-    job: &MapJob,
-    y: usize,
-    row: &mut [f32],
-    scratch: &mut RowScratch,
-) {
+fn filter_row(job: &MapJob, y: usize, row: &mut [f32], scratch: &mut RowScratch) {
     let (w, r) = (row.len(), job.guide.p.radius);
     let wp = w + 2 * r;
     let (lo, invalid) = (job.lo, job.invalid);
@@ -805,8 +751,8 @@ mod tests {
         }
     }
 
-    /// Every kernel the CPU has gives the definition's map, bit for bit,
-    /// on all pixels and on hole borders only.
+    /// Both paths (AVX2 where the CPU has it, and the portable one) give
+    /// the definition's map, bit for bit, with holes filled and kept.
     fn as_defined(
         map: &DisparityMap,
         guide: &RgbImage,
@@ -815,20 +761,15 @@ mod tests {
         let bits = |m: &DisparityMap| m.as_slice().iter().map(|v| v.to_bits()).collect::<Vec<_>>();
         let want = bits(&naive(map, guide, p, false));
         proptest::prop_assert_eq!(bits(&weighted_median(map, guide, p)), want.clone());
-        let want_borders = bits(&naive(map, guide, p, true));
+        let mut portable = WeightedMedianGuide::with_avx2(guide, p, false);
         let mut out = DisparityMap::default();
-        let kernels = [
-            (Kernel::Portable, true),
-            (Kernel::Avx2, crate::wta::avx2_available()),
-            (Kernel::Avx512, avx512_available()),
-        ];
-        for (kernel, _) in kernels.into_iter().filter(|&(_, has)| has) {
-            let mut g = WeightedMedianGuide::with_kernel(guide, p, kernel);
-            g.filter(map, &mut out);
-            proptest::prop_assert_eq!(bits(&out), want.clone(), "{:?}", kernel);
-            g.filter_borders(map, &mut out);
-            proptest::prop_assert_eq!(bits(&out), want_borders.clone(), "{:?}", kernel);
-        }
+        portable.filter(map, &mut out);
+        proptest::prop_assert_eq!(bits(&out), want);
+        let want = bits(&naive(map, guide, p, true));
+        WeightedMedianGuide::new(guide, p).filter_borders(map, &mut out);
+        proptest::prop_assert_eq!(bits(&out), want.clone());
+        portable.filter_borders(map, &mut out);
+        proptest::prop_assert_eq!(bits(&out), want);
         Ok(())
     }
 
