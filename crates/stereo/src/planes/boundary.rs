@@ -44,6 +44,26 @@ impl Default for BoundaryParams {
     }
 }
 
+impl BoundaryParams {
+    /// Largest `radius` and `window` accepted: beyond them the step's cost
+    /// (`(2·radius + 1)²` neighbours, `(2·window + 1)²` samples per
+    /// candidate) grows without measured gain.
+    pub const MAX_SIDE: usize = 8;
+
+    pub(crate) fn validate(&self) -> Result<(), crate::StereoError> {
+        if self.radius > Self::MAX_SIDE
+            || self.window > Self::MAX_SIDE
+            || !(self.sigma.is_finite() && self.sigma > 0.0)
+        {
+            return Err(crate::StereoError::Parameter(format!(
+                "plane boundary radius and window must be at most {}, sigma finite and positive: {self:?}",
+                Self::MAX_SIDE
+            )));
+        }
+        Ok(())
+    }
+}
+
 /// Re-chooses the plane of every pixel near a segment boundary in
 /// `disparity` (the rendering of `planes` over `ids`, clamped to `range`).
 pub fn refine(

@@ -188,7 +188,7 @@ impl PlanesParams {
                 "plane matcher tolerances must be finite and positive, smoothness, agreement and intensity >= 0, split in 0..=1: {self:?}"
             )));
         }
-        Ok(())
+        self.boundary.validate()
     }
 }
 

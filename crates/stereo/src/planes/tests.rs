@@ -302,6 +302,23 @@ fn one_pixel_and_thousands_of_segments_still_give_a_dense_map() {
 }
 
 #[test]
+fn out_of_range_split_and_boundary_parameters_are_errors() {
+    let s = two_planes();
+    for change in [
+        |p: &mut PlanesParams| p.split = 1.5,
+        |p: &mut PlanesParams| p.split = f32::NAN,
+        |p: &mut PlanesParams| p.boundary.radius = 1000,
+        |p: &mut PlanesParams| p.boundary.window = 9,
+        |p: &mut PlanesParams| p.boundary.sigma = 0.0,
+    ] {
+        let mut spec = spec();
+        change(&mut spec.planes);
+        let err = match_planes(&s.left, &s.right, &s.labels, &spec).unwrap_err();
+        assert!(matches!(err, StereoError::Parameter(_)), "{err:?}");
+    }
+}
+
+#[test]
 fn a_textureless_pair_gives_no_nan() {
     let img = RgbImage::new(60, 40, [128; 3]);
     let labels = LabelMap::from_fn(60, 40, |x, _| (x / 20) as u16);

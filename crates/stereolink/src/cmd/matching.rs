@@ -118,12 +118,12 @@ pub struct MatcherArgs {
     pub plane_tile: Option<usize>,
     /// Planes: pixels within this distance (px) of another segment choose
     /// among the nearby segments' planes by a colour-weighted cost over an
-    /// 11×11 window (default 1; 0 keeps each segment's plane).
+    /// 11×11 window (default 1, at most 8; 0 keeps each segment's plane).
     #[arg(long, value_name = "RADIUS")]
     pub plane_boundary: Option<usize>,
     /// Planes: a segment whose plane misses more than this fraction of its
     /// reliable pixels by over 1 px is cut by tiles of half the side and
-    /// fitted again (default 0.4; 0: never).
+    /// fitted again (0–1, default 0.4; 0: never).
     #[arg(long, value_name = "FRACTION")]
     pub plane_split: Option<f32>,
     /// SGM and planes: take a camera's period-2 column ripple out of both
