@@ -360,8 +360,15 @@ fn gray_pair(
     right: &RgbImage,
     ripple: ripple::RippleFilter,
 ) -> (GrayImage, GrayImage) {
-    let (l, r) = rayon::join(|| color::rgb_to_gray(left), || color::rgb_to_gray(right));
-    if ripple.applies(&l) {
+    let ((l, filter), r) = rayon::join(
+        || {
+            let l = color::rgb_to_gray(left);
+            let filter = ripple.applies(&l);
+            (l, filter)
+        },
+        || color::rgb_to_gray(right),
+    );
+    if filter {
         rayon::join(
             || ripple::suppress_column_ripple(&l),
             || ripple::suppress_column_ripple(&r),

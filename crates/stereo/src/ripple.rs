@@ -61,27 +61,34 @@ pub fn column_ripple(gray: &GrayImage) -> f32 {
     if w < 4 || h < 4 {
         return 0.0;
     }
-    let g = gray.as_slice();
-    let second = |a: u8, b: u8, c: u8| 2 * i16::from(b) - i16::from(a) - i16::from(c);
-    let flips = |d0: i16, d1: i16| u64::from((d0 > 0 && d1 < 0) || (d0 < 0 && d1 > 0));
-    let mut along_rows = 0u64;
-    for row in g.chunks_exact(w) {
-        let mut prev = second(row[0], row[1], row[2]);
-        for t in row.windows(3).skip(1) {
-            let d = second(t[0], t[1], t[2]);
-            along_rows += flips(prev, d);
-            prev = d;
+    // Second differences of rows a, b, c at each column (b the middle),
+    // and the sign flips between two such lines; row-major, so that both
+    // passes stream through memory.
+    let second = |a: &[u8], b: &[u8], c: &[u8], out: &mut [i16]| {
+        for (((o, &a), &b), &c) in out.iter_mut().zip(a).zip(b).zip(c) {
+            *o = 2 * i16::from(b) - i16::from(a) - i16::from(c);
         }
+    };
+    let flips = |d0: &[i16], d1: &[i16]| -> u64 {
+        d0.iter()
+            .zip(d1)
+            .map(|(&a, &b)| u64::from(i32::from(a) * i32::from(b) < 0))
+            .sum()
+    };
+    let rows: Vec<&[u8]> = gray.as_slice().chunks_exact(w).collect();
+    let mut along_rows = 0u64;
+    let mut d = vec![0i16; w - 2];
+    for row in &rows {
+        second(row, &row[1..], &row[2..], &mut d);
+        along_rows += flips(&d[..w - 3], &d[1..]);
     }
     let mut along_columns = 0u64;
-    for x in 0..w {
-        let at = |y: usize| g[y * w + x];
-        let mut prev = second(at(0), at(1), at(2));
-        for y in 2..h - 1 {
-            let d = second(at(y - 1), at(y), at(y + 1));
-            along_columns += flips(prev, d);
-            prev = d;
-        }
+    let (mut prev, mut cur) = (vec![0i16; w], vec![0i16; w]);
+    second(rows[0], rows[1], rows[2], &mut prev);
+    for t in rows.windows(3).skip(1) {
+        second(t[0], t[1], t[2], &mut cur);
+        along_columns += flips(&prev, &cur);
+        std::mem::swap(&mut prev, &mut cur);
     }
     let row_pairs = (h * (w - 3)) as f32;
     let column_pairs = (w * (h - 3)) as f32;
