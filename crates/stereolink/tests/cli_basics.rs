@@ -257,7 +257,7 @@ fn planes_matches_through_eval_and_match_with_any_segments() {
 
 /// On the real v2 scenes (`STEREOLINK_DATA`), planes over the default mean
 /// shift over-segmentation beat our SGM on all four (bad > 1 px
-/// non-occluded, measured 2.51 / 0.44 / 5.24 / 2.95 % against 2.68 / 0.94
+/// non-occluded, measured 2.48 / 0.44 / 5.20 / 3.04 % against 2.68 / 0.94
 /// / 6.04 / 3.60 % on Tsukuba / Venus / Teddy / Cones).
 #[test]
 fn planes_beat_sgm_on_the_four_v2_scenes() {
