@@ -38,8 +38,8 @@ pub struct BoundaryParams {
     /// not follow depth the weights cannot tell the surfaces apart, and
     /// close costs are noise: on the built-in synthetic scene (`synth
     /// --seed 5`, 160×120) planes give 0.74 / 0.64 / 0.54 / 0.38 % bad
-    /// > 1 px with margins 0 / 0.05 / 0.1 / 0.2 (0.09 without the step),
-    /// and the 20 shared scenes 10.40 / 10.38 / 10.41 / 10.49 %.
+    /// pixels (over 1 px) with margins 0 / 0.05 / 0.1 / 0.2 (0.09 without
+    /// the step), and the 20 shared scenes 10.40 / 10.38 / 10.41 / 10.49 %.
     pub margin: f32,
 }
 
