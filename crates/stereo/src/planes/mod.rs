@@ -36,8 +36,6 @@ pub mod boundary;
 pub mod fit;
 pub mod graph;
 
-use std::collections::HashMap;
-
 use stereolink_image::segments::components;
 use stereolink_image::{DisparityMap, LabelMap, Plane, RgbImage};
 
@@ -307,16 +305,24 @@ pub fn split_bent(
     // The half-side tiles refine the tiles, so each fine component lies in
     // one segment. Fine ids go above the segments' own, then all are
     // renumbered by first pixel in raster order.
-    let (fine, _) = components(labels, params.tile / 2);
-    let base = graph.len() as u32;
-    let mut renumber: HashMap<u32, u32> = HashMap::new();
+    let (fine, fine_count) = components(labels, params.tile / 2);
+    let base = graph.len();
+    let mut renumber = vec![u32::MAX; base + fine_count];
+    let mut count = 0u32;
     let mut ids = graph.ids.clone();
     for (id, &f) in ids.as_mut_slice().iter_mut().zip(fine.as_slice()) {
-        let raw = if bent[*id as usize] { base + f } else { *id };
-        let next = renumber.len() as u32;
-        *id = *renumber.entry(raw).or_insert(next);
+        let raw = if bent[*id as usize] {
+            base + f as usize
+        } else {
+            *id as usize
+        };
+        if renumber[raw] == u32::MAX {
+            renumber[raw] = count;
+            count += 1;
+        }
+        *id = renumber[raw];
     }
-    Some(SegmentGraph::from_ids(ids, renumber.len()))
+    Some(SegmentGraph::from_ids(ids, count as usize))
 }
 
 /// The LR-checked subpixel SGM map: finite where a pixel may vote.

@@ -91,11 +91,7 @@ fn in_front(x: usize, y: usize) -> bool {
 
 /// Background split into four segments, the slanted box one more.
 fn two_planes() -> SlantedScene {
-    slanted_scene(
-        180,
-        120,
-        &[BACK, FRONT],
-        |x, y| in_front(x, y) as usize,
+    box_scene(
         |x, y| {
             if in_front(x, y) {
                 4
@@ -103,6 +99,20 @@ fn two_planes() -> SlantedScene {
                 (x / 90 + 2 * (y / 60)) as u16
             }
         },
+        |_, g| g,
+    )
+}
+
+/// The slanted box in front of the slanted background, 180×120, with the
+/// given labels and shades (of region 0, the background, and 1, the box).
+fn box_scene(label: impl Fn(usize, usize) -> u16, shade: impl Fn(usize, u8) -> u8) -> SlantedScene {
+    shaded_scene(
+        180,
+        120,
+        &[BACK, FRONT],
+        |x, y| in_front(x, y) as usize,
+        label,
+        shade,
     )
 }
 
@@ -218,14 +228,9 @@ fn without_the_boundary_step_the_dense_map_is_the_plane_table_rendered() {
 #[test]
 fn the_boundary_step_moves_a_misplaced_segment_edge_onto_the_depth_edge() {
     // The box is darker than the background (grey 9–76 against 114–214),
-    // but its segment is two
-    // columns right of it: columns 60–61 of the box are labelled
-    // background, 120–121 of the background box.
-    let s = shaded_scene(
-        180,
-        120,
-        &[BACK, FRONT],
-        |x, y| in_front(x, y) as usize,
+    // but its segment is two columns right of it: columns 60–61 of the box
+    // are labelled background, 120–121 of the background box.
+    let s = box_scene(
         |x, y| u16::from((62..122).contains(&x) && (30..90).contains(&y)),
         |r, g| if r == 1 { g / 3 } else { 100 + g / 2 },
     );
@@ -266,11 +271,7 @@ fn a_label_map_of_another_size_is_an_error() {
 fn a_segment_without_reliable_pixels_borrows_a_neighbours_plane() {
     // The band left of the box is occluded in the right view: nothing there
     // passes the LR check, yet it gets the background's plane.
-    let s = slanted_scene(
-        180,
-        120,
-        &[BACK, FRONT],
-        |x, y| in_front(x, y) as usize,
+    let s = box_scene(
         |x, y| match (
             in_front(x, y),
             (50..60).contains(&x) && (30..90).contains(&y),
@@ -279,6 +280,7 @@ fn a_segment_without_reliable_pixels_borrows_a_neighbours_plane() {
             (false, true) => 1,
             _ => 0,
         },
+        |_, g| g,
     );
     let m = match_planes(&s.left, &s.right, &s.labels, &spec()).unwrap();
     assert!(m.disparity.as_slice().iter().all(|d| d.is_finite()));
