@@ -82,7 +82,7 @@ fn stages(c: &mut Criterion) {
                 &graph.ids,
                 &of_segment,
                 &cost,
-                gl.as_slice(),
+                (&s.left, &s.right),
                 (0.0, 31.0),
                 &params.boundary,
                 &mut d,

@@ -80,28 +80,28 @@ impl<'a> DataCost<'a> {
         }
     }
 
-    /// The cost of pixel `p` at disparity `d`.
-    fn pixel(&self, p: usize, d: f32) -> f32 {
+    /// The cost of pixel `p`, in column `x`, at disparity `d`.
+    fn pixel(&self, p: usize, x: usize, d: f32) -> f32 {
         let d0 = self.reliable.as_slice()[p];
         let agreement = if d0.is_finite() {
             self.agreement * (d - d0).abs().min(self.agreement_cap)
         } else {
             0.0
         };
-        agreement + self.matching(p, d)
+        agreement + self.matching(p, x, d)
     }
 
-    /// The truncated census and grey cost of pixel `p` at disparity `d`,
-    /// interpolated between whole disparities.
-    pub(crate) fn matching(&self, p: usize, d: f32) -> f32 {
-        let x = (p % self.width) as f32;
-        let xr = x - d;
+    /// The truncated census and grey cost of pixel `p`, in column `x`, at
+    /// disparity `d`, interpolated between whole disparities.
+    #[inline]
+    pub(crate) fn matching(&self, p: usize, x: usize, d: f32) -> f32 {
+        let xr = x as f32 - d;
         if xr < 0.0 {
             return self.truncation;
         }
         let i = xr as usize;
         let f = xr - i as f32;
-        let row = p - p % self.width;
+        let row = p - x;
         let (i0, i1) = (row + i, row + (i + 1).min(self.width - 1));
         let c = self.left[p];
         let h0 = (c ^ self.right[i0]).count_ones() as f32;
@@ -118,7 +118,8 @@ impl<'a> DataCost<'a> {
             .iter()
             .map(|&p| {
                 let p = p as usize;
-                self.pixel(p, plane.pixel(p % self.width, p / self.width, self.range))
+                let (x, y) = (p % self.width, p / self.width);
+                self.pixel(p, x, plane.pixel(x, y, self.range))
             })
             .sum()
     }

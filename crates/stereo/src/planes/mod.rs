@@ -134,11 +134,10 @@ pub struct PlanesParams {
     /// Most sweeps of greedy moves.
     pub sweeps: usize,
     /// The per-pixel plane choice near segment boundaries ([`boundary`]):
-    /// with it (radius 1, 11×11 window, σ 10) the 20 shared scenes average
-    /// 10.41 against 10.73 % (Tsukuba / Venus / Teddy / Cones 2.46 / 0.44 /
-    /// 4.74 / 2.91 against 2.69 / 0.50 / 4.69 / 3.11); radius 2 and 3
-    /// gave 10.37 and 10.36 % but lose on the v2 scenes (Teddy 4.93,
-    /// 5.06), a 5×5 window 10.59 %.
+    /// with it (radius 5, 11×11 window, symmetric colour weights, margin
+    /// 0.1) the 20 shared scenes average 10.02 against 10.70 % without
+    /// (Tsukuba / Venus / Teddy / Cones 2.24 / 0.42 / 5.06 / 2.88 against
+    /// 2.80 / 0.48 / 5.20 / 3.11).
     pub boundary: boundary::BoundaryParams,
 }
 
@@ -260,7 +259,7 @@ pub(crate) fn match_planes_with(
         &graph.ids,
         &planes,
         &cost,
-        gl.as_slice(),
+        (left, right),
         range,
         &params.boundary,
         &mut disparity,

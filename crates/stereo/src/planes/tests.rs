@@ -312,6 +312,8 @@ fn out_of_range_split_and_boundary_parameters_are_errors() {
         |p: &mut PlanesParams| p.boundary.radius = 1000,
         |p: &mut PlanesParams| p.boundary.window = 9,
         |p: &mut PlanesParams| p.boundary.sigma = 0.0,
+        |p: &mut PlanesParams| p.boundary.margin = 1.0,
+        |p: &mut PlanesParams| p.boundary.distinct = f32::NAN,
     ] {
         let mut spec = spec();
         change(&mut spec.planes);

@@ -117,8 +117,9 @@ pub struct MatcherArgs {
     #[arg(long)]
     pub plane_tile: Option<usize>,
     /// Planes: pixels within this distance (px) of another segment choose
-    /// among the nearby segments' planes by a colour-weighted cost over an
-    /// 11×11 window (default 1, at most 8; 0 keeps each segment's plane).
+    /// among the nearby segments' planes by an adaptive-support cost over
+    /// an 11×11 window, weighted by colour likeness in both views (default
+    /// 5, at most 8; 0 keeps each segment's plane).
     #[arg(long, value_name = "RADIUS")]
     pub plane_boundary: Option<usize>,
     /// Planes: a segment whose plane misses more than this fraction of its
