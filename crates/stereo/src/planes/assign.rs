@@ -180,12 +180,42 @@ pub fn cluster(
             members[*k as usize].push(s);
         }
     }
-    let planes = members
+    let planes = refit_members(graph, &members, &seeds, disparity, params);
+    Clusters { planes, of_segment }
+}
+
+/// Each plane of `planes` refitted over the reliable pixels of the segments
+/// that `label` gives it (unchanged when none does, or the refit fails).
+pub fn refit_taken(
+    graph: &SegmentGraph,
+    label: &[u32],
+    planes: &[DisparityPlane],
+    disparity: &DisparityMap,
+    params: &PlanesParams,
+) -> Vec<DisparityPlane> {
+    let mut members: Vec<Vec<usize>> = vec![Vec::new(); planes.len()];
+    for (s, &k) in label.iter().enumerate() {
+        members[k as usize].push(s);
+    }
+    refit_members(graph, &members, planes, disparity, params)
+}
+
+/// Each plane of `planes` refitted over the reliable pixels of its
+/// `members` (kept when it has at most one member, whose plane it is, or
+/// the refit fails).
+fn refit_members(
+    graph: &SegmentGraph,
+    members: &[Vec<usize>],
+    planes: &[DisparityPlane],
+    disparity: &DisparityMap,
+    params: &PlanesParams,
+) -> Vec<DisparityPlane> {
+    members
         .par_iter()
-        .zip(&seeds)
-        .map(|(segs, &seed)| {
-            if segs.len() == 1 {
-                return seed;
+        .zip(planes)
+        .map(|(segs, &plane)| {
+            if segs.len() <= 1 {
+                return plane;
             }
             let mut all: Vec<Sample> = Vec::new();
             let mut one = Vec::new();
@@ -193,10 +223,9 @@ pub fn cluster(
                 samples(disparity, graph.pixels(s), &mut one);
                 all.extend_from_slice(&one);
             }
-            refit(&all, seed, params.fit.inlier).unwrap_or(seed)
+            refit(&all, plane, params.fit.inlier).unwrap_or(plane)
         })
-        .collect();
-    Clusters { planes, of_segment }
+        .collect()
 }
 
 /// The four corners of the bounding box of `pixels` (non-empty, raster order).

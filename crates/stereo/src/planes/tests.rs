@@ -339,3 +339,38 @@ fn a_textureless_pair_gives_no_nan() {
         .iter()
         .all(|p| p.a.is_finite() && p.b.is_finite() && p.c.is_finite()));
 }
+
+#[test]
+fn a_plane_is_refitted_over_every_segment_that_took_it() {
+    // Two segments side by side on one slanted plane, both given a plane
+    // that is 0.4 px off (within the inlier tolerance); a third plane is
+    // taken by none.
+    let truth = DisparityPlane {
+        a: 0.05,
+        b: -0.02,
+        c: 6.0,
+    };
+    let off = DisparityPlane { c: 6.4, ..truth };
+    let other = DisparityPlane {
+        a: 0.0,
+        b: 0.0,
+        c: 2.0,
+    };
+    let ids = Plane::from_fn(40, 20, |x, _| u32::from(x >= 20));
+    let graph = SegmentGraph::from_ids(ids, 2);
+    let reliable = DisparityMap::from_fn(40, 20, |x, y| truth.at(x as f32, y as f32));
+    let params = PlanesParams::default();
+    let planes = assign::refit_taken(&graph, &[0, 0], &[off, other], &reliable, &params);
+    for (got, want) in [
+        (planes[0].a, truth.a),
+        (planes[0].b, truth.b),
+        (planes[0].c, truth.c),
+    ] {
+        assert!(
+            (got - want).abs() < 1e-4,
+            "{:?} against {truth:?}",
+            planes[0]
+        );
+    }
+    assert_eq!(planes[1], other);
+}

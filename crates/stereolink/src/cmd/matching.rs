@@ -124,9 +124,13 @@ pub struct MatcherArgs {
     pub plane_boundary: Option<usize>,
     /// Planes: a segment whose plane misses more than this fraction of its
     /// reliable pixels by over 1 px is cut by tiles of half the side and
-    /// fitted again (0–1, default 0.4; 0: never).
+    /// fitted again (0–1, default 0.5; 0: never).
     #[arg(long, value_name = "FRACTION")]
     pub plane_split: Option<f32>,
+    /// Planes: rounds of refitting each plane over all the segments that
+    /// took it, and assigning again (default 2).
+    #[arg(long, value_name = "ROUNDS")]
+    pub plane_refits: Option<usize>,
     /// SGM and planes: take a camera's period-2 column ripple out of both
     /// grey views first, with a two-tap average along rows. `auto` does so
     /// when the left view's second differences alternate in sign along
@@ -224,6 +228,8 @@ impl MatcherArgs {
         spec.planes.intensity = self.plane_intensity.unwrap_or(spec.planes.intensity);
         spec.planes.tile = self.plane_tile.unwrap_or(spec.planes.tile);
         spec.planes.boundary.radius = self.plane_boundary.unwrap_or(spec.planes.boundary.radius);
+        spec.planes.split = self.plane_split.unwrap_or(spec.planes.split);
+        spec.planes.refits = self.plane_refits.unwrap_or(spec.planes.refits);
         spec.ripple = self.ripple;
         Ok(spec)
     }
