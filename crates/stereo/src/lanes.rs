@@ -411,6 +411,32 @@ impl LaneOps for Avx2 {
         use std::arch::x86_64::*;
         let iota = _mm256_setr_epi16(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
         let (ones, sign) = (_mm256_set1_epi16(-1), _mm256_set1_epi16(i16::MIN));
+        if valid % LANES == 0 {
+            // Whole blocks (the usual case): no lane to mask, and the
+            // lanes' indices step from block to block.
+            let blocks = best
+                .chunks_exact_mut(LANES)
+                .zip(which.chunks_exact_mut(LANES))
+                .zip(costs.chunks_exact(LANES))
+                .take(valid / LANES);
+            let mut index = iota;
+            for ((best, which), cost) in blocks {
+                let c = _mm256_loadu_si256(cost.as_ptr().cast());
+                let (bp, wp) = (
+                    best.as_mut_ptr().cast::<__m256i>(),
+                    which.as_mut_ptr().cast(),
+                );
+                let old = _mm256_loadu_si256(bp);
+                let m = _mm256_min_epu16(old, c);
+                // `old ≤ c`: the old one stays.
+                let stay = _mm256_cmpeq_epi16(m, old);
+                _mm256_storeu_si256(bp, m);
+                let w = _mm256_blendv_epi8(index, _mm256_loadu_si256(wp), stay);
+                _mm256_storeu_si256(wp, w);
+                index = _mm256_add_epi16(index, _mm256_set1_epi16(LANES as i16));
+            }
+            return;
+        }
         let blocks = best
             .chunks_exact_mut(LANES)
             .zip(which.chunks_exact_mut(LANES));
@@ -493,6 +519,10 @@ mod tests {
                 let (mut best_a, mut which_a) = (ties.clone(), vec![99u16; n]);
                 Portable::min_update(&mut best_p, &mut which_p, &col, valid);
                 Avx2::min_update(&mut best_a, &mut which_a, &col, valid);
+                prop_assert_eq!((&best_p, &which_p), (&best_a, &which_a));
+                // All lanes valid (the AVX2 kernel's path without masks).
+                Portable::min_update(&mut best_p, &mut which_p, &r, n);
+                Avx2::min_update(&mut best_a, &mut which_a, &r, n);
                 prop_assert_eq!((best_p, which_p), (best_a, which_a));
             }
         }
