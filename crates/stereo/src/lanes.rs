@@ -50,6 +50,8 @@ pub(crate) trait LaneOps {
     /// `best[i] = costs[i]` and `which[i] = i` (an earlier smaller or equal
     /// cost stays).
     unsafe fn min_update(best: &mut [u16], which: &mut [u16], costs: &[u16], valid: usize);
+    /// `best[i] = min(best[i], costs[i])` for every lane `i < valid`.
+    unsafe fn min_first(best: &mut [u16], costs: &[u16], valid: usize);
 }
 
 /// Plain Rust, for every CPU.
@@ -119,6 +121,13 @@ impl LaneOps for Portable {
         for (((b, w), &c), i) in lanes.zip(0u16..) {
             let take = c < *b;
             (*b, *w) = if take { (c, i) } else { (*b, *w) };
+        }
+    }
+
+    #[inline(always)]
+    unsafe fn min_first(best: &mut [u16], costs: &[u16], valid: usize) {
+        for (b, &c) in best.iter_mut().zip(&costs[..valid]) {
+            *b = (*b).min(c);
         }
     }
 }
@@ -280,6 +289,12 @@ impl LaneOps for Swar {
         // SAFETY: portable code.
         unsafe { Portable::min_update(best, which, costs, valid) }
     }
+
+    #[inline(always)]
+    unsafe fn min_first(best: &mut [u16], costs: &[u16], valid: usize) {
+        // SAFETY: portable code.
+        unsafe { Portable::min_first(best, costs, valid) }
+    }
 }
 
 /// AVX2 intrinsics (x86-64 only).
@@ -411,6 +426,32 @@ impl LaneOps for Avx2 {
         use std::arch::x86_64::*;
         let iota = _mm256_setr_epi16(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
         let (ones, sign) = (_mm256_set1_epi16(-1), _mm256_set1_epi16(i16::MIN));
+        if valid % LANES == 0 {
+            // Whole blocks (the usual case): no lane to mask, and the
+            // lanes' indices step from block to block.
+            let blocks = best
+                .chunks_exact_mut(LANES)
+                .zip(which.chunks_exact_mut(LANES))
+                .zip(costs.chunks_exact(LANES))
+                .take(valid / LANES);
+            let mut index = iota;
+            for ((best, which), cost) in blocks {
+                let c = _mm256_loadu_si256(cost.as_ptr().cast());
+                let (bp, wp) = (
+                    best.as_mut_ptr().cast::<__m256i>(),
+                    which.as_mut_ptr().cast(),
+                );
+                let old = _mm256_loadu_si256(bp);
+                let m = _mm256_min_epu16(old, c);
+                // `old ≤ c`: the old one stays.
+                let stay = _mm256_cmpeq_epi16(m, old);
+                _mm256_storeu_si256(bp, m);
+                let w = _mm256_blendv_epi8(index, _mm256_loadu_si256(wp), stay);
+                _mm256_storeu_si256(wp, w);
+                index = _mm256_add_epi16(index, _mm256_set1_epi16(LANES as i16));
+            }
+            return;
+        }
         let blocks = best
             .chunks_exact_mut(LANES)
             .zip(which.chunks_exact_mut(LANES));
@@ -434,6 +475,27 @@ impl LaneOps for Avx2 {
             _mm256_storeu_si256(bp, _mm256_min_epu16(old, c));
             let w = _mm256_blendv_epi8(_mm256_loadu_si256(wp), index, less);
             _mm256_storeu_si256(wp, w);
+        }
+    }
+
+    #[inline]
+    #[target_feature(enable = "avx2")]
+    unsafe fn min_first(best: &mut [u16], costs: &[u16], valid: usize) {
+        use std::arch::x86_64::*;
+        let iota = _mm256_setr_epi16(0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11, 12, 13, 14, 15);
+        let blocks = best.chunks_exact_mut(LANES).zip(costs.chunks_exact(LANES));
+        for (b, (best, cost)) in blocks.enumerate().take(valid.div_ceil(LANES)) {
+            let c = _mm256_loadu_si256(cost.as_ptr().cast());
+            let left = valid - b * LANES;
+            // Lanes past `valid` become the largest cost, which changes nothing.
+            let c = if left < LANES {
+                let inside = _mm256_cmpgt_epi16(_mm256_set1_epi16(left as i16), iota);
+                _mm256_or_si256(c, _mm256_andnot_si256(inside, _mm256_set1_epi16(-1)))
+            } else {
+                c
+            };
+            let p = best.as_mut_ptr().cast::<__m256i>();
+            _mm256_storeu_si256(p, _mm256_min_epu16(_mm256_loadu_si256(p), c));
         }
     }
 }
@@ -493,7 +555,16 @@ mod tests {
                 let (mut best_a, mut which_a) = (ties.clone(), vec![99u16; n]);
                 Portable::min_update(&mut best_p, &mut which_p, &col, valid);
                 Avx2::min_update(&mut best_a, &mut which_a, &col, valid);
-                prop_assert_eq!((best_p, which_p), (best_a, which_a));
+                prop_assert_eq!((&best_p, &which_p), (&best_a, &which_a));
+                // All lanes valid (the AVX2 kernel's path without masks).
+                Portable::min_update(&mut best_p, &mut which_p, &r, n);
+                Avx2::min_update(&mut best_a, &mut which_a, &r, n);
+                prop_assert_eq!((&best_p, which_p), (&best_a, which_a));
+                for v in [valid, n] {
+                    Portable::min_first(&mut best_p, &col, v);
+                    Avx2::min_first(&mut best_a, &col, v);
+                    prop_assert_eq!(&best_p, &best_a);
+                }
             }
         }
     }

@@ -378,9 +378,10 @@ fn gray_pair(
     }
 }
 
-/// WTA on gray views, and the left-right check when it is asked for,
-/// against the right view's map from the same pass (in `right_map`, kept
-/// from one call to the next).
+/// WTA on gray views, and the left-right check when it is asked for:
+/// inside the pass for whole disparities at a tolerance below one pixel
+/// (the default), else against the right view's map from the same pass
+/// (in `right_map`, kept from one call to the next).
 fn wta_with_check(
     matcher: &mut wta::WtaMatcher,
     right_map: &mut DisparityMap,
@@ -392,6 +393,11 @@ fn wta_with_check(
     let (w, h) = left.dims();
     let mut disp = DisparityMap::new(w, h, f32::INFINITY);
     match spec.refine.lr_check {
+        // Whole disparities and a tolerance below one pixel: the check
+        // inside the pass, which needs no right map.
+        Some(tol) if (0.0..1.0).contains(&tol) && !params.subpixel => {
+            matcher.compute_checked_into(left, right, &params, &mut disp);
+        }
         Some(tol) => {
             if right_map.dims() != (w, h) {
                 right_map.reset(w, h, f32::INFINITY);

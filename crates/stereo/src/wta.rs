@@ -267,9 +267,12 @@ struct Band {
     /// The min-filtered costs of one pixel.
     cost: Vec<u16>,
     /// Per right pixel `xr` of the current row, at `W − 1 − xr`: the
-    /// smallest cost seen so far and its lane (for the right view's map).
+    /// smallest cost seen so far and its lane (for the right view's map;
+    /// the cost alone for the check of [`WtaMatcher::compute_checked_into`]).
     right_best: Vec<u16>,
     right_lane: Vec<u16>,
+    /// Per left pixel of the current row, for that check.
+    winners: Vec<Winner>,
     /// The SWAR kernel's own scratch, in the board's setting (see [`swar`]).
     swar: swar::SwarBand,
 }
@@ -324,7 +327,7 @@ impl WtaMatcher {
         params: &WtaParams,
         out: &mut DisparityMap,
     ) {
-        self.compute(left, right, params, out, None);
+        self.compute(left, right, params, out, Right::None);
     }
 
     /// As [`compute_into`](Self::compute_into), with integer disparities:
@@ -343,7 +346,35 @@ impl WtaMatcher {
     ) {
         assert!(!params.subpixel, "integer levels have no subpixel part");
         assert!(params.min_disp + params.ndisp <= NO_DISPARITY as usize);
-        self.compute(left, right, params, out, None);
+        self.compute(left, right, params, out, Right::None);
+    }
+
+    /// As [`compute_into`](Self::compute_into), then the left-right check
+    /// at a tolerance below one pixel ([`crate::refine::lr_check`] with
+    /// `tol` in `0..1` against the map of [`Self::compute_both_into`]):
+    /// a pixel keeps its disparity if the right pixel it matches has the
+    /// same winner. Done in the pass, without the right view's map: the
+    /// right pixel `xr`'s winner is the smallest cost along its diagonal
+    /// of the left pixels' costs, the smallest disparity winning ties, so
+    /// the left pixel `xr + d` is that winner exactly when the running
+    /// minimum of `xr`'s costs before its lane `d` is above its cost and
+    /// the minimum of all of them, at the end of the row, equals it. A
+    /// running minimum per right pixel is all it keeps (no lane, no map to
+    /// write and look up): on Cones, one thread, matching and check took
+    /// 4.74 against 5.38 ms of CPU time a frame.
+    ///
+    /// # Panics
+    /// As [`compute_into`](Self::compute_into), and if `params` asks for
+    /// subpixel refinement (whose disparities the check does not take).
+    pub fn compute_checked_into(
+        &mut self,
+        left: &Samples,
+        right: &Samples,
+        params: &WtaParams,
+        out: &mut DisparityMap,
+    ) {
+        assert!(!params.subpixel, "the check takes whole disparities");
+        self.compute(left, right, params, out, Right::Check);
     }
 
     /// As [`compute_into`](Self::compute_into), and also writes the right
@@ -365,7 +396,7 @@ impl WtaMatcher {
         right_out: &mut DisparityMap,
     ) {
         assert_eq!(left.dims(), right_out.dims());
-        self.compute(left, right, params, out, Some(right_out));
+        self.compute(left, right, params, out, Right::Map(right_out));
     }
 
     fn compute<T: Disparity>(
@@ -374,7 +405,7 @@ impl WtaMatcher {
         right: &Samples,
         params: &WtaParams,
         out: &mut Plane<T>,
-        right_out: Option<&mut DisparityMap>,
+        right_view: Right,
     ) {
         use rayon::iter::Either;
         assert_eq!(left.dims(), right.dims());
@@ -405,9 +436,10 @@ impl WtaMatcher {
             Kernel::Auto => Kernel::Portable,
             k => k,
         };
-        let right_rows = match right_out {
-            Some(r) => Either::Left(r.as_mut_slice().par_chunks_mut(w * band_rows).map(Some)),
-            None => Either::Right((0..n_bands).into_par_iter().map(|_| None)),
+        let check = matches!(right_view, Right::Check);
+        let right_rows = match right_view {
+            Right::Map(r) => Either::Left(r.as_mut_slice().par_chunks_mut(w * band_rows).map(Some)),
+            _ => Either::Right((0..n_bands).into_par_iter().map(|_| None)),
         };
         out.as_mut_slice()
             .par_chunks_mut(w * band_rows)
@@ -421,11 +453,13 @@ impl WtaMatcher {
                     stride,
                     params,
                     y0: i * band_rows,
+                    check,
                 };
                 let m = params.min_filter.max(1);
                 if kernel == Kernel::Swar
                     && m == 1
                     && right_rows.is_none()
+                    && !check
                     && swar::band(&job, &mut band.swar, rows)
                 {
                     return;
@@ -437,9 +471,14 @@ impl WtaMatcher {
                 band.ring.resize(if m > 1 { m * w * nl } else { 0 }, 0);
                 band.vmin.resize(if m > 1 { w * nl } else { 0 }, 0);
                 band.cost.resize(nl, 0);
-                if right_rows.is_some() {
+                if right_rows.is_some() || check {
                     band.right_best.resize(w + nl, 0);
+                }
+                if right_rows.is_some() {
                     band.right_lane.resize(w + nl, 0);
+                }
+                if check {
+                    band.winners.resize(w, Winner::default());
                 }
                 match kernel {
                     // Auto stands for AVX2 here.
@@ -500,6 +539,28 @@ struct Job<'a> {
     stride: usize,
     params: &'a WtaParams,
     y0: usize,
+    /// Whether the band checks its winners against the right view's
+    /// ([`WtaMatcher::compute_checked_into`]).
+    check: bool,
+}
+
+/// What [`WtaMatcher::compute`] finds of the right view.
+enum Right<'a> {
+    None,
+    /// Its map.
+    Map(&'a mut DisparityMap),
+    /// Only whether each left winner is its match's winner too.
+    Check,
+}
+
+/// A left pixel's winner, for the check of [`WtaMatcher::compute_checked_into`].
+#[derive(Clone, Copy, Default)]
+struct Winner {
+    /// Its lane and cost.
+    lane: u16,
+    cost: u16,
+    /// Whether every earlier lane of its right pixel cost more.
+    first: bool,
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -555,6 +616,7 @@ unsafe fn band_with<K: LaneOps, T: Disparity>(
     let vmin = &mut band.vmin[..if m > 1 { w * nd } else { 0 }];
     let cost = &mut band.cost[..nd];
     let (right_best, right_lane) = (&mut band.right_best, &mut band.right_lane);
+    let winners = &mut band.winners;
     let rows = out.len() / w;
     // Cost rows `first..last` feed the band's output rows.
     let first = job.y0.saturating_sub(mr);
@@ -611,7 +673,9 @@ unsafe fn band_with<K: LaneOps, T: Disparity>(
             &[]
         };
         let col = |x: isize| &colsum[clamp_x(x) * nd..][..nd];
-        right_best.fill(u16::MAX);
+        if right.is_some() || job.check {
+            right_best.fill(u16::MAX);
+        }
         for (x, d) in out_row.iter_mut().enumerate() {
             let xi = x as isize;
             // Disparities d_min.. up to x (none below d_min).
@@ -655,12 +719,31 @@ unsafe fn band_with<K: LaneOps, T: Disparity>(
             // SAFETY: as above.
             let best = found.unwrap_or_else(|| unsafe { K::argmin(cost, valid) });
             *d = T::winner(cost, valid, best, p);
-            if right.is_some() {
-                // Lane k is the right pixel x − d_min − k, at W − 1 − that.
-                let at = w - 1 - (x - p.min_disp);
+            // Lane k is the right pixel x − d_min − k, at W − 1 − that.
+            let at = w - 1 - (x - p.min_disp);
+            if job.check {
+                let (lane, cost_k) = (best.0, best.1);
+                winners[x] = Winner {
+                    lane: lane as u16,
+                    cost: cost_k,
+                    first: right_best[at + lane] > cost_k,
+                };
+                // SAFETY: as above.
+                unsafe { K::min_first(&mut right_best[at..at + nd], cost, valid) };
+            } else if right.is_some() {
                 let (best, lane) = (&mut right_best[at..at + nd], &mut right_lane[at..at + nd]);
                 // SAFETY: as above.
                 unsafe { K::min_update(best, lane, cost, valid) };
+            }
+        }
+        if job.check {
+            // Pixels below d_min have no winner (and no disparity).
+            for (x, d) in out_row.iter_mut().enumerate().skip(p.min_disp) {
+                let Winner { lane, cost, first } = winners[x];
+                let at = w - 1 - (x - p.min_disp) + lane as usize;
+                if !(first && right_best[at] == cost) {
+                    *d = T::NONE;
+                }
             }
         }
         if let Some(right) = right.as_deref_mut() {
@@ -1008,6 +1091,36 @@ mod tests {
                 }
                 // No left pixel lies right of the last right columns' match.
                 assert_eq!(r.get(w - 1, y), f32::INFINITY);
+            }
+        }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(48))]
+        /// The check inside the pass equals the right view's map and
+        /// `refine::lr_check` at tolerances below one pixel, with every
+        /// kernel, min filter and uniqueness test; on pairs with few gray
+        /// levels (ties between disparities are frequent).
+        #[test]
+        fn the_check_in_the_pass_equals_the_lr_check(
+            w in 1usize..70, h in 1usize..12, seed in any::<u64>(), shift in 0usize..9,
+            min_disp in 0usize..4, ndisp in 1usize..40, half in 0usize..4,
+            min_filter in prop_oneof![Just(0usize), Just(3)],
+            uniqueness in prop_oneof![Just(0u32), Just(15u32)], tol in 0f32..1.0,
+        ) {
+            let right = levels_view(w, h, seed, 4);
+            let left = Samples::from_fn(w, h, |x, y| right.get(x.saturating_sub(shift + y % 2), y));
+            let p = WtaParams {
+                min_disp, ndisp, block: 2 * half + 1, gray_bits: 8, min_filter,
+                uniqueness, subpixel: false,
+            };
+            for mut matcher in KERNELS.map(WtaMatcher::with_kernel) {
+                let (mut want, mut r) = (DisparityMap::new(w, h, 0.0), DisparityMap::new(w, h, 0.0));
+                matcher.compute_both_into(&left, &right, &p, &mut want, &mut r);
+                crate::refine::lr_check(&mut want, &r, tol);
+                let mut got = DisparityMap::new(w, h, 0.0);
+                matcher.compute_checked_into(&left, &right, &p, &mut got);
+                prop_assert_eq!(&got, &want);
             }
         }
     }
