@@ -134,6 +134,7 @@ pub fn refine(
         range,
     };
     let (r, win) = (params.radius, params.window);
+    let side = 2 * win + 1;
     let id = ids.as_slice();
     disparity
         .as_mut_slice()
@@ -142,8 +143,10 @@ pub fn refine(
         .for_each_init(Scratch::default, |scratch, (y, row)| {
             let (y0, y1) = (y.saturating_sub(r), (y + r).min(h - 1));
             let rows = y.saturating_sub(win)..=(y + win).min(h - 1);
+            scratch.row.start(planes.len(), y);
             for (x, out) in row.iter_mut().enumerate() {
-                let Some(own) = planes.get(id[y * w + x] as usize) else {
+                let own_id = id[y * w + x];
+                let Some(own) = planes.get(own_id as usize) else {
                     continue;
                 };
                 // The planes around p that put p more than `distinct` px
@@ -151,7 +154,7 @@ pub fn refine(
                 // a cluster's plane: then there is nothing to choose).
                 let candidates = &mut scratch.candidates;
                 candidates.clear();
-                candidates.push((*own, own.pixel(x, y, range)));
+                candidates.push((own_id, own.pixel(x, y, range)));
                 let (x0, x1) = (x.saturating_sub(r), (x + r).min(w - 1));
                 for yy in y0..=y1 {
                     let mut last = u32::MAX;
@@ -163,7 +166,7 @@ pub fn refine(
                         if let Some(plane) = planes.get(s as usize) {
                             let d = plane.pixel(x, y, range);
                             if candidates.iter().all(|c| (c.1 - d).abs() > params.distinct) {
-                                candidates.push((*plane, d));
+                                candidates.push((s, d));
                             }
                         }
                     }
@@ -172,36 +175,97 @@ pub fn refine(
                     continue;
                 }
                 let columns = x.saturating_sub(win)..=(x + win).min(w - 1);
-                support.window(x, y, (rows.clone(), columns), &mut scratch.window);
-                let own_cost = support.cost(x, y, own, &scratch.window);
-                let mut best = (own_cost * (1.0 - params.margin), own);
-                for (plane, _) in &scratch.candidates[1..] {
-                    let c = support.cost(x, y, plane, &scratch.window);
-                    if c < best.0 {
-                        best = (c, plane);
+                let window = (rows.clone(), columns);
+                support.window(x, y, window.clone(), side, &mut scratch.window);
+                let mut best: Option<(f32, u32)> = None;
+                for i in 0..scratch.candidates.len() {
+                    let s = scratch.candidates[i].0;
+                    let costs = scratch.row.of(s, side);
+                    support.fill(&planes[s as usize], window.clone(), side, costs);
+                    let c = support.cost(x, y, window.clone(), side, costs, &scratch.window);
+                    // The own plane (first) wins unless beaten by the margin.
+                    let c = if i == 0 { c * (1.0 - params.margin) } else { c };
+                    if best.is_none_or(|(b, _)| c < b) {
+                        best = Some((c, s));
                     }
                 }
-                *out = best.1.pixel(x, y, range);
+                if let Some((_, s)) = best {
+                    *out = planes[s as usize].pixel(x, y, range);
+                }
             }
         });
 }
 
-/// A pixel of the support window: its index, column and row, and its
-/// left-view weight (which does not depend on the plane).
+/// A pixel of the support window: where its plane's cost is in a
+/// [`PlaneCosts`] (`column slot · side + row`), and its left-view weight
+/// (which does not depend on the plane).
 struct Sample {
-    q: usize,
-    x: usize,
-    y: f32,
+    at: usize,
     weight: f32,
 }
 
-/// A worker's buffers: the candidate planes of a pixel (with the pixel's
-/// disparity under each) and its window's samples.
+/// One plane's matching cost and right-view match for the window rows of
+/// the current image row, over the last `side` columns asked for: column
+/// `qx` is in slot `qx % side`, and the pixels of a row reuse the columns
+/// their windows share.
+#[derive(Default)]
+struct PlaneCosts {
+    /// The column in each slot (`usize::MAX`: none yet).
+    columns: Vec<usize>,
+    /// `(cost, right view's colour)` by `slot · side + row in the window`.
+    values: Vec<(f32, Rgb)>,
+}
+
+/// A worker's buffers: the candidate segments of a pixel (with the
+/// pixel's disparity under each plane), its window's samples, and the
+/// plane costs of the current row.
 #[derive(Default)]
 struct Scratch {
-    candidates: Vec<(DisparityPlane, f32)>,
+    candidates: Vec<(u32, f32)>,
     window: Vec<Sample>,
+    row: RowCosts,
 }
+
+/// The [`PlaneCosts`] of the segments' planes in the current row.
+#[derive(Default)]
+struct RowCosts {
+    /// The row and index into `costs` of each segment's plane, when taken.
+    of_segment: Vec<(usize, usize)>,
+    costs: Vec<PlaneCosts>,
+    used: usize,
+    row: usize,
+}
+
+impl RowCosts {
+    /// Forgets the costs of the previous row.
+    fn start(&mut self, segments: usize, y: usize) {
+        self.of_segment.resize(segments, (usize::MAX, 0));
+        self.row = y;
+        self.used = 0;
+    }
+
+    /// The costs of segment `s`'s plane in the current row.
+    fn of(&mut self, s: u32, side: usize) -> &mut PlaneCosts {
+        let entry = &mut self.of_segment[s as usize];
+        if entry.0 != self.row {
+            *entry = (self.row, self.used);
+            if self.used == self.costs.len() {
+                self.costs.push(PlaneCosts::default());
+            }
+            let c = &mut self.costs[self.used];
+            c.columns.clear();
+            c.columns.resize(side, usize::MAX);
+            c.values.resize(side * side, (0.0, [0; 3]));
+            self.used += 1;
+        }
+        &mut self.costs[entry.1]
+    }
+}
+
+type Window = (
+    std::ops::RangeInclusive<usize>,
+    std::ops::RangeInclusive<usize>,
+);
 
 /// The adaptive-support cost of a plane at a pixel.
 struct Support<'a> {
@@ -221,52 +285,185 @@ impl Support<'_> {
         self.weight[diff(0) + diff(1) + diff(2)]
     }
 
-    /// The right view's pixel matching column `x` of the row starting at
-    /// `row` under disparity `d` (the first column when the match falls
-    /// outside).
-    #[inline]
-    fn matched(&self, x: usize, row: usize, d: f32) -> Rgb {
-        self.right[row + (x as f32 - d + 0.5).max(0.0) as usize]
-    }
-
-    /// The samples of `(x, y)`'s window over `rows` × `columns`.
+    /// The samples of `(x, y)`'s window, in raster order.
     fn window(
         &self,
         x: usize,
         y: usize,
-        (rows, columns): (
-            std::ops::RangeInclusive<usize>,
-            std::ops::RangeInclusive<usize>,
-        ),
+        (rows, columns): Window,
+        side: usize,
         out: &mut Vec<Sample>,
     ) {
         let colour = self.left[y * self.width + x];
         out.clear();
-        for qy in rows {
+        for (i, qy) in rows.enumerate() {
             for qx in columns.clone() {
-                let q = qy * self.width + qx;
                 out.push(Sample {
-                    q,
-                    x: qx,
-                    y: qy as f32,
-                    weight: self.similarity(colour, self.left[q]),
+                    at: qx % side * side + i,
+                    weight: self.similarity(colour, self.left[qy * self.width + qx]),
                 });
             }
         }
     }
 
-    /// `Σ_q w(p, q) · c(q, P(q)) / Σ_q w(p, q)` for `plane` at `(x, y)`
-    /// over `window`.
-    fn cost(&self, x: usize, y: usize, plane: &DisparityPlane, window: &[Sample]) -> f32 {
-        let centre = self.matched(x, y * self.width, plane.pixel(x, y, self.range));
+    /// Computes the columns of `window` that `costs` lacks for `plane`: the
+    /// truncated matching cost at the plane's disparity, and the right
+    /// view's pixel it matches (the first column when the match falls
+    /// outside).
+    fn fill(
+        &self,
+        plane: &DisparityPlane,
+        (rows, columns): Window,
+        side: usize,
+        costs: &mut PlaneCosts,
+    ) {
+        for qx in columns {
+            let slot = qx % side;
+            if costs.columns[slot] == qx {
+                continue;
+            }
+            costs.columns[slot] = qx;
+            for (i, qy) in rows.clone().enumerate() {
+                let q = qy * self.width + qx;
+                let d = plane
+                    .at(qx as f32, qy as f32)
+                    .clamp(self.range.0, self.range.1);
+                let matched = self.right[q - qx + (qx as f32 - d + 0.5).max(0.0) as usize];
+                costs.values[slot * side + i] = (self.cost.matching(q, qx, d), matched);
+            }
+        }
+    }
+
+    /// `Σ_q w(p, q) · c(q, P(q)) / Σ_q w(p, q)` at `(x, y)` over `window`,
+    /// from the plane's `costs`.
+    fn cost(
+        &self,
+        x: usize,
+        y: usize,
+        (rows, _): Window,
+        side: usize,
+        costs: &PlaneCosts,
+        window: &[Sample],
+    ) -> f32 {
+        let centre = costs.values[x % side * side + (y - rows.start())].1;
         let (mut total, mut norm) = (0.0, 0.0);
         for s in window {
-            let d = plane.at(s.x as f32, s.y).clamp(self.range.0, self.range.1);
-            let w = s.weight * self.similarity(centre, self.matched(s.x, s.q - s.x, d));
-            total += w * self.cost.matching(s.q, s.x, d);
+            let (c, matched) = costs.values[s.at];
+            let w = s.weight * self.similarity(centre, matched);
+            total += w * c;
             norm += w;
         }
         // The centre's own weight is 1, so `norm` >= 1.
         total / norm
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::planes::PlanesParams;
+    use stereolink_image::color::rgb_to_gray;
+
+    /// The cost by its definition, without the row's cache.
+    fn direct(
+        support: &Support,
+        plane: &DisparityPlane,
+        (x, y): (usize, usize),
+        win: usize,
+        h: usize,
+    ) -> f32 {
+        let (w, range) = (support.width, support.range);
+        let at = |qx: usize, qy: usize| plane.at(qx as f32, qy as f32).clamp(range.0, range.1);
+        let matched = |qx: usize, qy: usize| {
+            support.right[qy * w + (qx as f32 - at(qx, qy) + 0.5).max(0.0) as usize]
+        };
+        let (colour, centre) = (support.left[y * w + x], matched(x, y));
+        let (mut total, mut norm) = (0.0, 0.0);
+        for qy in y.saturating_sub(win)..=(y + win).min(h - 1) {
+            for qx in x.saturating_sub(win)..=(x + win).min(w - 1) {
+                let q = qy * w + qx;
+                let wq = support.similarity(colour, support.left[q])
+                    * support.similarity(centre, matched(qx, qy));
+                total += wq * support.cost.matching(q, qx, at(qx, qy));
+                norm += wq;
+            }
+        }
+        total / norm
+    }
+
+    #[test]
+    fn the_row_cache_gives_the_costs_of_the_definition() {
+        let (w, h, win) = (37, 23, 3);
+        let mut seed = 7u64;
+        let mut next = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            seed
+        };
+        // Colours close enough that every sample of a window weighs.
+        let mut view =
+            || RgbImage::from_fn(w, h, |_, _| [0u8; 3].map(|_| 100 + (next() % 24) as u8));
+        let (left, right) = (view(), view());
+        let (gl, gr) = (rgb_to_gray(&left), rgb_to_gray(&right));
+        let reliable = DisparityMap::new(w, h, f32::INFINITY);
+        let range = (0.0, 9.0);
+        let census = (crate::sgm::census(&gl), crate::sgm::census(&gr));
+        let cost = DataCost::new(
+            census,
+            (&gl, &gr),
+            &reliable,
+            range,
+            &PlanesParams::default(),
+        );
+        let support = Support {
+            weight: (0..=765).map(|d| (-(d as f32) / 30.0).exp()).collect(),
+            left: left.as_slice(),
+            right: right.as_slice(),
+            cost: &cost,
+            width: w,
+            range,
+        };
+        let planes = [
+            DisparityPlane {
+                a: 0.1,
+                b: -0.05,
+                c: 3.3,
+            },
+            DisparityPlane {
+                a: -0.2,
+                b: 0.0,
+                c: 8.0,
+            },
+            DisparityPlane {
+                a: 0.0,
+                b: 0.3,
+                c: 1.0,
+            },
+        ];
+        let side = 2 * win + 1;
+        let mut scratch = Scratch::default();
+        for y in 0..h {
+            let rows = y.saturating_sub(win)..=(y + win).min(h - 1);
+            scratch.row.start(planes.len(), y);
+            // Planes asked for in a changing order, some pixels skipped.
+            for x in (0..w).filter(|x| (x + y) % 5 != 0) {
+                let window = (rows.clone(), x.saturating_sub(win)..=(x + win).min(w - 1));
+                support.window(x, y, window.clone(), side, &mut scratch.window);
+                // Plane 2 only around x = 15, in every row: its columns
+                // of the row above must not be taken for this row's.
+                let near = (15..17).contains(&x);
+                for k in [(x + y) % 2, 1 - (x + y) % 2, 2]
+                    .into_iter()
+                    .filter(|&k| k < 2 || near)
+                {
+                    let costs = scratch.row.of(k as u32, side);
+                    support.fill(&planes[k], window.clone(), side, costs);
+                    let cached = support.cost(x, y, window.clone(), side, costs, &scratch.window);
+                    let want = direct(&support, &planes[k], (x, y), win, h);
+                    assert_eq!(cached, want, "({x}, {y}) plane {k}");
+                }
+            }
+        }
     }
 }
