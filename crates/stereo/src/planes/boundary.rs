@@ -40,10 +40,10 @@ pub struct BoundaryParams {
     /// give 10.05 / 9.91 / 9.89 / 9.88 / 9.89 % over the 20 shared scenes,
     /// and Tsukuba / Venus / Teddy / Cones 2.61 / 0.63 / 4.82 / 3.11, 2.41 /
     /// 0.43 / 4.54 / 2.93, 2.35 / 0.39 / 4.47 / 2.91, 2.31 / 0.37 / 4.45 /
-    /// 2.89 and 2.31 / 0.36 / 4.43 / 2.87 %; the whole match of Jadeplant,
-    /// the slowest 2014 scene, takes 1.57 s with 6 and 1.92 s with 7 (the
-    /// issue's limit is 2 s), Motorcycle 1.33 / 1.57 / 1.80 / 2.10 s with 5
-    /// to 8, so 6.
+    /// 2.89 and 2.31 / 0.36 / 4.43 / 2.87 %. With the row's cost cache the
+    /// whole match of Jadeplant, the slowest 2014 scene, takes 0.87 s with
+    /// 6 and 1.08 s with 8 (1.31–1.47 and 1.62–1.69 s with another process
+    /// loading both cores; the limit is 2 s).
     pub window: usize,
     /// Colour scale σ of the support weights (summed absolute RGB
     /// difference). Left-view weights with σ 20 / 30 / 45 gave 10.16 /
@@ -76,7 +76,7 @@ impl Default for BoundaryParams {
     fn default() -> Self {
         BoundaryParams {
             radius: 5,
-            window: 6,
+            window: 8,
             sigma: 30.0,
             margin: 0.1,
             distinct: 0.5,

@@ -146,12 +146,13 @@ pub struct PlanesParams {
     /// s of CPU.
     pub refits: usize,
     /// The per-pixel plane choice near segment boundaries ([`boundary`]):
-    /// with it (radius 5, 13×13 window, symmetric colour weights, margin
+    /// with it (radius 5, 17×17 window, symmetric colour weights, margin
     /// 0.1) the 20 shared scenes average 9.89 against 10.62 % without
-    /// (Tsukuba / Venus / Teddy / Cones 2.35 / 0.39 / 4.47 / 2.91 against
+    /// (Tsukuba / Venus / Teddy / Cones 2.31 / 0.36 / 4.43 / 2.87 against
     /// 2.85 / 0.50 / 4.69 / 3.17), and planes beat SGM on ten 2014 scenes
-    /// against seven. It takes about two thirds of the matcher's time (20
-    /// scenes in `eval`: 0.83 s a scene on average, 0.29 s without).
+    /// against seven. It takes most of the matcher's time (Jadeplant in
+    /// `eval`, with another process loading both cores: 1.62–1.73 s with
+    /// it, 0.62 s without).
     pub boundary: boundary::BoundaryParams,
 }
 

@@ -118,7 +118,7 @@ pub struct MatcherArgs {
     pub plane_tile: Option<usize>,
     /// Planes: pixels within this distance (px) of another segment choose
     /// among the nearby segments' planes by an adaptive-support cost over
-    /// a 13×13 window, weighted by colour likeness in both views (default
+    /// a 17×17 window, weighted by colour likeness in both views (default
     /// 5, at most 8; 0 keeps each segment's plane).
     #[arg(long, value_name = "RADIUS")]
     pub plane_boundary: Option<usize>,
