@@ -93,10 +93,11 @@ impl Refinement {
             // (with the first pass on all valid pixels 3.57 / 0.83 / 15.37 /
             // 6.74 % and 26.99 %; with Gaussian weights 3.60 / 0.87 / 15.35
             // / 6.85 % and 26.93 %; 27.25 % when the first pass filled holes
-            // too). A 5×5 median in its place takes 0.87–0.90x the time
-            // on Cones in alternating rounds (0.54–0.64x of the earlier,
-            // Gaussian weighted median's) but gives 5.89 / 3.73 / 18.44 /
-            // 10.09 % and 29.14 % (`--weighted-median 0 --median 5`).
+            // too). A 5×5 median in its place takes about 0.8x the time
+            // on Cones (`bench match --iters 100`: 9.0 against 11.3 ms of
+            // CPU a frame, medians 4.8–4.9 against 6.0–6.1 ms) but gives
+            // 5.89 / 3.73 / 18.44 / 10.09 % and 29.14 %
+            // (`--weighted-median 0 --median 5`).
             Algorithm::Wta => Refinement {
                 lr_check: Some(0.5),
                 subpixel: false,

@@ -49,7 +49,7 @@ pub struct MatcherArgs {
     /// runs before and after the fill and replaces the plain median unless
     /// --median is given too. Default 8 for wta (bad > 1 px 3.63 / 0.90 /
     /// 15.47 / 6.69 % on Tsukuba / Venus / Teddy / Cones; `0 --median 5`
-    /// takes about 0.9x the time at 5.89 / 3.73 / 18.44 / 10.09 %), off
+    /// takes about 0.8x the time at 5.89 / 3.73 / 18.44 / 10.09 %), off
     /// (0) for lg and sgm.
     #[arg(long, value_name = "RADIUS")]
     pub weighted_median: Option<usize>,
