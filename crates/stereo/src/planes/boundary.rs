@@ -297,11 +297,14 @@ impl Support<'_> {
         let colour = self.left[y * self.width + x];
         out.clear();
         for (i, qy) in rows.enumerate() {
+            // Column qx's slot is qx % side, stepped rather than divided.
+            let mut slot = columns.start() % side;
             for qx in columns.clone() {
                 out.push(Sample {
-                    at: qx % side * side + i,
+                    at: slot * side + i,
                     weight: self.similarity(colour, self.left[qy * self.width + qx]),
                 });
+                slot = if slot + 1 == side { 0 } else { slot + 1 };
             }
         }
     }
