@@ -33,6 +33,7 @@ fn stages(c: &mut Criterion) {
     let clusters = assign::cluster(&graph, &fitted, &reliable, params);
     let census = || (sgm::census(&gl), sgm::census(&gr));
     let cost = assign::DataCost::new(census(), (&gl, &gr), &reliable, (0.0, 31.0), params);
+    let weights = assign::boundary_weights(&graph, &s.left, params.contrast);
 
     let mut g = c.benchmark_group("planes_320x240_32");
     g.sample_size(10);
@@ -52,6 +53,9 @@ fn stages(c: &mut Criterion) {
         b.iter(|| planes::split_bent(&labels, &graph, black_box(&fitted), &reliable, params))
     });
     g.bench_function("census", |b| b.iter(census));
+    g.bench_function("boundary_weights", |b| {
+        b.iter(|| assign::boundary_weights(&graph, black_box(&s.left), params.contrast))
+    });
     g.bench_function("assign", |b| {
         b.iter(|| {
             assign::assign(
@@ -59,6 +63,7 @@ fn stages(c: &mut Criterion) {
                 &cost,
                 &clusters.planes,
                 &clusters.of_segment,
+                &weights,
                 params,
             )
         })
@@ -68,6 +73,7 @@ fn stages(c: &mut Criterion) {
         &cost,
         &clusters.planes,
         &clusters.of_segment,
+        &weights,
         params,
     )
     .unwrap()

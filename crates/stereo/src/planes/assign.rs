@@ -8,7 +8,7 @@
 //! over the inliers) on the reliable pixels of all its segments.
 //!
 //! **Assignment**: every segment `s` takes one cluster plane `P_s`,
-//! minimising `E = Σ_s D(s, P_s) + λ · Σ_(s,t) |∂(s,t)| · [P_s ≠ P_t]`:
+//! minimising `E = Σ_s D(s, P_s) + λ · Σ_(s,t) |∂(s,t)|_σ · [P_s ≠ P_t]`:
 //! the data term `D` sums each pixel's census Hamming cost at the plane's
 //! subpixel disparity plus `intensity` times its absolute grey difference
 //! (capped at `intensity_cap`; census and intensity together, as
@@ -19,7 +19,12 @@
 //! plus `agreement` per px of disagreement (capped at `agreement_cap`)
 //! with the initial disparity where that passed the LR check;
 //! the smoothness term charges `λ` per unit of boundary between two
-//! segments that take different planes. Chosen: greedy moves (iterated
+//! segments that take different planes, each unit (a pair of
+//! 4-neighbours `p`, `q`) weighed by colour contrast, `|∂(s,t)|_σ = Σ
+//! exp(-|I_p - I_q|₁ / σ)`, as graph-cut segmentation (Boykov and Jolly,
+//! ICCV 2001) weighs its boundary pairs: depth edges mostly follow colour
+//! edges, and a cut through an even colour (a tile's, a split's, a
+//! gradient's) is where planes should carry on. Chosen: greedy moves (iterated
 //! conditional modes over segments, Gauss–Seidel in id order). Each move
 //! gives one segment the best of its own and its neighbours' planes; moves
 //! never raise `E`, so the sweeps stop, after at most `sweeps`. Segments
@@ -30,7 +35,7 @@
 use std::collections::VecDeque;
 
 use rayon::prelude::*;
-use stereolink_image::{DisparityMap, GrayImage};
+use stereolink_image::{DisparityMap, GrayImage, RgbImage};
 
 use super::fit::{refit, samples, Sample};
 use super::graph::SegmentGraph;
@@ -242,6 +247,19 @@ fn bounding_corners(pixels: &[u32], w: usize) -> [(f32, f32); 4] {
     [(x0, y0), (x1, y0), (x0, y1), (x1, y1)]
 }
 
+/// The smoothness weight of each boundary of `graph` (in the order of its
+/// edges): the sum over its pairs of 4-neighbours of `exp(-Δ/contrast)`,
+/// `Δ` the pair's summed absolute RGB difference in `left`.
+pub fn boundary_weights(graph: &SegmentGraph, left: &RgbImage, contrast: f32) -> Vec<f32> {
+    let rgb = left.as_slice();
+    graph.boundary_weights(|p, q| {
+        let delta: u32 = (0..3)
+            .map(|c| u32::from(rgb[p][c].abs_diff(rgb[q][c])))
+            .sum();
+        (-(delta as f32) / contrast).exp()
+    })
+}
+
 /// Data costs of a segment for the planes tried so far.
 type Tried = Vec<(u32, f32)>;
 
@@ -252,6 +270,7 @@ pub fn assign(
     cost: &DataCost,
     planes: &[DisparityPlane],
     initial: &[Option<u32>],
+    weights: &[f32],
     params: &PlanesParams,
 ) -> Option<Vec<u32>> {
     let n = graph.len();
@@ -267,13 +286,14 @@ pub fn assign(
     };
     // Energy of segment s under plane k given its neighbours' labels.
     let local = |s: usize, k: u32, label: &[Option<u32>], tried: &mut Tried| -> f32 {
-        let cut: u32 = graph
+        let cut: f32 = graph
             .neighbours(s)
             .iter()
-            .filter(|&&(t, _)| label[t as usize].is_some_and(|j| j != k))
-            .map(|&(_, len)| len)
+            .zip(graph.of_segment(s, weights))
+            .filter(|(&(t, _), _)| label[t as usize].is_some_and(|j| j != k))
+            .map(|(_, &w)| w)
             .sum();
-        data(s, k, tried) + params.smoothness * cut as f32
+        data(s, k, tried) + params.smoothness * cut
     };
     let best = |s: usize, label: &[Option<u32>], tried: &mut Tried| -> Option<u32> {
         let own = label[s];

@@ -117,6 +117,44 @@ impl SegmentGraph {
     pub fn neighbours(&self, s: usize) -> &[(u32, u32)] {
         &self.edges[self.edge_offsets[s]..self.edge_offsets[s + 1]]
     }
+
+    /// For each shared boundary, the sum of `weight(p, q)` over its pairs of
+    /// 4-neighbours `p`, `q` (pixel indices), in the order of the edges: read
+    /// a segment's with [`SegmentGraph::of_segment`].
+    pub fn boundary_weights(&self, weight: impl Fn(usize, usize) -> f32) -> Vec<f32> {
+        let (w, h) = self.ids.dims();
+        let id = self.ids.as_slice();
+        let mut out = vec![0.0f32; self.edges.len()];
+        let mut add = |p: usize, q: usize| {
+            let (a, b) = (id[p], id[q]);
+            if a == b {
+                return;
+            }
+            let v = weight(p, q);
+            for (s, t) in [(a, b), (b, a)] {
+                let list = self.neighbours(s as usize);
+                let i = list.partition_point(|&(u, _)| u < t);
+                out[self.edge_offsets[s as usize] + i] += v;
+            }
+        };
+        for y in 0..h {
+            for x in 0..w {
+                let p = y * w + x;
+                if x + 1 < w {
+                    add(p, p + 1);
+                }
+                if y + 1 < h {
+                    add(p, p + w);
+                }
+            }
+        }
+        out
+    }
+
+    /// Segment `s`'s part of a per-edge vector such as [`SegmentGraph::boundary_weights`]'s.
+    pub fn of_segment<'a, T>(&self, s: usize, per_edge: &'a [T]) -> &'a [T] {
+        &per_edge[self.edge_offsets[s]..self.edge_offsets[s + 1]]
+    }
 }
 
 #[cfg(test)]
@@ -136,6 +174,24 @@ mod tests {
         assert_eq!(g.neighbours(0), &[(1, 3)]);
         assert_eq!(g.neighbours(1), &[(0, 3), (2, 2)]);
         assert_eq!(g.neighbours(2), &[(1, 2)]);
+    }
+
+    #[test]
+    fn boundary_weights_sum_each_pair_of_a_boundary() {
+        // 0 0 1 2
+        // 1 1 1 2   (the ids of the map above)
+        let labels = LabelMap::from_vec(4, 2, vec![0, 0, 1, 0, 1, 1, 1, 0]).unwrap();
+        let g = SegmentGraph::new(&labels, 0);
+        let ones = g.boundary_weights(|_, _| 1.0);
+        for s in 0..g.len() {
+            let lengths: Vec<f32> = g.neighbours(s).iter().map(|&(_, n)| n as f32).collect();
+            assert_eq!(g.of_segment(s, &ones), lengths.as_slice());
+        }
+        // 0–1: pairs (1, 2), (0, 4), (1, 5); 1–2: pairs (2, 3), (6, 7).
+        let w = g.boundary_weights(|p, q| (10 * p + q) as f32);
+        assert_eq!(g.of_segment(0, &w), &[12.0 + 4.0 + 15.0]);
+        assert_eq!(g.of_segment(1, &w), &[31.0, 23.0 + 67.0]);
+        assert_eq!(g.of_segment(2, &w), &[90.0]);
     }
 
     #[test]

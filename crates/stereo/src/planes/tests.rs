@@ -304,7 +304,7 @@ fn one_pixel_and_thousands_of_segments_still_give_a_dense_map() {
 }
 
 #[test]
-fn out_of_range_split_and_boundary_parameters_are_errors() {
+fn out_of_range_split_boundary_and_contrast_parameters_are_errors() {
     let s = two_planes();
     for change in [
         |p: &mut PlanesParams| p.split = 1.5,
@@ -314,6 +314,8 @@ fn out_of_range_split_and_boundary_parameters_are_errors() {
         |p: &mut PlanesParams| p.boundary.sigma = 0.0,
         |p: &mut PlanesParams| p.boundary.margin = 1.0,
         |p: &mut PlanesParams| p.boundary.distinct = f32::NAN,
+        |p: &mut PlanesParams| p.contrast = 0.0,
+        |p: &mut PlanesParams| p.contrast = f32::NAN,
     ] {
         let mut spec = spec();
         change(&mut spec.planes);
@@ -373,4 +375,22 @@ fn a_plane_is_refitted_over_every_segment_that_took_it() {
         );
     }
     assert_eq!(planes[1], other);
+}
+
+#[test]
+fn boundary_pairs_weigh_by_colour_contrast() {
+    // Two segments side by side; across the boundary the colours differ by
+    // 0, 10 and 20 (summed over RGB) in the three rows.
+    let ids = Plane::from_fn(4, 3, |x, _| u32::from(x >= 2));
+    let graph = SegmentGraph::from_ids(ids, 2);
+    let left = RgbImage::from_fn(4, 3, |x, y| {
+        let blue = if x >= 2 { 30 + 10 * y as u8 } else { 30 };
+        [10, 20, blue]
+    });
+    let weights = assign::boundary_weights(&graph, &left, 5.0);
+    let want = 1.0 + (-2.0f32).exp() + (-4.0f32).exp();
+    assert!((weights[0] - want).abs() < 1e-6, "{weights:?}");
+    assert_eq!(weights[0], weights[1]);
+    let lengths = assign::boundary_weights(&graph, &left, f32::INFINITY);
+    assert_eq!(lengths, [3.0, 3.0]);
 }

@@ -98,9 +98,16 @@ pub struct MatcherArgs {
     #[arg(long, default_value_t = 3)]
     pub segment_levels: usize,
     /// Planes: smoothness λ per unit of boundary between segments on
-    /// different planes (default 8).
+    /// different planes, where both sides have the same colour (default
+    /// 192).
     #[arg(long)]
     pub plane_smoothness: Option<f32>,
+    /// Planes: colour contrast σ of the smoothness term. A pair of
+    /// neighbours across a boundary weighs exp(-Δ/σ), Δ their summed
+    /// absolute RGB difference, so that cuts along colour edges are cheap
+    /// (default 5; `inf`: every pair weighs 1).
+    #[arg(long, value_name = "SIGMA")]
+    pub plane_contrast: Option<f32>,
     /// Planes: truncation of the per-pixel matching cost (census Hamming
     /// bits plus the weighted grey difference), also the cost of an
     /// occluded match (default 24).
@@ -224,6 +231,7 @@ impl MatcherArgs {
         spec.line_growing.threshold = self.lg_threshold.unwrap_or(spec.line_growing.threshold);
         spec.line_growing.passes = self.lg_passes.unwrap_or(spec.line_growing.passes);
         spec.planes.smoothness = self.plane_smoothness.unwrap_or(spec.planes.smoothness);
+        spec.planes.contrast = self.plane_contrast.unwrap_or(spec.planes.contrast);
         spec.planes.truncation = self.plane_truncation.unwrap_or(spec.planes.truncation);
         spec.planes.intensity = self.plane_intensity.unwrap_or(spec.planes.intensity);
         spec.planes.tile = self.plane_tile.unwrap_or(spec.planes.tile);
