@@ -24,12 +24,15 @@
 //! exp(-|I_p - I_q|₁ / σ)`, as graph-cut segmentation (Boykov and Jolly,
 //! ICCV 2001) weighs its boundary pairs: depth edges mostly follow colour
 //! edges, and a cut through an even colour (a tile's, a split's, a
-//! gradient's) is where planes should carry on. Chosen: greedy moves (iterated
-//! conditional modes over segments, Gauss–Seidel in id order). Each move
-//! gives one segment the best of its own and its neighbours' planes; moves
-//! never raise `E`, so the sweeps stop, after at most `sweeps`. Segments
-//! without a plane of their own first take the best of their neighbours'
-//! in breadth-first order from the fitted ones. Cheaper than loopy BP
+//! gradient's) is where planes should carry on. Chosen: greedy moves
+//! (iterated conditional modes over segments, Gauss–Seidel in id order).
+//! Each move gives one segment the best of its own and its neighbours'
+//! planes. Group moves then let a set of segments that share a plane and
+//! are joined by even colour (whom the smoothness term binds, so that no
+//! one of them moves alone) take a neighbour's plane together. Moves never
+//! raise `E`, so they stop. Segments without a plane of their own first
+//! take the best of their neighbours' in breadth-first order from the
+//! fitted ones. Cheaper than loopy BP
 //! (no messages over thousands of labels) and deterministic.
 
 use std::collections::VecDeque;
@@ -265,6 +268,13 @@ type Tried = Vec<(u32, f32)>;
 
 /// The plane of each segment (an index into `planes`), from the clusters'
 /// `initial` choice; `None` when no segment has a plane (nothing reliable).
+/// `weights` are the boundaries' smoothness weights ([`boundary_weights`]).
+///
+/// Segments without a plane first take the best of their neighbours', in
+/// breadth-first order from the fitted ones. Then sweeps of one-segment
+/// moves alternate with group moves ([`PlanesParams::coupling`]) until
+/// neither lowers the energy (at most `sweeps` sweeps in a row, and
+/// [`GROUP_ROUNDS`] rounds of group moves).
 pub fn assign(
     graph: &SegmentGraph,
     cost: &DataCost,
@@ -273,31 +283,64 @@ pub fn assign(
     weights: &[f32],
     params: &PlanesParams,
 ) -> Option<Vec<u32>> {
-    let n = graph.len();
+    let mut moves = Moves {
+        graph,
+        cost,
+        planes,
+        weights,
+        params,
+        tried: vec![Vec::new(); graph.len()],
+    };
     let mut label: Vec<Option<u32>> = initial.to_vec();
-    let mut tried: Vec<Tried> = vec![Vec::new(); n];
-    let data = |s: usize, k: u32, tried: &mut Tried| -> f32 {
-        if let Some(&(_, c)) = tried.iter().find(|(j, _)| *j == k) {
-            return c;
+    let mut queue: VecDeque<usize> = (0..graph.len()).filter(|&s| label[s].is_some()).collect();
+    if queue.is_empty() {
+        return None;
+    }
+    while let Some(s) = queue.pop_front() {
+        for &(t, _) in graph.neighbours(s) {
+            let t = t as usize;
+            if label[t].is_none() {
+                label[t] = moves.best(t, &label);
+                queue.push_back(t);
+            }
         }
-        let c = cost.segment(graph.pixels(s), &planes[k as usize]);
-        tried.push((k, c));
-        c
-    };
-    // Energy of segment s under plane k given its neighbours' labels.
-    let local = |s: usize, k: u32, label: &[Option<u32>], tried: &mut Tried| -> f32 {
-        let cut: f32 = graph
-            .neighbours(s)
-            .iter()
-            .zip(graph.of_segment(s, weights))
-            .filter(|(&(t, _), _)| label[t as usize].is_some_and(|j| j != k))
-            .map(|(_, &w)| w)
-            .sum();
-        data(s, k, tried) + params.smoothness * cut
-    };
-    let best = |s: usize, label: &[Option<u32>], tried: &mut Tried| -> Option<u32> {
-        let own = label[s];
-        let mut candidates: Vec<u32> = own.into_iter().collect();
+    }
+    // The graph of a grid is connected, so the search reached every segment.
+    let mut label: Vec<u32> = label.into_iter().collect::<Option<_>>()?;
+    moves.sweeps(&mut label);
+    for _ in 0..GROUP_ROUNDS {
+        if !moves.group_moves(&mut label) {
+            break;
+        }
+        moves.sweeps(&mut label);
+    }
+    Some(label)
+}
+
+/// Most rounds of group moves, each followed by sweeps of one-segment moves.
+pub const GROUP_ROUNDS: usize = 3;
+
+/// The energy's terms for the moves, with the data costs computed so far.
+struct Moves<'a> {
+    graph: &'a SegmentGraph,
+    cost: &'a DataCost<'a>,
+    planes: &'a [DisparityPlane],
+    weights: &'a [f32],
+    params: &'a PlanesParams,
+    tried: Vec<Tried>,
+}
+
+impl Moves<'_> {
+    /// `D(s, planes[k])`, computed once.
+    fn data(&mut self, s: usize, k: u32) -> f32 {
+        data(self.graph, self.cost, self.planes, s, k, &mut self.tried[s])
+    }
+
+    /// The best of segment `s`'s own and its neighbours' planes, given the
+    /// neighbours' labels (`None` when no neighbour nor `s` has one).
+    fn best(&mut self, s: usize, label: &[Option<u32>]) -> Option<u32> {
+        let graph = self.graph;
+        let mut candidates: Vec<u32> = label[s].into_iter().collect();
         for &(t, _) in graph.neighbours(s) {
             if let Some(k) = label[t as usize] {
                 if !candidates.contains(&k) {
@@ -307,55 +350,164 @@ pub fn assign(
         }
         let mut pick: Option<(u32, f32)> = None;
         for k in candidates {
-            let e = local(s, k, label, tried);
+            let cut: f32 = graph
+                .neighbours(s)
+                .iter()
+                .zip(graph.of_segment(s, self.weights))
+                .filter(|(&(t, _), _)| label[t as usize].is_some_and(|j| j != k))
+                .map(|(_, &w)| w)
+                .sum();
+            let e = self.data(s, k) + self.params.smoothness * cut;
             if pick.is_none_or(|(_, b)| e < b) {
                 pick = Some((k, e));
             }
         }
         pick.map(|(k, _)| k)
-    };
-
-    // Segments without a plane, breadth-first from those with one.
-    let mut queue: VecDeque<usize> = (0..n).filter(|&s| label[s].is_some()).collect();
-    if queue.is_empty() {
-        return None;
-    }
-    while let Some(s) = queue.pop_front() {
-        for &(t, _) in graph.neighbours(s) {
-            let t = t as usize;
-            if label[t].is_none() {
-                label[t] = best(t, &label, &mut tried[t]);
-                queue.push_back(t);
-            }
-        }
     }
 
-    for _ in 0..params.sweeps {
-        // The data costs of the current candidates, in parallel; the moves
-        // below then mostly find them computed.
-        let snapshot = &label;
-        tried.par_iter_mut().enumerate().for_each(|(s, tried)| {
-            let own = snapshot[s].into_iter();
-            let around = graph
-                .neighbours(s)
-                .iter()
-                .filter_map(|&(t, _)| snapshot[t as usize]);
-            for k in own.chain(around) {
-                data(s, k, tried);
+    /// Sweeps of one-segment moves (iterated conditional modes, in id
+    /// order) until none changes a label, at most `sweeps`.
+    fn sweeps(&mut self, label: &mut [u32]) {
+        let mut current: Vec<Option<u32>> = label.iter().map(|&k| Some(k)).collect();
+        for _ in 0..self.params.sweeps {
+            // The data costs of the current candidates, in parallel; the
+            // moves below then mostly find them computed.
+            let (graph, cost, planes, snapshot) = (self.graph, self.cost, self.planes, &current);
+            self.tried
+                .par_iter_mut()
+                .enumerate()
+                .for_each(|(s, tried)| {
+                    let own = snapshot[s].into_iter();
+                    let around = graph
+                        .neighbours(s)
+                        .iter()
+                        .filter_map(|&(t, _)| snapshot[t as usize]);
+                    for k in own.chain(around) {
+                        data(graph, cost, planes, s, k, tried);
+                    }
+                });
+            let mut changed = false;
+            for s in 0..current.len() {
+                let k = self.best(s, &current);
+                if k != current[s] {
+                    current[s] = k;
+                    changed = true;
+                }
             }
-        });
-        let mut changed = false;
-        for s in 0..n {
-            let k = best(s, &label, &mut tried[s]);
-            if k != label[s] {
-                label[s] = k;
-                changed = true;
+            if !changed {
+                break;
             }
         }
-        if !changed {
-            break;
+        for (l, k) in label.iter_mut().zip(current) {
+            *l = k.expect("every segment keeps a label");
         }
     }
-    // The graph of a grid is connected, so the search reached every segment.
-    label.into_iter().collect()
+
+    /// One pass of group moves: each group of segments that share a plane
+    /// and are joined by boundaries weighing at least `coupling` per unit
+    /// ([`coupled_groups`]) takes, as a whole, the plane of a segment
+    /// around it that lowers the energy most, if any does. A surface cut
+    /// into several segments of one colour (tiles, splits, gradients) is
+    /// held together by the smoothness term, so that one-segment moves
+    /// cannot move it. True when a group moved.
+    fn group_moves(&mut self, label: &mut [u32]) -> bool {
+        let graph = self.graph;
+        let (group, groups) = coupled_groups(graph, self.weights, label, self.params.coupling);
+        let mut moved = false;
+        for (g, members) in groups.iter().enumerate() {
+            let from = label[members[0]];
+            let outside = |t: u32| group[t as usize] != g;
+            let mut candidates: Vec<u32> = Vec::new();
+            for &s in members {
+                for &(t, _) in graph.neighbours(s) {
+                    let k = label[t as usize];
+                    if outside(t) && k != from && !candidates.contains(&k) {
+                        candidates.push(k);
+                    }
+                }
+            }
+            let mut pick: Option<(u32, f32)> = None;
+            for k in candidates {
+                let mut change = 0.0;
+                for &s in members {
+                    change += self.data(s, k) - self.data(s, from);
+                    let around = graph
+                        .neighbours(s)
+                        .iter()
+                        .zip(graph.of_segment(s, self.weights));
+                    for (&(t, _), &w) in around.filter(|((t, _), _)| outside(*t)) {
+                        let j = label[t as usize];
+                        let cut = f32::from(u8::from(j != k)) - f32::from(u8::from(j != from));
+                        change += self.params.smoothness * w * cut;
+                    }
+                }
+                if change < pick.map_or(0.0, |(_, c)| c) {
+                    pick = Some((k, change));
+                }
+            }
+            if let Some((k, _)) = pick {
+                members.iter().for_each(|&s| label[s] = k);
+                moved = true;
+            }
+        }
+        moved
+    }
+}
+
+/// `D(s, planes[k])` from the costs `tried` so far for `s`, computing and
+/// keeping it when new.
+fn data(
+    graph: &SegmentGraph,
+    cost: &DataCost,
+    planes: &[DisparityPlane],
+    s: usize,
+    k: u32,
+    tried: &mut Tried,
+) -> f32 {
+    if let Some(&(_, c)) = tried.iter().find(|(j, _)| *j == k) {
+        return c;
+    }
+    let c = cost.segment(graph.pixels(s), &planes[k as usize]);
+    tried.push((k, c));
+    c
+}
+
+/// The groups of segments joined, through neighbours of the same `label`,
+/// by boundaries whose weight is at least `coupling` per unit of length:
+/// the group of each segment and the members of each group of two or more
+/// (single segments' groups are listed as `usize::MAX`).
+pub fn coupled_groups(
+    graph: &SegmentGraph,
+    weights: &[f32],
+    label: &[u32],
+    coupling: f32,
+) -> (Vec<usize>, Vec<Vec<usize>>) {
+    let mut group = vec![usize::MAX; graph.len()];
+    let mut groups: Vec<Vec<usize>> = Vec::new();
+    for s in 0..graph.len() {
+        if group[s] != usize::MAX {
+            continue;
+        }
+        let g = groups.len();
+        group[s] = g;
+        let mut members = vec![s];
+        let mut next = 0;
+        while let Some(&u) = members.get(next) {
+            next += 1;
+            let around = graph.neighbours(u).iter().zip(graph.of_segment(u, weights));
+            for (&(t, len), &w) in around {
+                let t = t as usize;
+                if group[t] == usize::MAX && label[t] == label[u] && w >= coupling * len as f32 {
+                    group[t] = g;
+                    members.push(t);
+                }
+            }
+        }
+        if members.len() == 1 {
+            group[s] = usize::MAX;
+        } else {
+            groups.push(members);
+        }
+    }
+    (group, groups)
 }

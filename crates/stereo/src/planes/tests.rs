@@ -394,3 +394,110 @@ fn boundary_pairs_weigh_by_colour_contrast() {
     let lengths = assign::boundary_weights(&graph, &left, f32::INFINITY);
     assert_eq!(lengths, [3.0, 3.0]);
 }
+
+#[test]
+fn a_group_of_segments_moves_where_no_one_of_them_can() {
+    // The box's left third is one segment on the box's plane; the rest is
+    // cut into 10 px squares of the same texture, all on the background's
+    // plane. Each square would pay more boundary than it saves in data by
+    // moving alone; the squares together pay none: a colour edge runs
+    // around the box.
+    let anchor = |x: usize| x < 80;
+    let s = box_scene(
+        |x, y| match (in_front(x, y), anchor(x)) {
+            (false, _) => 0,
+            (true, true) => 1,
+            (true, false) => (2 + (x - 80) / 10 + 4 * ((y - 30) / 10)) as u16,
+        },
+        |_, g| g,
+    );
+    let graph = SegmentGraph::new(&s.labels, 0);
+    assert_eq!(graph.len(), 2 + 4 * 6);
+    let spec = spec();
+    let (gl, gr) = crate::gray_pair(&s.left, &s.right, spec.ripple);
+    let reliable = initial_disparity(&gl, &gr, &spec, &mut sgm::SgmBuffers::default());
+    let census = (sgm::census(&gl), sgm::census(&gr));
+    let range = (0.0, 31.0);
+    let cost = assign::DataCost::new(census, (&gl, &gr), &reliable, range, &spec.planes);
+    let planes = [BACK, FRONT];
+    let (back, anchor_id) = (graph.ids.get(0, 0) as usize, graph.ids.get(60, 30) as usize);
+    let on_front = |t: usize| t == anchor_id;
+    let squares: Vec<usize> = (0..graph.len())
+        .filter(|&t| t != back && t != anchor_id)
+        .collect();
+    let gain =
+        |t: usize| cost.segment(graph.pixels(t), &BACK) - cost.segment(graph.pixels(t), &FRONT);
+    // A colour edge around the box: its boundaries with the background
+    // weigh nothing, the others their length.
+    let w = s.left.width();
+    let weights = graph.boundary_weights(|p, q| {
+        let inside = |p: usize| in_front(p % w, p / w);
+        f32::from(u8::from(inside(p) == inside(q)))
+    });
+    // Boundary weight that a move of the squares in `moving` to the front adds.
+    let added_cut = |moving: &[usize]| -> f32 {
+        let mut cut = 0.0;
+        for &q in moving {
+            let around = graph
+                .neighbours(q)
+                .iter()
+                .zip(graph.of_segment(q, &weights));
+            for (&(t, _), &weight) in around {
+                let t = t as usize;
+                if !moving.contains(&t) {
+                    cut += if on_front(t) { -weight } else { weight };
+                }
+            }
+        }
+        cut
+    };
+    // λ above every square's own gain per added boundary, below the
+    // group's, and below what keeps the left third on the box's plane.
+    let alone = squares
+        .iter()
+        .map(|&q| {
+            let cut = added_cut(&[q]);
+            assert!(cut > 0.0 || gain(q) <= 0.0, "square {q} moves at any λ");
+            gain(q) / cut
+        })
+        .fold(0.0f32, f32::max);
+    assert!(
+        added_cut(&squares) < 0.0,
+        "the group cuts less on the front"
+    );
+    let anchor_cut: f32 = graph.of_segment(anchor_id, &weights).iter().sum();
+    let anchored = gain(anchor_id) / anchor_cut;
+    assert!(alone < anchored, "no λ fits: {alone} against {anchored}");
+    let smoothness = (alone + anchored) / 2.0;
+    let initial: Vec<Option<u32>> = (0..graph.len())
+        .map(|t| Some(u32::from(on_front(t))))
+        .collect();
+    let run = |coupling: f32| {
+        let params = PlanesParams {
+            smoothness,
+            coupling,
+            ..spec.planes
+        };
+        assign::assign(&graph, &cost, &planes, &initial, &weights, &params).unwrap()
+    };
+    let one_at_a_time = run(f32::INFINITY);
+    assert!(squares.iter().all(|&q| one_at_a_time[q] == 0));
+    let grouped = run(0.1);
+    assert!(squares.iter().all(|&q| grouped[q] == 1), "{grouped:?}");
+    assert_eq!((grouped[back], grouped[anchor_id]), (0, 1));
+}
+
+#[test]
+fn groups_join_same_plane_neighbours_across_even_colour_only() {
+    // Five segments in a row, 2 px wide; the boundary between the second
+    // and third is a colour edge (weight 0); the fourth has another plane.
+    let ids = Plane::from_fn(10, 2, |x, _| (x / 2) as u32);
+    let graph = SegmentGraph::from_ids(ids, 5);
+    let weights = graph.boundary_weights(|p, q| f32::from(u8::from(p % 10 != 3 || q % 10 != 4)));
+    let (group, groups) = assign::coupled_groups(&graph, &weights, &[0, 0, 0, 1, 0], 0.5);
+    assert_eq!(groups, [vec![0, 1]]);
+    assert_eq!(group, [0, 0, usize::MAX, usize::MAX, usize::MAX]);
+    // At coupling 0 the colour edge joins too.
+    let (_, groups) = assign::coupled_groups(&graph, &weights, &[0, 0, 0, 1, 0], 0.0);
+    assert_eq!(groups, [vec![0, 1, 2]]);
+}

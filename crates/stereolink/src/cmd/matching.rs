@@ -108,6 +108,12 @@ pub struct MatcherArgs {
     /// (default 5; `inf`: every pair weighs 1).
     #[arg(long, value_name = "SIGMA")]
     pub plane_contrast: Option<f32>,
+    /// Planes: segments that share a plane and whose boundaries weigh at
+    /// least this per unit under --plane-contrast (an even colour across
+    /// them) also move together to a neighbour's plane (default 0.1; `inf`:
+    /// one segment at a time).
+    #[arg(long, value_name = "WEIGHT")]
+    pub plane_coupling: Option<f32>,
     /// Planes: truncation of the per-pixel matching cost (census Hamming
     /// bits plus the weighted grey difference), also the cost of an
     /// occluded match (default 24).
@@ -232,6 +238,7 @@ impl MatcherArgs {
         spec.line_growing.passes = self.lg_passes.unwrap_or(spec.line_growing.passes);
         spec.planes.smoothness = self.plane_smoothness.unwrap_or(spec.planes.smoothness);
         spec.planes.contrast = self.plane_contrast.unwrap_or(spec.planes.contrast);
+        spec.planes.coupling = self.plane_coupling.unwrap_or(spec.planes.coupling);
         spec.planes.truncation = self.plane_truncation.unwrap_or(spec.planes.truncation);
         spec.planes.intensity = self.plane_intensity.unwrap_or(spec.planes.intensity);
         spec.planes.tile = self.plane_tile.unwrap_or(spec.planes.tile);
