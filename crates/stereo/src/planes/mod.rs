@@ -172,14 +172,15 @@ pub struct PlanesParams {
     /// / Venus / Teddy / Cones 2.24 / 0.42 / 5.06 / 2.88, 2.48 / 0.43 / 4.98
     /// / 2.89, 2.38 / 0.43 / 4.93 / 2.92 and 2.38 / 0.43 / 4.89 / 2.92 %
     /// (Vintage 21.68 against 20.15 with 2); 2 rounds cost Motorcycle 0.05
-    /// s of CPU.
+    /// s of CPU. With today's other defaults (colour contrast, group moves)
+    /// 0 rounds give 9.35 % against 9.10 %.
     pub refits: usize,
     /// The per-pixel plane choice near segment boundaries ([`boundary`]):
     /// with it (radius 5, 17×17 window, symmetric colour weights, margin
-    /// 0.1) the 20 shared scenes average 9.89 against 10.62 % without
-    /// (Tsukuba / Venus / Teddy / Cones 2.31 / 0.36 / 4.43 / 2.87 against
-    /// 2.85 / 0.50 / 4.69 / 3.17), and planes beat SGM on ten 2014 scenes
-    /// against seven. It takes most of the matcher's time (Jadeplant in
+    /// 0.1) the 20 shared scenes average 9.10 against 9.69 % without
+    /// (Tsukuba / Venus / Teddy / Cones 2.09 / 0.18 / 3.86 / 2.85 against
+    /// 2.70 / 0.25 / 4.07 / 3.19), and planes beat SGM on ten 2014 scenes
+    /// against eight. It takes most of the matcher's time (Jadeplant in
     /// `eval`, with another process loading both cores: 1.62–1.73 s with
     /// it, 0.62 s without).
     pub boundary: boundary::BoundaryParams,
