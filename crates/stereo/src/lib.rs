@@ -207,7 +207,13 @@ impl MatchSpec {
             },
             gray_bits: WTA_GRAY_BITS,
             min_filter: WTA_MIN_FILTER,
-            sgm: sgm::SgmParams::default(),
+            sgm: sgm::SgmParams {
+                paths: match algorithm {
+                    Algorithm::Planes => planes::INITIAL_PATHS,
+                    _ => sgm::SgmParams::default().paths,
+                },
+                ..sgm::SgmParams::default()
+            },
             line_growing: line_growing::LineGrowingParams::default(),
             planes: planes::PlanesParams::default(),
             ripple: ripple::RippleFilter::default(),
