@@ -141,8 +141,9 @@ pub struct PlanesParams {
     /// difference, so cutting along a colour edge costs little and cutting
     /// through an even colour (a tile's or a split's cut, a gradient) costs
     /// `λ` per pair (`inf`: every pair weighs 1, the plain boundary
-    /// length). Over the 20 shared scenes, with the other defaults (bad > 1
-    /// px non-occluded, average, and Tsukuba / Venus / Teddy / Cones):
+    /// length). Over the 20 shared scenes, with the other defaults but
+    /// without group moves and with an 8-path initial map (bad > 1 px
+    /// non-occluded, average, and Tsukuba / Venus / Teddy / Cones):
     ///
     /// | σ | λ | 20 scenes | v2 | 2014 wins |
     /// |---|---|---|---|---|
@@ -158,7 +159,8 @@ pub struct PlanesParams {
     /// plane and are joined by boundaries weighing at least this per unit
     /// of length (an even colour across them: see `contrast`) move
     /// together to a neighbour's plane when that lowers the energy (`inf`:
-    /// no group moves). Over the 20 shared scenes, with the other defaults:
+    /// no group moves). Over the 20 shared scenes, with the other defaults
+    /// but an 8-path initial map:
     /// without 9.45 %, with 0.001 / 0.05 / **0.1** / 0.2 / 0.3 / 0.45 /
     /// 0.6 9.14 / 9.15 / **9.10** / 9.13 / 9.17 / 9.17 / 9.27 %; Tsukuba /
     /// Venus / Teddy / Cones at 0.1: 2.09 / 0.18 / 3.86 / 2.85 against
