@@ -114,8 +114,13 @@ impl Refinement {
                 weighted_median: None,
                 fill: Some(HoleFill::Directions),
             },
-            // The planes give a dense subpixel map already.
-            Algorithm::Planes => Refinement::NONE,
+            // The planes give a dense subpixel map already; a small
+            // colour-weighted median then snaps its depth edges to the
+            // colour edges (`WeightedMedian::AFTER_PLANES`).
+            Algorithm::Planes => Refinement {
+                weighted_median: Some(WeightedMedian::AFTER_PLANES),
+                ..Refinement::NONE
+            },
             Algorithm::LineGrowing => Refinement {
                 lr_check: None,
                 subpixel: false,

@@ -49,15 +49,17 @@ pub struct MatcherArgs {
     /// runs before and after the fill and replaces the plain median unless
     /// --median is given too. Default 8 for wta (bad > 1 px 3.63 / 0.90 /
     /// 15.47 / 6.69 % on Tsukuba / Venus / Teddy / Cones; `0 --median 5`
-    /// takes about 0.8x the time at 5.89 / 3.73 / 18.44 / 10.09 %), off
-    /// (0) for lg and sgm.
+    /// takes about 0.8x the time at 5.89 / 3.73 / 18.44 / 10.09 %), 2 for
+    /// planes (once, every pixel, reach 250), off (0) for lg and sgm.
     #[arg(long, value_name = "RADIUS")]
     pub weighted_median: Option<usize>,
     /// Colour reach of the weighted median: the summed RGB difference at
-    /// which a neighbour's weight falls to zero (1–255; default 150).
+    /// which a neighbour's weight falls to zero (1–255; default 150, 250 for
+    /// planes).
     #[arg(long, value_parser = clap::value_parser!(u8).range(1..))]
     pub wm_reach: Option<u8>,
-    /// Sampling step inside the weighted median's window (default 4).
+    /// Sampling step inside the weighted median's window (default 4, 1 for
+    /// planes).
     #[arg(long)]
     pub wm_step: Option<usize>,
     /// Subpixel parabola fit through the winner's neighbouring costs
