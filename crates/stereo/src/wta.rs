@@ -559,11 +559,16 @@ impl Job<'_> {
         self.left.width() + self.params.min_disp - 1 - x
     }
 
+    /// Right row `y`, border-padded and reversed (see [`reversed_rows`]).
+    fn reversed_row(&self, y: usize) -> &[u16] {
+        &self.reversed[y * self.stride..(y + 1) * self.stride]
+    }
+
     /// The right pixels `x − d_min − k`, `k = 0..lanes`, of left column
-    /// `x` in row `y`, contiguous in `k` (see [`reversed_rows`]).
+    /// `x` in row `y`, contiguous in `k`.
     fn right_of(&self, y: usize, x: usize) -> &[u16] {
-        let start = y * self.stride + self.right_start(x);
-        &self.reversed[start..start + lanes(self.params.ndisp)]
+        let start = self.right_start(x);
+        &self.reversed_row(y)[start..start + lanes(self.params.ndisp)]
     }
 }
 
@@ -813,7 +818,7 @@ unsafe fn accumulate_row<K: LaneOps>(
 ) {
     let nd = lanes(job.params.ndisp);
     let start = |x: usize| job.right_start(x);
-    let row = |y: usize| &job.reversed[y * job.stride..(y + 1) * job.stride];
+    let row = |y: usize| job.reversed_row(y);
     let right_of = |y: usize, x: usize| job.right_of(y, x);
     let left = job.left.row(y);
     let gone_left = leaving.map(|s| job.left.row(s));

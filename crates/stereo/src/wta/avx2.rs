@@ -89,19 +89,18 @@ unsafe fn row<const B: usize, T: Disparity>(
     let p = job.params;
     let (nd, r, md) = (B * LANES, p.block / 2, p.min_disp);
     let colsum = &mut band.colsum[..w * nd];
+    // The entering and leaving rows' left samples and reversed right rows.
+    let rows = rows.map(|(entering, leaving)| {
+        let samples = |y| (job.left.row(y), job.reversed_row(y));
+        (samples(entering), samples(leaving))
+    });
     let update = |colsum: &mut [u16], x: usize| {
-        if let Some((entering, leaving)) = rows {
-            let gone = (job.left.row(leaving)[x], job.right_of(leaving, x));
+        if let Some(((left, right), (gone_left, gone_right))) = rows {
+            let at = job.right_start(x)..job.right_start(x) + nd;
+            let gone = (gone_left[x], &gone_right[at.clone()]);
             let col = &mut colsum[x * nd..(x + 1) * nd];
             // SAFETY: the CPU has AVX2 (this function's contract).
-            unsafe {
-                Avx2::accumulate(
-                    col,
-                    job.left.row(entering)[x],
-                    job.right_of(entering, x),
-                    Some(gone),
-                )
-            };
+            unsafe { Avx2::accumulate(col, left[x], &right[at], Some(gone)) };
         }
     };
     let load = |colsum: &[u16], x: usize| -> Lanes<B> {
