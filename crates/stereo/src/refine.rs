@@ -371,24 +371,21 @@ fn nearest_valid(map: &DisparityMap, backward: bool, found: &mut Vec<(usize, [f3
         let y = if backward { h - 1 - i } else { i };
         let row = map.row(y);
         pass.find_holes(row);
+        // The nearest valid value along the row: the neighbour's, or when
+        // the neighbour is a hole too (the hole before in the list) that
+        // hole's (a select, not a branch: holes are scattered).
         let mut along = f32::INFINITY;
-        let holes = &pass.holes;
-        let n = holes.len();
-        for j in 0..n {
-            let k = if backward { n - 1 - j } else { j };
-            let x = holes[k];
-            let (neighbour, previous_hole) = if backward {
-                (x + 1, holes.get(k + 1).copied())
-            } else {
-                (x.wrapping_sub(1), k.checked_sub(1).map(|p| holes[p]))
-            };
-            // The nearest valid pixel along the row is the neighbour, or the
-            // previous hole's when the neighbour is a hole too.
-            if neighbour < w && previous_hole != Some(neighbour) {
-                along = row[neighbour];
-            }
+        let mut entry = |x: usize, neighbour: Option<&f32>| {
+            along = pick(neighbour.copied().unwrap_or(f32::INFINITY), along);
             let [straight, from_left, from_right] = pass.carried(x);
-            found.push((y * w + x, [along, from_left, straight, from_right]));
+            (y * w + x, [along, from_left, straight, from_right])
+        };
+        if backward {
+            let holes = pass.holes.iter().rev();
+            found.extend(holes.map(|&x| entry(x, row.get(x + 1))));
+        } else {
+            let holes = pass.holes.iter();
+            found.extend(holes.map(|&x| entry(x, x.checked_sub(1).map(|n| &row[n]))));
         }
         pass.advance(row);
     }
@@ -421,15 +418,17 @@ impl DirectionPass {
         }
     }
 
-    /// Lists the invalid pixels of `row` (branch-free: holes are scattered).
+    /// Lists the invalid pixels of `row`, ascending: a bit mask of 64
+    /// pixels at a time ([`holes_mask`]), then its set bits.
     fn find_holes(&mut self, row: &[f32]) {
-        self.holes.resize(row.len(), 0);
-        let mut n = 0;
-        for (x, &d) in row.iter().enumerate() {
-            self.holes[n] = x;
-            n += usize::from(!valid(d));
+        self.holes.clear();
+        for (c, chunk) in row.chunks(64).enumerate() {
+            let mut bits = holes_mask(chunk);
+            while bits != 0 {
+                self.holes.push(64 * c + bits.trailing_zeros() as usize);
+                bits &= bits - 1;
+            }
         }
-        self.holes.truncate(n);
     }
 
     /// Straight, from-the-left and from-the-right values carried to column `x`.
@@ -441,22 +440,61 @@ impl DirectionPass {
     /// its column's value, an invalid one passes on what reached it; the
     /// diagonals move one column.
     fn advance(&mut self, row: &[f32]) {
-        // A bit-mask select: as an `if`, LLVM emits a branch per pixel.
-        fn pick(out: &mut [f32], row: &[f32], old: &[f32]) {
+        fn pick_all(out: &mut [f32], row: &[f32], old: &[f32]) {
             for ((o, &d), &old) in out.iter_mut().zip(row).zip(old) {
-                let keep = u32::from(valid(d)).wrapping_neg();
-                *o = f32::from_bits(d.to_bits() & keep | old.to_bits() & !keep);
+                *o = pick(d, old);
             }
         }
         let w = row.len();
         let [straight, from_left, from_right] = &mut self.next;
-        pick(straight, row, &self.carry[0]);
+        pick_all(straight, row, &self.carry[0]);
         from_left[0] = f32::INFINITY;
-        pick(&mut from_left[1..], &row[..w - 1], &self.carry[1][..w - 1]);
+        pick_all(&mut from_left[1..], &row[..w - 1], &self.carry[1][..w - 1]);
         from_right[w - 1] = f32::INFINITY;
-        pick(&mut from_right[..w - 1], &row[1..], &self.carry[2][1..]);
+        pick_all(&mut from_right[..w - 1], &row[1..], &self.carry[2][1..]);
         std::mem::swap(&mut self.carry, &mut self.next);
     }
+}
+
+/// Bit `i` set where `chunk[i]` (at most 64) is invalid: on x86-64 four
+/// pixels a compare and a `movmskps` (SSE2, always there), the portable
+/// fold taking several instructions a pixel.
+#[inline(always)]
+fn holes_mask(chunk: &[f32]) -> u64 {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::*;
+        let mut quads = chunk.chunks_exact(4);
+        let mut bits = 0u64;
+        for (k, q) in (&mut quads).enumerate() {
+            // SAFETY: SSE2 is part of x86-64; `q` holds four f32.
+            let invalid = unsafe {
+                let v = _mm_loadu_ps(q.as_ptr());
+                let magnitude = _mm_andnot_ps(_mm_set1_ps(-0.0), v);
+                // Not below infinity: unordered compare, true for NaN too.
+                _mm_movemask_ps(_mm_cmpnlt_ps(magnitude, _mm_set1_ps(f32::INFINITY)))
+            };
+            bits |= (invalid as u64) << (4 * k);
+        }
+        let done = chunk.len() - quads.remainder().len();
+        bits | holes_mask_portable(quads.remainder()) << done
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    holes_mask_portable(chunk)
+}
+
+/// [`holes_mask`] in portable Rust.
+#[inline(always)]
+fn holes_mask_portable(chunk: &[f32]) -> u64 {
+    (chunk.iter().enumerate()).fold(0u64, |m, (i, &d)| m | u64::from(!valid(d)) << i)
+}
+
+/// `d` if it is valid, else `old`: a bit-mask select (as an `if`, LLVM
+/// emits a branch per pixel).
+#[inline(always)]
+fn pick(d: f32, old: f32) -> f32 {
+    let keep = u32::from(valid(d)).wrapping_neg();
+    f32::from_bits(d.to_bits() & keep | old.to_bits() & !keep)
 }
 
 /// The optimal 19-comparator network sorting eight values.
@@ -561,10 +599,11 @@ mod tests {
     }
 
     proptest::proptest! {
-        /// The two passes equal walking from each hole in the 8 directions.
+        /// The two passes equal walking from each hole in the 8 directions
+        /// (on rows of several 64-pixel masks too).
         #[test]
         fn directional_fill_equals_walking(
-            w in 1usize..24, h in 1usize..16, seed in proptest::prelude::any::<u64>(),
+            w in 1usize..150, h in 1usize..16, seed in proptest::prelude::any::<u64>(),
             holes in 0u64..100,
         ) {
             let mut s = seed | 1;

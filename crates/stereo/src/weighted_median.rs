@@ -374,9 +374,9 @@ fn filter_row(job: &MapJob, y: usize, row: &mut [f32], scratch: &mut RowScratch)
     } else {
         stay.resize(w, false);
     }
-    // Whole chunks of `LANES`, the last one overlapping its predecessor; a
-    // narrower row pixel by pixel. A chunk where all stay needs no sums
-    // (no weight: they stay).
+    // Chunks of `LANES` over the pixels that do not stay ([`covering`]); a
+    // narrower row pixel by pixel. The others need no sums: they stay
+    // whatever their sums hold (those of an earlier row, or zero).
     let (candidates, stay) = (&scratch.candidates[..], &scratch.stay[..]);
     let s = &mut scratch.sums;
     for v in [
@@ -389,7 +389,7 @@ fn filter_row(job: &MapJob, y: usize, row: &mut [f32], scratch: &mut RowScratch)
         v.resize(w, 0);
     }
     let n = if w >= LANES { LANES } else { 1 };
-    for x in (0..w).step_by(n).map(|x| x.min(w - n)) {
+    for x in covering(stay, n, |&stays| !stays) {
         let at = x..x + n;
         let sums = [
             &mut s.total,
@@ -399,9 +399,7 @@ fn filter_row(job: &MapJob, y: usize, row: &mut [f32], scratch: &mut RowScratch)
             &mut s.upper,
         ]
         .map(|v| &mut v[at.clone()]);
-        if stay[at.clone()].iter().all(|&s| s) {
-            sums[0].fill(0);
-        } else if n == LANES {
+        if n == LANES {
             settle::<LANES>(job, centre + x, &candidates[at], sums);
         } else {
             settle::<1>(job, centre + x, &candidates[at], sums);
@@ -446,17 +444,10 @@ fn filter_row(job: &MapJob, y: usize, row: &mut [f32], scratch: &mut RowScratch)
         let take = (m != b) & (m < invalid);
         *d = if take { lo + f32::from(m) } else { *d };
     }
-    // The rest, a chunk at a time as above (a pixel of the overlapping
-    // last chunk may be searched twice, to the same result).
-    for x in (0..w).step_by(n).map(|x| x.min(w - n)) {
+    // The rest, in chunks as above (a pixel of overlapping chunks may be
+    // searched twice, to the same result).
+    for x in covering(medians, n, |&m| m == HARD) {
         let at = x..x + n;
-        // Branch-free, so that it vectorises.
-        let hard = medians[at.clone()]
-            .iter()
-            .fold(false, |h, &m| h | (m == HARD));
-        if !hard {
-            continue;
-        }
         let mut found = [0u16; LANES];
         if n == LANES {
             found = search::<LANES>(job, centre + x, &mut scratch.samples);
@@ -475,6 +466,25 @@ fn filter_row(job: &MapJob, y: usize, row: &mut [f32], scratch: &mut RowScratch)
             }
         }
     }
+}
+
+/// The starts of chunks of `n` pixels of `row` (at least `n` long) that
+/// cover every pixel where `flagged` holds, as few as can: each starts at
+/// the first flagged pixel not yet covered (moved back to end with the
+/// row at the latest). Flagged pixels cluster (at holes' borders, at
+/// disparity edges), so that this takes fewer chunks than a fixed grid.
+fn covering<'a, T>(
+    row: &'a [T],
+    n: usize,
+    flagged: impl Fn(&T) -> bool + 'a,
+) -> impl Iterator<Item = usize> + 'a {
+    let mut next = 0;
+    std::iter::from_fn(move || {
+        let x = next + row.get(next..)?.iter().position(&flagged)?;
+        let start = x.min(row.len() - n);
+        next = start + n;
+        Some(start)
+    })
 }
 
 /// Per pixel, the weights of the valid samples in all, below `c`, in `c`,

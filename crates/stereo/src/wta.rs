@@ -26,7 +26,9 @@
 //! SWAR kernel's general band loop (with a min filter or the right view's
 //! map), a column whose entering and leaving rows agree (long runs of them
 //! in a segmented pair) skips its update: the two cancel; the board's
-//! setting has its own loop, with column sums from row tables (`swar`). Row
+//! setting has its own loop, with column sums from row tables (`swar`), and
+//! so has the AVX2 kernel's default (no min filter, no right view's map),
+//! with a pixel's costs and the check's minima in registers (`avx2`). Row
 //! bands run in parallel (rayon). Window pixels outside the image
 //! replicate the border.
 //!
@@ -39,6 +41,8 @@ use stereolink_image::{DisparityMap, LabelMap, Plane, Rgb, RgbImage};
 use crate::lanes::{LaneOps, Portable, Swar, LANES};
 use crate::{MatchSpec, StereoError};
 
+#[cfg(target_arch = "x86_64")]
+mod avx2;
 mod swar;
 
 /// Gray samples of a view, [`WtaParams::gray_bits`] bits each.
@@ -487,7 +491,11 @@ impl WtaMatcher {
                         // SAFETY: only reached when the CPU reports AVX2 (checked in
                         // `avx2_available`).
                         unsafe {
-                            band_avx2(&job, band, rows, right_rows)
+                            // The default setting has a loop of its own.
+                            let plain = m == 1 && right_rows.is_none();
+                            if !(plain && avx2::band(&job, band, rows)) {
+                                band_avx2(&job, band, rows, right_rows)
+                            }
                         }
                     }
                     Kernel::Portable => band_scalar::<Portable, T>(&job, band, rows, right_rows),
@@ -542,6 +550,26 @@ struct Job<'a> {
     /// Whether the band checks its winners against the right view's
     /// ([`WtaMatcher::compute_checked_into`]).
     check: bool,
+}
+
+impl Job<'_> {
+    /// Where the right pixels `x − d_min − k` of left column `x` start in
+    /// a reversed row.
+    fn right_start(&self, x: usize) -> usize {
+        self.left.width() + self.params.min_disp - 1 - x
+    }
+
+    /// Right row `y`, border-padded and reversed (see [`reversed_rows`]).
+    fn reversed_row(&self, y: usize) -> &[u16] {
+        &self.reversed[y * self.stride..(y + 1) * self.stride]
+    }
+
+    /// The right pixels `x − d_min − k`, `k = 0..lanes`, of left column
+    /// `x` in row `y`, contiguous in `k`.
+    fn right_of(&self, y: usize, x: usize) -> &[u16] {
+        let start = self.right_start(x);
+        &self.reversed_row(y)[start..start + lanes(self.params.ndisp)]
+    }
 }
 
 /// What [`WtaMatcher::compute`] finds of the right view.
@@ -737,14 +765,7 @@ unsafe fn band_with<K: LaneOps, T: Disparity>(
             }
         }
         if job.check {
-            // Pixels below d_min have no winner (and no disparity).
-            for (x, d) in out_row.iter_mut().enumerate().skip(p.min_disp) {
-                let Winner { lane, cost, first } = winners[x];
-                let at = w - 1 - (x - p.min_disp) + lane as usize;
-                if !(first && right_best[at] == cost) {
-                    *d = T::NONE;
-                }
-            }
+            check_row(out_row, winners, right_best, p.min_disp);
         }
         if let Some(right) = right.as_deref_mut() {
             let row = &mut right[i * w..(i + 1) * w];
@@ -756,6 +777,22 @@ unsafe fn band_with<K: LaneOps, T: Disparity>(
                     (p.min_disp + right_lane[at] as usize) as f32
                 };
             }
+        }
+    }
+}
+
+/// The check of [`WtaMatcher::compute_checked_into`] on a row's
+/// `winners`, given the smallest cost of each right pixel `xr` at
+/// `right_best[W − 1 − xr]`: a left pixel keeps its disparity if its
+/// winner is its right pixel's first smallest cost. Pixels below `min_disp`
+/// have no winner (and no disparity).
+fn check_row<T: Disparity>(out: &mut [T], winners: &[Winner], right_best: &[u16], min_disp: usize) {
+    let w = out.len();
+    for (x, d) in out.iter_mut().enumerate().skip(min_disp) {
+        let Winner { lane, cost, first } = winners[x];
+        let at = w - 1 - (x - min_disp) + lane as usize;
+        if !(first && right_best[at] == cost) {
+            *d = T::NONE;
         }
     }
 }
@@ -779,13 +816,10 @@ unsafe fn accumulate_row<K: LaneOps>(
     y: usize,
     leaving: Option<usize>,
 ) {
-    let w = job.left.width();
     let nd = lanes(job.params.ndisp);
-    // Where the right pixels `x − d_min − k`, k = 0..nd, of left column `x`
-    // start in a reversed row.
-    let start = |x: usize| w + job.params.min_disp - 1 - x;
-    let row = |y: usize| &job.reversed[y * job.stride..(y + 1) * job.stride];
-    let right_of = |y: usize, x: usize| &row(y)[start(x)..start(x) + nd];
+    let start = |x: usize| job.right_start(x);
+    let row = |y: usize| job.reversed_row(y);
+    let right_of = |y: usize, x: usize| job.right_of(y, x);
     let left = job.left.row(y);
     let gone_left = leaving.map(|s| job.left.row(s));
     let skip = K::SKIP_ALIKE_ROWS && leaving.is_some();
@@ -1121,6 +1155,42 @@ mod tests {
                 let mut got = DisparityMap::new(w, h, 0.0);
                 matcher.compute_checked_into(&left, &right, &p, &mut got);
                 prop_assert_eq!(&got, &want);
+            }
+        }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(48))]
+        /// The AVX2 loop of the default setting (no min filter, no right
+        /// map; its own up to 96 lanes) equals the general loop of the
+        /// portable kernel, with and without the check in the pass, on
+        /// pairs with few gray levels (frequent ties) at every width
+        /// against the lanes.
+        #[test]
+        fn avx2_default_loop_equals_the_general_loop(
+            w in 1usize..140, h in 1usize..10, seed in any::<u64>(), shift in 0usize..40,
+            min_disp in 0usize..5, ndisp in 1usize..97, half in 0usize..6,
+            uniqueness in prop_oneof![Just(0u32), Just(15u32)], subpixel in any::<bool>(),
+        ) {
+            let right = levels_view(w, h, seed, 5);
+            let left = Samples::from_fn(w, h, |x, y| right.get(x.saturating_sub(shift + y % 3), y));
+            let p = WtaParams {
+                min_disp, ndisp, block: 2 * half + 1, gray_bits: 8, min_filter: 0,
+                uniqueness, subpixel,
+            };
+            let (mut fast, mut general) = (WtaMatcher::new(), WtaMatcher::portable());
+            let run = |m: &mut WtaMatcher, checked: bool| {
+                let mut out = DisparityMap::new(w, h, 0.0);
+                if checked {
+                    m.compute_checked_into(&left, &right, &p, &mut out);
+                } else {
+                    m.compute_into(&left, &right, &p, &mut out);
+                }
+                out.as_slice().iter().map(|v| v.to_bits()).collect::<Vec<_>>()
+            };
+            prop_assert_eq!(run(&mut fast, false), run(&mut general, false));
+            if !subpixel {
+                prop_assert_eq!(run(&mut fast, true), run(&mut general, true));
             }
         }
     }
