@@ -211,17 +211,30 @@ fn a_folded_surface_is_cut_again_and_gets_a_plane_per_side() {
 #[test]
 fn without_the_boundary_step_the_dense_map_is_the_plane_table_rendered() {
     let s = two_planes();
-    let spec = spec();
-    let m = match_planes(&s.left, &s.right, &s.labels, &spec).unwrap();
+    // Nor the refinement after it (the weighted median by default).
+    let raw = MatchSpec {
+        refine: Refinement::NONE,
+        ..spec()
+    };
+    let m = match_planes(&s.left, &s.right, &s.labels, &raw).unwrap();
     assert_eq!(render(&m.graph.ids, &m.planes, (0.0, 31.0)), m.disparity);
     let mut matcher = crate::Matcher::new();
     let d = matcher
-        .compute_segmented(&s.left, &s.right, Some(&s.labels), &spec)
+        .compute_segmented(&s.left, &s.right, Some(&s.labels), &raw)
         .unwrap();
     assert_eq!(d, m.disparity);
     assert_eq!(
-        matcher.compute(&s.left, &s.right, &spec),
+        matcher.compute(&s.left, &s.right, &raw),
         Err(StereoError::NoSegments)
+    );
+    // The default refinement is the small weighted median of the map.
+    let refined = matcher
+        .compute_segmented(&s.left, &s.right, Some(&s.labels), &spec())
+        .unwrap();
+    let wm = crate::refine::WeightedMedian::AFTER_PLANES;
+    assert_eq!(
+        refined,
+        crate::refine::weighted_median(&m.disparity, &s.left, &wm)
     );
 }
 
