@@ -817,30 +817,31 @@ unsafe fn accumulate_row<K: LaneOps>(
     leaving: Option<usize>,
 ) {
     let nd = lanes(job.params.ndisp);
-    let start = |x: usize| job.right_start(x);
-    let row = |y: usize| job.reversed_row(y);
-    let right_of = |y: usize, x: usize| job.right_of(y, x);
     let left = job.left.row(y);
     let gone_left = leaving.map(|s| job.left.row(s));
     let skip = K::SKIP_ALIKE_ROWS && leaving.is_some();
     if let (true, Some(s)) = (skip, leaving) {
         let mut n = 0;
         differ[0] = 0;
-        for ((c, a), b) in differ[1..].iter_mut().zip(row(y)).zip(row(s)) {
+        for ((c, a), b) in differ[1..]
+            .iter_mut()
+            .zip(job.reversed_row(y))
+            .zip(job.reversed_row(s))
+        {
             n += (a != b) as u32;
             *c = n;
         }
     }
     for (x, col) in colsum.chunks_exact_mut(nd).enumerate() {
-        let gone = leaving.zip(gone_left).map(|(s, l)| (l[x], right_of(s, x)));
-        if skip
-            && gone.is_some_and(|(l, _)| l == left[x])
-            && differ[start(x) + nd] == differ[start(x)]
-        {
+        let gone = leaving
+            .zip(gone_left)
+            .map(|(s, l)| (l[x], job.right_of(s, x)));
+        let start = job.right_start(x);
+        if skip && gone.is_some_and(|(l, _)| l == left[x]) && differ[start + nd] == differ[start] {
             continue;
         }
         // SAFETY: forwarded from this function's contract.
-        unsafe { K::accumulate(col, left[x], right_of(y, x), gone) };
+        unsafe { K::accumulate(col, left[x], job.right_of(y, x), gone) };
     }
 }
 
