@@ -78,9 +78,9 @@ impl Output {
 ///
 /// stereolink segments a rectified stereo pair (k-means, mean shift, PSO,
 /// DPSO, FO-DPSO), compresses it, estimates disparity and depth (WTA-SAD,
-/// line growing, SGM), sends it over an XBee/802.15.4 radio (or serial/UDP),
-/// and on the receiving board shows a 3-D view and moves a linear axis by the
-/// estimated distance.
+/// line growing, SGM, segment-based disparity planes), sends it over an
+/// XBee/802.15.4 radio (or serial/UDP), and on the receiving board shows a
+/// 3-D view and moves a linear axis by the estimated distance.
 ///
 /// Start with `stereolink demo`: it runs the whole system on a built-in
 /// synthetic scene and writes its results to ./demo-out/.
@@ -116,7 +116,7 @@ pub enum Command {
     Calibrate(calibrate::Args),
     /// Rectify a raw stereo pair with a stereo calibration YAML.
     Rectify(rectify::Args),
-    /// Compute a disparity map (WTA-SAD, line growing, SGM).
+    /// Compute a disparity map (WTA-SAD, line growing, SGM, disparity planes).
     #[command(name = "match")]
     Match(matching::Args),
     /// Turn a disparity map into depth, a point cloud and region distances.
