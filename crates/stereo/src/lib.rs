@@ -1,6 +1,7 @@
 //! Stereo matching and depth: winner-take-all SAD and line growing (the
 //! paper's local and global methods), semi-global matching (beyond the
-//! paper), refinement, and depth from disparity.
+//! paper), segment-based disparity planes (the paper's Section III),
+//! refinement, and depth from disparity.
 //!
 //! # Brief overview
 //!
