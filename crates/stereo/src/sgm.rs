@@ -90,6 +90,36 @@ pub fn census(img: &GrayImage) -> Vec<u64> {
     census_with(img, crate::wta::avx2_available())
 }
 
+/// The bits of a [`census`] code that compare the centre with the
+/// neighbours of the centred `width × height` window (odd, at most 9×7):
+/// the code of that smaller census is `code & census_mask(width, height)`,
+/// so one transform serves every window inside the 9×7 one.
+///
+/// # Panics
+/// If a side is even or larger than the census's.
+pub fn census_mask(width: usize, height: usize) -> u64 {
+    assert!(width % 2 == 1 && width <= 9 && height % 2 == 1 && height <= 7);
+    let (rx, ry) = (width / 2, height / 2);
+    // [`census_row`]'s order: neighbours in raster order, eight to a byte
+    // (six in the last), the first of a byte in its highest bit.
+    neighbours()
+        .enumerate()
+        .filter(|&(_, (dy, dx))| dy.abs_diff(3) <= ry && dx.abs_diff(4) <= rx)
+        .fold(0, |mask, (i, _)| {
+            let (byte, at) = (i / 8, i % 8);
+            let in_byte = if byte == 7 { 6 } else { 8 };
+            mask | 1 << (8 * byte + in_byte - 1 - at)
+        })
+}
+
+/// The 62 neighbours of the 9×7 census window as (row, column) in the
+/// window, centre `(3, 4)` left out, in the order their bits are filled.
+fn neighbours() -> impl Iterator<Item = (usize, usize)> {
+    (0..7)
+        .flat_map(|dy| (0..9).map(move |dx| (dy, dx)))
+        .filter(|&n| n != (3, 4))
+}
+
 /// [`census`] compiled for AVX2 (`avx2`: the CPU has it) or not.
 fn census_with(img: &GrayImage, avx2: bool) -> Vec<u64> {
     let (w, h) = img.dims();
@@ -213,15 +243,11 @@ fn census_row(img: &GrayImage, y: usize, out: &mut [u64]) {
         middle.copy_from_slice(line);
         right.fill(line[w - 1]);
     }
-    // The 62 neighbours of the 9×7 window as (row, column) in `padded`.
-    let neighbours = (0..7)
-        .flat_map(|dy| (0..9).map(move |dx| (dy, dx)))
-        .filter(|&n| n != (3, 4));
     let mut byte = vec![0u8; w];
     out.fill(0);
     let mut group = 0;
     let mut filled = 0;
-    for (dy, dx) in neighbours {
+    for (dy, dx) in neighbours() {
         let shifted = &padded[dy * pw + dx..dy * pw + dx + w];
         for ((b, &n), &c) in byte.iter_mut().zip(shifted).zip(centre) {
             *b = (*b << 1) | u8::from(n < c);
@@ -896,6 +922,34 @@ mod tests {
                 let other = comparisons((x + 7) % 23, y);
                 let differ = mine.iter().zip(&other).filter(|(a, b)| a != b).count() as u32;
                 assert_eq!((code(x, y) ^ code((x + 7) % 23, y)).count_ones(), differ);
+            }
+        }
+    }
+
+    /// A masked code is the census of the smaller window: its bits count
+    /// exactly the darker neighbours inside it.
+    #[test]
+    fn a_census_mask_keeps_the_inner_windows_comparisons() {
+        assert_eq!(census_mask(9, 7), (1 << 62) - 1);
+        assert_eq!(census_mask(1, 1), 0);
+        let mut s = 0x2545_F491u32;
+        let img = GrayImage::from_fn(19, 13, |_, _| {
+            s = s.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            (s >> 27) as u8
+        });
+        let c = census(&img);
+        let at = |x: isize, y: isize| img.get(x.clamp(0, 18) as usize, y.clamp(0, 12) as usize);
+        for (w, h) in [(3, 3), (5, 3), (3, 5), (7, 5), (9, 1), (1, 7)] {
+            let mask = census_mask(w, h);
+            let (rx, ry) = (w as isize / 2, h as isize / 2);
+            assert_eq!(mask.count_ones() as usize, w * h - 1);
+            for (x, y) in [(0, 0), (5, 6), (18, 12), (9, 2)] {
+                let darker = (-ry..=ry)
+                    .flat_map(|dy| (-rx..=rx).map(move |dx| (dx, dy)))
+                    .filter(|&(dx, dy)| at(x + dx, y + dy) < at(x, y))
+                    .count() as u32;
+                let code = c[y as usize * 19 + x as usize];
+                assert_eq!((code & mask).count_ones(), darker, "{w}x{h} at ({x}, {y})");
             }
         }
     }

@@ -44,6 +44,22 @@ use super::fit::{refit, samples, Sample};
 use super::graph::SegmentGraph;
 use super::{DisparityPlane, PlanesParams};
 
+/// Which comparisons of the 9×7 census a matching cost counts (a smaller
+/// window inside it: [`crate::sgm::census_mask`]), and the weight of each.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct CensusPart {
+    pub mask: u64,
+    pub weight: f32,
+}
+
+impl CensusPart {
+    /// The whole 9×7 window, each comparison weighing 1.
+    pub const FULL: CensusPart = CensusPart {
+        mask: (1 << 62) - 1,
+        weight: 1.0,
+    };
+}
+
 /// The per-pixel data cost: the census Hamming distance (9×7, as SGM's) and
 /// the weighted grey difference at the plane's disparity, truncated, plus
 /// the disagreement with the initial map where a pixel is reliable.
@@ -103,6 +119,13 @@ impl<'a> DataCost<'a> {
     /// disparity `d`, interpolated between whole disparities.
     #[inline]
     pub(crate) fn matching(&self, p: usize, x: usize, d: f32) -> f32 {
+        self.matching_with(p, x, d, CensusPart::FULL)
+    }
+
+    /// [`Self::matching`] with the census Hamming distance taken over the
+    /// bits of `census` only, each weighing its weight.
+    #[inline]
+    pub(crate) fn matching_with(&self, p: usize, x: usize, d: f32, census: CensusPart) -> f32 {
         let xr = x as f32 - d;
         if xr < 0.0 {
             return self.truncation;
@@ -112,8 +135,8 @@ impl<'a> DataCost<'a> {
         let row = p - x;
         let (i0, i1) = (row + i, row + (i + 1).min(self.width - 1));
         let c = self.left[p];
-        let h0 = (c ^ self.right[i0]).count_ones() as f32;
-        let h1 = (c ^ self.right[i1]).count_ones() as f32;
+        let hamming = |r: u64| ((c ^ r) & census.mask).count_ones() as f32 * census.weight;
+        let (h0, h1) = (hamming(self.right[i0]), hamming(self.right[i1]));
         let (g0, g1) = (f32::from(self.gray.1[i0]), f32::from(self.gray.1[i1]));
         let grey = (f32::from(self.gray.0[p]) - (g0 + f * (g1 - g0))).abs();
         let cost = h0 + f * (h1 - h0) + self.intensity * grey.min(self.intensity_cap);

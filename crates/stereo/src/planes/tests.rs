@@ -327,6 +327,11 @@ fn out_of_range_split_boundary_and_contrast_parameters_are_errors() {
         |p: &mut PlanesParams| p.boundary.sigma = 0.0,
         |p: &mut PlanesParams| p.boundary.margin = 1.0,
         |p: &mut PlanesParams| p.boundary.distinct = f32::NAN,
+        |p: &mut PlanesParams| p.boundary.census = [4, 3],
+        |p: &mut PlanesParams| p.boundary.census = [11, 3],
+        |p: &mut PlanesParams| p.boundary.census = [5, 9],
+        |p: &mut PlanesParams| p.boundary.census_weight = -1.0,
+        |p: &mut PlanesParams| p.boundary.census_weight = f32::INFINITY,
         |p: &mut PlanesParams| p.contrast = 0.0,
         |p: &mut PlanesParams| p.contrast = f32::NAN,
     ] {

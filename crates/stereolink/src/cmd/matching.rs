@@ -138,6 +138,15 @@ pub struct MatcherArgs {
     /// 5, at most 8; 0 keeps each segment's plane).
     #[arg(long, value_name = "RADIUS")]
     pub plane_boundary: Option<usize>,
+    /// Planes: the census window of that adaptive-support cost, odd sides
+    /// up to 9x7 (default 5x3: a narrow window reaches less far across a
+    /// depth edge than the 9x7 of the segments' data term).
+    #[arg(long, value_name = "WxH", value_parser = parse_census_window)]
+    pub plane_boundary_census: Option<[usize; 2]>,
+    /// Planes: weight of each census comparison in that cost (default 4,
+    /// for the 14 comparisons of 5x3; the data term's 9x7 weighs 1 each).
+    #[arg(long, value_name = "WEIGHT")]
+    pub plane_boundary_census_weight: Option<f32>,
     /// Planes: a segment whose plane misses more than this fraction of its
     /// reliable pixels by over 1 px is cut by tiles of half the side and
     /// fitted again (0–1, default 0.5; 0: never).
@@ -155,6 +164,19 @@ pub struct MatcherArgs {
     /// 2.70 % bad > 1 px).
     #[arg(long, default_value = "auto", value_parser = parse_ripple)]
     pub ripple: RippleFilter,
+}
+
+/// `WxH` (as `5x3`) to `[W, H]`; the matcher checks the sides.
+fn parse_census_window(s: &str) -> Result<[usize; 2], String> {
+    let (w, h) = s
+        .split_once(['x', 'X'])
+        .ok_or_else(|| format!("census window {s:?} is not WxH, as 5x3"))?;
+    let side = |v: &str| {
+        v.trim()
+            .parse::<usize>()
+            .map_err(|_| format!("census window {s:?} is not WxH, as 5x3"))
+    };
+    Ok([side(w)?, side(h)?])
 }
 
 fn parse_ripple(s: &str) -> Result<RippleFilter, String> {
@@ -245,7 +267,12 @@ impl MatcherArgs {
         spec.planes.truncation = self.plane_truncation.unwrap_or(spec.planes.truncation);
         spec.planes.intensity = self.plane_intensity.unwrap_or(spec.planes.intensity);
         spec.planes.tile = self.plane_tile.unwrap_or(spec.planes.tile);
-        spec.planes.boundary.radius = self.plane_boundary.unwrap_or(spec.planes.boundary.radius);
+        let boundary = &mut spec.planes.boundary;
+        boundary.radius = self.plane_boundary.unwrap_or(boundary.radius);
+        boundary.census = self.plane_boundary_census.unwrap_or(boundary.census);
+        boundary.census_weight = self
+            .plane_boundary_census_weight
+            .unwrap_or(boundary.census_weight);
         spec.planes.split = self.plane_split.unwrap_or(spec.planes.split);
         spec.planes.refits = self.plane_refits.unwrap_or(spec.planes.refits);
         spec.ripple = self.ripple;
