@@ -68,9 +68,9 @@ impl WeightedMedian {
     /// subpixel already: a 5×5 window, every pixel, `K` = 250, once. Most
     /// of the planes' remaining errors are a pixel or two of foreground
     /// along depth edges, and the median snaps those to the colour edge.
-    /// Bad > 1 px over the 20 shared scenes 8.50 % against 8.57 % without,
-    /// Tsukuba / Venus / Teddy / Cones 2.10 / 0.13 / 3.10 / 2.41 against
-    /// 2.21 / 0.16 / 3.21 / 2.51 %. Chosen when the boundary step's census
+    /// Bad > 1 px over the 20 shared scenes 8.45 % against 8.52 % without,
+    /// Tsukuba / Venus / Teddy / Cones 2.09 / 0.13 / 3.07 / 2.40 against
+    /// 2.20 / 0.16 / 3.18 / 2.50 %. Chosen when the boundary step's census
     /// was 9×7 (8.63 against 8.71 %): radius 1 / 3 / 4 gave 8.64 / 8.73 /
     /// 8.86 % (`K` = 150 at radius 1, 3 and 4), and radius 2 with `K` = 80 /
     /// 150 / 200 8.71 / 8.66 / 8.64 %.

@@ -289,7 +289,7 @@ fn sgm_and_planes(scenes: &[&str]) -> Option<Vec<(String, f64, f64)>> {
 
 /// On the real v2 scenes (`STEREOLINK_DATA`), planes over the default mean
 /// shift over-segmentation beat our SGM on all four (bad > 1 px
-/// non-occluded, measured 2.10 / 0.13 / 3.10 / 2.41 % against 2.68 / 0.94
+/// non-occluded, measured 2.09 / 0.13 / 3.07 / 2.40 % against 2.68 / 0.94
 /// / 6.04 / 3.60 % on Tsukuba / Venus / Teddy / Cones).
 #[test]
 fn planes_beat_sgm_on_the_four_v2_scenes() {
@@ -306,7 +306,7 @@ fn planes_beat_sgm_on_the_four_v2_scenes() {
 
 /// Issue 21's 2014 target: planes beat our SGM on at least 8 of the ten
 /// 2014 scenes of the shared data (measured: all ten; the closest, Pipes,
-/// 9.54 against 10.22 %).
+/// 9.60 against 10.22 %).
 #[test]
 fn planes_beat_sgm_on_eight_of_the_ten_2014_scenes() {
     let scenes = [

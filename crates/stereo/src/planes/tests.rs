@@ -301,6 +301,49 @@ fn a_segment_without_reliable_pixels_borrows_a_neighbours_plane() {
 }
 
 #[test]
+fn the_strip_the_right_camera_does_not_see_keeps_its_surface_not_a_farther_one() {
+    // A wall at 12 px, and a band at the top 8 px farther back. The wall's
+    // first 12 columns are outside the right view, so no match there is
+    // right whatever the plane: the data term must not prefer the band's
+    // plane, which keeps 8 of those columns in view (with a truncation
+    // above what this texture's mismatches cost, a charge of the
+    // truncation outside the view did). The strip, bordered by the wall
+    // along 100 rows and by the band along 12 columns, takes the wall's
+    // plane.
+    let (wall, band) = (
+        DisparityPlane {
+            a: 0.0,
+            b: 0.0,
+            c: 12.0,
+        },
+        DisparityPlane {
+            a: 0.0,
+            b: 0.0,
+            c: 4.0,
+        },
+    );
+    let s = slanted_scene(
+        180,
+        120,
+        &[wall, band],
+        |_, y| usize::from(y < 20),
+        |x, y| match (y < 20, x < 12) {
+            (true, _) => 0,
+            (false, true) => 2,
+            (false, false) => 1,
+        },
+    );
+    let mut spec = spec();
+    spec.planes.truncation = 60.0;
+    let m = match_planes(&s.left, &s.right, &s.labels, &spec).unwrap();
+    let strip = (20..120).flat_map(|y| (0..12).map(move |x| (x, y)));
+    let off = strip
+        .filter(|&(x, y)| (m.disparity.get(x, y) - 12.0).abs() > 0.5)
+        .count();
+    assert_eq!(off, 0, "{off} of the strip's 1200 pixels off the wall");
+}
+
+#[test]
 fn one_pixel_and_thousands_of_segments_still_give_a_dense_map() {
     let s = two_planes();
     for labels in [

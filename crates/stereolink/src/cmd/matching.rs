@@ -118,8 +118,8 @@ pub struct MatcherArgs {
     #[arg(long, value_name = "WEIGHT")]
     pub plane_coupling: Option<f32>,
     /// Planes: truncation of the per-pixel matching cost (census Hamming
-    /// bits plus the weighted grey difference), also the cost of an
-    /// occluded match (default 24).
+    /// bits plus the weighted grey difference), which bounds what an
+    /// occluded pixel costs (default 24).
     #[arg(long)]
     pub plane_truncation: Option<f32>,
     /// Planes: weight of the absolute grey difference beside census in the
