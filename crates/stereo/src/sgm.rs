@@ -931,6 +931,10 @@ mod tests {
     #[test]
     fn a_census_mask_keeps_the_inner_windows_comparisons() {
         assert_eq!(census_mask(9, 7), (1 << 62) - 1);
+        assert_eq!(
+            census_mask(9, 7),
+            crate::planes::assign::CensusPart::FULL.mask
+        );
         assert_eq!(census_mask(1, 1), 0);
         let mut s = 0x2545_F491u32;
         let img = GrayImage::from_fn(19, 13, |_, _| {

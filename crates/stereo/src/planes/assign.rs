@@ -53,11 +53,21 @@ pub(crate) struct CensusPart {
 }
 
 impl CensusPart {
-    /// The whole 9×7 window, each comparison weighing 1.
+    /// The whole 9×7 window (`census_mask(9, 7)`), each comparison
+    /// weighing 1.
     pub const FULL: CensusPart = CensusPart {
         mask: (1 << 62) - 1,
         weight: 1.0,
     };
+
+    /// The centred `width × height` window, each comparison weighing
+    /// `weight` (sides as [`crate::sgm::census_mask`] takes them).
+    pub fn window([width, height]: [usize; 2], weight: f32) -> CensusPart {
+        CensusPart {
+            mask: crate::sgm::census_mask(width, height),
+            weight,
+        }
+    }
 }
 
 /// The per-pixel data cost: the census Hamming distance (9×7, as SGM's) and

@@ -177,10 +177,7 @@ pub fn refine(
         left: views.0.as_slice(),
         right: views.1.as_slice(),
         cost,
-        census: CensusPart {
-            mask: crate::sgm::census_mask(params.census[0], params.census[1]),
-            weight: params.census_weight,
-        },
+        census: CensusPart::window(params.census, params.census_weight),
         width: w,
         range,
     };
@@ -483,10 +480,7 @@ mod tests {
             left: left.as_slice(),
             right: right.as_slice(),
             cost: &cost,
-            census: CensusPart {
-                mask: crate::sgm::census_mask(5, 3),
-                weight: 3.0,
-            },
+            census: CensusPart::window([5, 3], 3.0),
             width: w,
             range,
         };
