@@ -44,12 +44,13 @@
 //! the CRC-32, and never hands up a partial or corrupt message.
 //!
 //! The segment format is in `wire`, the two machines in `sender` and
-//! `receiver`.
+//! `receiver`, and the sender's retransmission timeout in `timer`.
 
 mod receiver;
 mod sender;
 #[cfg(test)]
 mod tests;
+mod timer;
 mod wire;
 
 pub use receiver::{Delivery, Receiver};

@@ -7,6 +7,7 @@ use alloc::collections::VecDeque;
 use alloc::vec;
 use alloc::vec::Vec;
 
+use super::timer::RetransmitTimer;
 use super::wire::{covers, Segment, SessionId};
 use super::{ArqError, Config, Micros, REMEMBERED_SESSIONS};
 use crate::crc::crc32;
@@ -55,8 +56,7 @@ pub struct Sender {
     tries: Vec<u32>,
     queue: VecDeque<usize>,
     next_new: usize,
-    srtt: Option<(f64, f64)>,
-    rto: Micros,
+    timer: RetransmitTimer,
     deadline: Micros,
     state: SendState,
     counters: SendCounters,
@@ -89,8 +89,7 @@ impl Sender {
             tries: Vec::new(),
             queue: VecDeque::new(),
             next_new: 0,
-            srtt: None,
-            rto: cfg.initial_rto,
+            timer: RetransmitTimer::new(&cfg),
             deadline: 0,
             state: SendState::Idle,
             counters: SendCounters::default(),
@@ -154,7 +153,7 @@ impl Sender {
 
     /// The current retransmission timeout.
     pub fn rto(&self) -> Micros {
-        self.rto
+        self.timer.rto()
     }
 
     fn segment(&self, i: usize) -> Vec<u8> {
@@ -191,7 +190,7 @@ impl Sender {
         }
         for i in 0..self.next_new {
             if !self.acked[i]
-                && self.sent_at[i].is_some_and(|t| now >= t + self.rto)
+                && self.sent_at[i].is_some_and(|t| now >= self.timer.expires_at(t))
                 && !self.queue.contains(&i)
             {
                 self.queue.push_back(i);
@@ -228,7 +227,7 @@ impl Sender {
             .iter()
             .zip(&self.acked)
             .filter(|(_, a)| !**a)
-            .filter_map(|(t, _)| t.map(|t| t + self.rto))
+            .filter_map(|(t, _)| t.map(|t| self.timer.expires_at(t)))
             .min();
         Some(timer.map_or(self.deadline, |t| t.min(self.deadline)))
     }
@@ -268,10 +267,7 @@ impl Sender {
         for &i in &newly {
             self.acked[i] = true;
             highest = highest.max(Some(i));
-            // Karn: only fragments sent once give round-trip samples.
-            if let (1, Some(t)) = (self.tries[i], self.sent_at[i]) {
-                self.sample_rtt(now.saturating_sub(t));
-            }
+            self.timer.on_acked(self.tries[i], self.sent_at[i], now);
         }
         if self.acked.iter().all(|&a| a) {
             // Delivered only when the receiver itself says it holds every
@@ -337,15 +333,5 @@ impl Sender {
             }
         }
         true
-    }
-
-    fn sample_rtt(&mut self, rtt: Micros) {
-        let r = rtt as f64;
-        let (srtt, var) = match self.srtt {
-            None => (r, r / 2.0),
-            Some((s, v)) => (0.875 * s + 0.125 * r, 0.75 * v + 0.25 * (s - r).abs()),
-        };
-        self.srtt = Some((srtt, var));
-        self.rto = ((srtt + 4.0 * var) as Micros).clamp(self.cfg.min_rto, self.cfg.max_rto);
     }
 }
