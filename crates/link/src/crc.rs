@@ -1,4 +1,5 @@
-//! Checksums: CRC-16/CCITT-FALSE per link segment, CRC-32 (IEEE) per message.
+//! Checksums: CRC-16/CCITT-FALSE per ACK and FAIL segment and per SLIP frame,
+//! CRC-32 (IEEE) per message.
 
 /// CRC-16/CCITT-FALSE (poly 0x1021, init 0xFFFF): `crc16(b"123456789") == 0x29B1`.
 pub fn crc16(data: &[u8]) -> u16 {

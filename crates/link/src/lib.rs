@@ -8,12 +8,16 @@
 //!    in transparent mode, SLIP frames with a CRC-16; [`radio`] asks the local
 //!    radio its firmware and payload size and picks the transmit request;
 //!    [`pacing`] keeps a few requests at the radio, paced by their status.
-//! 2. **Link segment** ([`arq`], wire version 2): DATA fragments (sender
-//!    session, message id, index, count), cumulative + bitmap ACKs naming
-//!    both sessions, FAIL; a CRC-16 on each.
-//! 3. **Session and message**: a random session per endpoint start, so a
-//!    restarted peer is never mistaken for the old one; the payload with a
-//!    CRC-32 end to end.
+//! 2. **Link segment** ([`arq`], wire version 3): DATA fragments (sender
+//!    session, message id, index, and a mark on the last fragment, from
+//!    which the receiver learns the count), cumulative + bitmap ACKs naming
+//!    both sessions and the count, FAIL. ACK and FAIL carry a CRC-16; DATA
+//!    carries none, as every transport below checks each frame and the
+//!    message's CRC-32 covers its bytes.
+//! 3. **Session and message**: a random session per endpoint start (and, with
+//!    keys, per handshake), so a restarted peer is never mistaken for the old
+//!    one; the message, sealed by [`secure`] when keys are set, followed by
+//!    its CRC-32 end to end.
 //!
 //! The ARQ machines do no I/O and read no clock; [`endpoint`] drives them over
 //! a [`transport::Transport`] with a real clock, and [`sim`] drives them in
