@@ -1,0 +1,194 @@
+//! Decoding a parsed frame's views: into an owned frame, or with a
+//! [`FrameDecoder`] into buffers kept from frame to frame, so that a
+//! receiver allocates nothing once they have grown.
+
+use stereolink_image::segments::components;
+use stereolink_image::{IndexedImage, LabelMap, Rgb, RgbImage};
+
+use super::{coding, FrameRef, ViewRef};
+use crate::{labels, rgb, CodecError, StereoFrame, View};
+
+impl FrameRef<'_> {
+    /// Decodes both views into an owned [`StereoFrame`].
+    pub fn decode(&self) -> Result<StereoFrame, CodecError> {
+        let mut d = FrameDecoder::default();
+        d.decode_labels(self)?;
+        let view = |v: &ViewRef, labels: LabelMap, rgb: RgbImage| -> Result<View, CodecError> {
+            Ok(match v.coding {
+                coding::RGB => View::Rgb(rgb),
+                _ => View::Indexed(
+                    IndexedImage::new(labels, v.palette().collect())
+                        .map_err(|e| CodecError::Invalid(e.to_string()))?,
+                ),
+            })
+        };
+        let planes = match &self.planes {
+            Some(coded) => {
+                let (ids, count) = components(&d.labels.0, coded.tile() as usize);
+                Some(coded.resolve(&ids, count)?)
+            }
+            None => None,
+        };
+        Ok(StereoFrame {
+            kind: self.kind,
+            levels: self.levels,
+            params: self.params.to_owned(),
+            thresholds: self.thresholds.map(|t| t.map(<[u8]>::to_vec)),
+            calibration: self.calibration,
+            left: view(&self.left, d.labels.0, d.rgb.0)?,
+            right: view(&self.right, d.labels.1, d.rgb.1)?,
+            planes,
+        })
+    }
+}
+
+/// Decodes frame after frame into buffers it keeps: the label maps, the
+/// RGB views, the stereo prediction and the models. After the first frame
+/// of a size it allocates nothing.
+#[derive(Default)]
+pub struct FrameDecoder {
+    labels: (LabelMap, LabelMap),
+    rgb: (RgbImage, RgbImage),
+    predicted: LabelMap,
+    /// The conditioned view's label table.
+    table: Vec<u16>,
+    /// Each view's palette, for the label decoder and the colours.
+    palettes: [Vec<Rgb>; 2],
+    /// Whether each view of the last frame is indexed, and whether `rgb`
+    /// holds the indexed views' colours yet ([`expand_views`](Self::expand_views)).
+    indexed: [bool; 2],
+    expanded: bool,
+    label_decoder: labels::LabelDecoder,
+    rgb_decoder: rgb::RgbDecoder,
+}
+
+impl FrameDecoder {
+    /// Decodes both views of `frame` as RGB images, then in [`views`](Self::views).
+    pub fn decode_rgb(&mut self, frame: &FrameRef) -> Result<(), CodecError> {
+        self.decode(frame)?;
+        self.expand_views();
+        Ok(())
+    }
+
+    /// Decodes both views of `frame`: indexed views into their label maps
+    /// ([`indexed_views`](Self::indexed_views)), whose colours
+    /// [`expand_views`](Self::expand_views) writes when asked (a receiver
+    /// that works on the labels needs none), RGB views into
+    /// [`views`](Self::views).
+    pub fn decode(&mut self, frame: &FrameRef) -> Result<(), CodecError> {
+        self.expanded = false;
+        self.indexed = [frame.left, frame.right].map(|v| v.coding != coding::RGB);
+        self.decode_labels(frame)
+    }
+
+    /// Writes the colours of the last frame's indexed views into
+    /// [`views`](Self::views), once per frame.
+    pub fn expand_views(&mut self) {
+        if self.expanded {
+            return;
+        }
+        self.expanded = true;
+        let views = [
+            (self.indexed[0], &self.labels.0, &mut self.rgb.0),
+            (self.indexed[1], &self.labels.1, &mut self.rgb.1),
+        ];
+        for ((indexed, labels, rgb), palette) in views.into_iter().zip(&self.palettes) {
+            if indexed {
+                // One lookup per pixel (labels were checked against the
+                // palette's size).
+                if rgb.dims() != labels.dims() {
+                    rgb.reset(labels.width(), labels.height(), [0; 3]);
+                }
+                let pixels = rgb.as_mut_slice().iter_mut().zip(labels.as_slice());
+                pixels.for_each(|(p, &l)| *p = palette[l as usize]);
+            }
+        }
+    }
+
+    /// The left label map of the last frame decoded, if its left view is
+    /// indexed (what a plane table's segments are the components of).
+    pub fn left_labels(&self, frame: &FrameRef) -> Option<&LabelMap> {
+        (frame.left.coding != coding::RGB).then_some(&self.labels.0)
+    }
+
+    /// The label maps of the last frame decoded, each with its palette,
+    /// if both views are indexed: what the views' colours come from.
+    pub fn indexed_views(&self) -> Option<[(&LabelMap, &[Rgb]); 2]> {
+        (self.indexed == [true; 2]).then_some([
+            (&self.labels.0, &self.palettes[0][..]),
+            (&self.labels.1, &self.palettes[1][..]),
+        ])
+    }
+
+    /// The views of the last frame [`decode_rgb`](Self::decode_rgb) decoded
+    /// (or [`decode`](Self::decode) and [`expand_views`](Self::expand_views)).
+    pub fn views(&self) -> (&RgbImage, &RgbImage) {
+        (&self.rgb.0, &self.rgb.1)
+    }
+
+    /// Decodes each view: indexed views into the label maps, RGB views into
+    /// the RGB images.
+    fn decode_labels(&mut self, frame: &FrameRef) -> Result<(), CodecError> {
+        let (w, h) = (frame.width, frame.height);
+        for (i, view) in [frame.left, frame.right].iter().enumerate() {
+            let (labels, rgb) = if i == 0 {
+                (&mut self.labels.0, &mut self.rgb.0)
+            } else {
+                (&mut self.labels.1, &mut self.rgb.1)
+            };
+            let n = view.colours();
+            let palette = &mut self.palettes[i];
+            palette.clear();
+            palette.extend(view.palette());
+            match view.coding {
+                coding::RGB => {
+                    rgb.reset(w, h, [0; 3]);
+                    self.rgb_decoder.decode_into(view.payload, rgb)?;
+                }
+                coding::LABELS => {
+                    // The decoder writes every label: a map of the size is
+                    // not cleared first.
+                    if labels.dims() != (w, h) {
+                        labels.reset(w, h, 0);
+                    }
+                    self.label_decoder
+                        .decode_into(view.payload, palette, None, labels)?;
+                }
+                _ => {
+                    // Conditioned: the label table (one u16 per left label,
+                    // each below this view's palette size), then the labels
+                    // predicted through it from the left view.
+                    let (table, coded) = view
+                        .payload
+                        .split_at_checked(2 * frame.left.colours())
+                        .ok_or(CodecError::Truncated("label table"))?;
+                    self.table.clear();
+                    self.table.extend(
+                        table
+                            .chunks_exact(2)
+                            .map(|t| u16::from_le_bytes([t[0], t[1]])),
+                    );
+                    if let Some(&bad) = self.table.iter().find(|&&t| t as usize >= n) {
+                        return Err(CodecError::LabelOutOfRange {
+                            label: bad as u32,
+                            labels: n,
+                        });
+                    }
+                    // The left labels index the table: the left view decoded
+                    // below its palette size, the table's length.
+                    let table = &self.table;
+                    self.labels
+                        .0
+                        .map_into(&mut self.predicted, |l| table[l as usize]);
+                    let right = &mut self.labels.1;
+                    if right.dims() != (w, h) {
+                        right.reset(w, h, 0);
+                    }
+                    self.label_decoder
+                        .decode_into(coded, palette, Some(&self.predicted), right)?;
+                }
+            }
+        }
+        Ok(())
+    }
+}
