@@ -8,7 +8,7 @@ use stereolink_image::color::rgb_to_gray;
 use stereolink_image::synth::{synthesize, SynthSpec};
 use stereolink_image::LabelMap;
 use stereolink_stereo::planes::{self, assign, graph::SegmentGraph};
-use stereolink_stereo::{sgm, Algorithm, MatchSpec};
+use stereolink_stereo::{census, sgm, Algorithm, MatchSpec};
 
 fn stages(c: &mut Criterion) {
     let s = synthesize(&SynthSpec {
@@ -31,7 +31,7 @@ fn stages(c: &mut Criterion) {
     let graph = SegmentGraph::new(&labels, params.tile);
     let fitted = planes::fit_segments(&graph, &reliable, params);
     let clusters = assign::cluster(&graph, &fitted, &reliable, params);
-    let census = || (sgm::census(&gl), sgm::census(&gr));
+    let census = || (census::census(&gl), census::census(&gr));
     let cost = assign::DataCost::new(census(), (&gl, &gr), &reliable, (0.0, 31.0), params);
     let weights = assign::boundary_weights(&graph, &s.left, params.contrast);
 

@@ -33,6 +33,7 @@
 
 #![deny(missing_docs)]
 
+pub mod census;
 pub mod depth;
 mod lanes;
 pub mod line_growing;

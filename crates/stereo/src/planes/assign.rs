@@ -45,7 +45,7 @@ use super::graph::SegmentGraph;
 use super::{DisparityPlane, PlanesParams};
 
 /// Which comparisons of the 9×7 census a matching cost counts (a smaller
-/// window inside it: [`crate::sgm::census_mask`]), and the weight of each.
+/// window inside it: [`crate::census::census_mask`]), and the weight of each.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(crate) struct CensusPart {
     pub mask: u64,
@@ -61,10 +61,10 @@ impl CensusPart {
     };
 
     /// The centred `width × height` window, each comparison weighing
-    /// `weight` (sides as [`crate::sgm::census_mask`] takes them).
+    /// `weight` (sides as [`crate::census::census_mask`] takes them).
     pub fn window([width, height]: [usize; 2], weight: f32) -> CensusPart {
         CensusPart {
-            mask: crate::sgm::census_mask(width, height),
+            mask: crate::census::census_mask(width, height),
             weight,
         }
     }

@@ -467,7 +467,7 @@ mod tests {
         let (gl, gr) = (rgb_to_gray(&left), rgb_to_gray(&right));
         let reliable = DisparityMap::new(w, h, f32::INFINITY);
         let range = (0.0, 9.0);
-        let census = (crate::sgm::census(&gl), crate::sgm::census(&gr));
+        let census = (crate::census::census(&gl), crate::census::census(&gr));
         let cost = DataCost::new(
             census,
             (&gl, &gr),

@@ -46,7 +46,7 @@ use stereolink_image::segments::components;
 use stereolink_image::{DisparityMap, LabelMap, Plane, RgbImage};
 
 use crate::refine::{self, Refinement};
-use crate::{sgm, Algorithm, MatchSpec, StereoError};
+use crate::{census, sgm, Algorithm, MatchSpec, StereoError};
 use graph::SegmentGraph;
 
 /// A disparity plane `d = a·x + b·y + c` over pixel coordinates.
@@ -297,7 +297,7 @@ pub(crate) fn match_planes_with(
         None => (graph, fitted),
     };
     let clusters = assign::cluster(&graph, &fitted, &reliable, params);
-    let (cl, cr) = rayon::join(|| sgm::census(&gl), || sgm::census(&gr));
+    let (cl, cr) = rayon::join(|| census::census(&gl), || census::census(&gr));
     let range = (spec.min_disp as f32, spec.max_disp as f32);
     let cost = assign::DataCost::new((cl, cr), (&gl, &gr), &reliable, range, params);
     let mut set = clusters.planes;

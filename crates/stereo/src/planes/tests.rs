@@ -477,7 +477,7 @@ fn a_group_of_segments_moves_where_no_one_of_them_can() {
     let spec = spec();
     let (gl, gr) = crate::gray_pair(&s.left, &s.right, spec.ripple);
     let reliable = initial_disparity(&gl, &gr, &spec, &mut sgm::SgmBuffers::default());
-    let census = (sgm::census(&gl), sgm::census(&gr));
+    let census = (crate::census::census(&gl), crate::census::census(&gr));
     let range = (0.0, 31.0);
     let cost = assign::DataCost::new(census, (&gl, &gr), &reliable, range, &spec.planes);
     let planes = [BACK, FRONT];

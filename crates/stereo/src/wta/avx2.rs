@@ -21,12 +21,15 @@
 
 use std::arch::x86_64::*;
 
-use super::{check_row, lanes, Band, Disparity, Job, Winner};
+use super::driver::{lanes, Band, Job};
+use super::portable::accumulate_row;
+use super::winner::{check_row, Disparity, Winner};
 use crate::lanes::{Avx2, LaneOps, LANES};
 
-/// Runs [`super::band_with`]'s work for `job` without a min filter nor a
-/// right map, into `out` (the band's rows); false, doing nothing, when a
-/// pixel has more blocks of lanes than this loop keeps in registers.
+/// Runs [`super::portable::band_with`]'s work for `job` without a min
+/// filter nor a right map, into `out` (the band's rows); false, doing
+/// nothing, when a pixel has more blocks of lanes than this loop keeps in
+/// registers.
 ///
 /// # Safety
 /// The CPU must have AVX2.
@@ -62,7 +65,7 @@ unsafe fn band_blocks<const B: usize, T: Disparity>(job: &Job, band: &mut Band, 
     for dy in -(r as isize)..=r as isize {
         let y = clamp_y(job.y0 as isize + dy);
         // SAFETY: the CPU has AVX2 (this function's contract).
-        unsafe { super::accumulate_row::<Avx2>(job, colsum, &mut [], y, None) };
+        unsafe { accumulate_row::<Avx2>(job, colsum, &mut [], y, None) };
     }
     for (i, out_row) in out.chunks_exact_mut(w).enumerate() {
         let y = (job.y0 + i) as isize;

@@ -26,7 +26,8 @@
 
 use std::mem::take;
 
-use super::{lanes, Disparity, Job};
+use super::driver::{lanes, Job};
+use super::winner::Disparity;
 use crate::lanes::word;
 
 /// Table slots per row: values beyond take the direct path.
@@ -337,8 +338,8 @@ fn take_word(best: &mut u32, k: &mut usize, v: u32, i: usize) {
 }
 
 /// The band loop of the SWAR kernel without a min filter and without the
-/// right view's map: as [`super::band_with`] in that setting. False (and
-/// nothing done) for more than 64 disparity lanes.
+/// right view's map: as [`super::portable::band_with`] in that setting.
+/// False (and nothing done) for more than 64 disparity lanes.
 pub(super) fn band<T: Disparity>(job: &Job, sb: &mut SwarBand, out: &mut [T]) -> bool {
     match lanes(job.params.ndisp) / 2 {
         8 => band_words::<T, 8>(job, sb, out),
