@@ -46,4 +46,6 @@ pub mod sim;
 #[cfg(feature = "std")]
 pub mod spec;
 #[cfg(feature = "std")]
+pub mod throughput;
+#[cfg(feature = "std")]
 pub mod transport;

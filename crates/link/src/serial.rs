@@ -18,6 +18,7 @@ use crate::arq::Micros;
 use crate::pacing::{Pacing, PacingConfig, StatusAction};
 use crate::radio::{self, Address, Firmware};
 use crate::slip;
+use crate::throughput::RadioPath;
 use crate::transport::{no_data_yet, LinkStats, Notice, Transport};
 use crate::xbee::{ApiMode, Frame, Parser};
 
@@ -53,6 +54,8 @@ pub struct Serial<P> {
     failures_said: Vec<u8>,
     /// An error to return from the next call (the radio refused a payload).
     fatal: Option<io::Error>,
+    /// The air time of a full packet, when the radio's path is known.
+    packet_time: Option<Duration>,
 }
 
 impl<P: Read + Write + Send> Serial<P> {
@@ -92,7 +95,17 @@ impl<P: Read + Write + Send> Serial<P> {
             said: Vec::new(),
             failures_said: Vec::new(),
             fatal: None,
+            packet_time: None,
         }
+    }
+
+    /// The same link, with the radio's path known: its packets' air time
+    /// seeds the ARQ's first retransmission timeout.
+    pub fn on_path(mut self, path: RadioPath) -> Self {
+        self.packet_time = path
+            .packet_us(self.mtu, self.mtu)
+            .map(|us| Duration::from_secs_f64(us / 1e6));
+        self
     }
 
     fn now(&self) -> Micros {
@@ -265,6 +278,10 @@ impl<P: Read + Write + Send> Transport for Serial<P> {
 
     fn mtu(&self) -> usize {
         self.mtu
+    }
+
+    fn packet_time(&self) -> Option<Duration> {
+        self.packet_time
     }
 
     fn describe(&self) -> String {

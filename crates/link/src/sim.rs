@@ -3,10 +3,14 @@
 //!
 //! Each packet crosses the sender's UART (10 bits a byte at `baud`, wrapped
 //! in the firmware's transmit request: TX16 0x01 adds 9 bytes, ZigBee 0x10
-//! adds 18), the air (250 kb/s plus the PHY/MAC overhead, and on ZigBee the
-//! network and APS headers, MAC acknowledgement, APS acknowledgement and
-//! turnaround; the air is shared by both directions), then the receiver's
-//! UART (RX16 0x81 adds 9 bytes, ZigBee 0x90 adds 16). A transmission
+//! adds 18) into the radio's serial buffer, which holds `buffer` bytes: when
+//! it is full the radio deasserts CTS and the host waits, as a host with
+//! hardware flow control does. Then the air, shared by both directions: on
+//! 802.15.4, 250 kb/s plus the PHY/MAC overhead, the MAC acknowledgement and
+//! turnaround; on ZigBee and DigiMesh, the time per packet that Digi's
+//! measured throughput for the path's hops, security and roles gives
+//! ([`crate::throughput`]). Then the receiver's UART (RX16 0x81 adds 9
+//! bytes, ZigBee 0x90 adds 16). A transmission
 //! attempt is lost with probability `loss`; the MAC retries `mac_retries`
 //! times. Delivered packets may get a flipped bit (`bit_error`), which the
 //! receiving end's frame check (the XBee API frame's checksum) finds and
@@ -18,7 +22,7 @@
 //! [`pair`] gives two [`Transport`] ends in *real* time (optionally sped up)
 //! for two threads, as the demo uses.
 
-use std::collections::BinaryHeap;
+use std::collections::{BinaryHeap, VecDeque};
 use std::sync::{Arc, Condvar, Mutex};
 use std::time::{Duration, Instant};
 
@@ -27,6 +31,7 @@ use rand_chacha::ChaCha8Rng;
 
 use crate::arq::{ArqError, Config, Micros, Receiver, Segment, SendState, Sender, SessionId};
 use crate::radio::Firmware;
+use crate::throughput::{RadioPath, Role};
 use crate::transport::Transport;
 
 /// Channel model parameters.
@@ -55,6 +60,15 @@ pub struct SimConfig {
     pub seed: u64,
     /// The radios' firmware: their frame and air overheads.
     pub radio: Firmware,
+    /// Radio hops between the two ends (ZigBee and DigiMesh).
+    pub hops: u8,
+    /// Network security enabled on the radios (ZigBee and DigiMesh).
+    pub encrypted: bool,
+    /// The two ends' roles (ZigBee).
+    pub role: Role,
+    /// The radio's serial receive buffer, bytes: the host waits (CTS) while
+    /// a packet does not fit.
+    pub buffer: usize,
 }
 
 impl Default for SimConfig {
@@ -71,9 +85,18 @@ impl Default for SimConfig {
             reorder: 0.0,
             seed: 1,
             radio: Firmware::Ieee802154,
+            hops: 1,
+            encrypted: false,
+            role: Role::RouterToRouter,
+            buffer: RADIO_BUFFER,
         }
     }
 }
+
+/// The serial receive buffer the model gives a radio, bytes. Digi's manuals
+/// give the CTS thresholds (17 bytes left on 802.15.4), not the size; 256
+/// holds two full ZigBee transmit requests.
+pub const RADIO_BUFFER: usize = 256;
 
 /// Bytes an XBee TX16 API frame adds around a payload on the UART.
 pub const API_OVERHEAD: usize = 9;
@@ -116,7 +139,20 @@ impl SimConfig {
         (payload + overhead) as f64 * 10.0 * 1e6 / self.baud as f64
     }
 
+    /// The path between the two radios.
+    pub fn path(&self) -> RadioPath {
+        RadioPath {
+            firmware: self.radio,
+            hops: self.hops,
+            encrypted: self.encrypted,
+            role: self.role,
+        }
+    }
+
     fn air_us(&self, payload: usize) -> f64 {
+        if let Some(t) = self.path().packet_us(payload, self.mtu) {
+            return t;
+        }
         let o = overheads(self.radio);
         (payload + o.air) as f64 * 8.0 * 1e6 / self.air_bps as f64 + o.air_fixed_us
     }
@@ -125,9 +161,17 @@ impl SimConfig {
     /// overhead, in bit/s: `baud / 10 · mtu / (mtu + overhead) · 8` (84.6
     /// kb/s at 115200 baud with 100-byte 802.15.4 payloads, 75.9 kb/s with
     /// 84-byte ZigBee ones).
-    pub fn bound_bps(&self) -> f64 {
+    pub fn uart_bound_bps(&self) -> f64 {
         let overhead = overheads(self.radio).uart_tx;
         self.baud as f64 / 10.0 * self.mtu as f64 / (self.mtu + overhead) as f64 * 8.0
+    }
+
+    /// The most payload the model carries one way, bit/s: the UART bound,
+    /// or on ZigBee and DigiMesh the air's rate for full packets (Digi's
+    /// measured throughput for the path), whichever is lower.
+    pub fn bound_bps(&self) -> f64 {
+        let air = self.mtu as f64 * 8.0 / (self.air_us(self.mtu) / 1e6);
+        self.uart_bound_bps().min(air)
     }
 }
 
@@ -138,6 +182,9 @@ struct Channel {
     uart_tx: [f64; 2],
     uart_rx: [f64; 2],
     air: f64,
+    /// Per side, the packets in the radio's buffer: when each goes on the
+    /// air (and so leaves the buffer), and its size on the UART.
+    held: [VecDeque<(f64, usize)>; 2],
     sequence: u64,
 }
 
@@ -149,6 +196,7 @@ impl Channel {
             uart_tx: [0.0; 2],
             uart_rx: [0.0; 2],
             air: 0.0,
+            held: Default::default(),
             sequence: 0,
         }
     }
@@ -159,9 +207,22 @@ impl Channel {
         let to = 1 - from;
         let cfg = self.cfg;
         let o = overheads(cfg.radio);
-        let uart_done = now.max(self.uart_tx[from]) + cfg.uart_us(packet.len(), o.uart_tx);
+        // CTS: the host starts the request once the radio's buffer has room.
+        let size = packet.len() + o.uart_tx;
+        let mut start = now.max(self.uart_tx[from]);
+        let held = &mut self.held[from];
+        loop {
+            held.retain(|&(on_air, _)| on_air > start);
+            let bytes: usize = held.iter().map(|&(_, n)| n).sum();
+            match held.front() {
+                Some(&(on_air, _)) if bytes + size > cfg.buffer => start = on_air,
+                _ => break,
+            }
+        }
+        let uart_done = start + cfg.uart_us(packet.len(), o.uart_tx);
         self.uart_tx[from] = uart_done;
         let mut t = uart_done.max(self.air);
+        self.held[from].push_back((t, size));
         let mut delivered = false;
         for _ in 0..=cfg.mac_retries {
             t += cfg.air_us(packet.len());
@@ -236,10 +297,12 @@ impl Ord for Event {
 
 /// Sends `message` from side 0 to side 1 over the model, in simulated time.
 pub fn transfer(sim: SimConfig, arq: Config, message: &[u8]) -> TransferReport {
-    let mut ch = Channel::new(SimConfig {
+    let sim = SimConfig {
         mtu: arq.mtu,
         ..sim
-    });
+    };
+    let arq = arq.with_packet_time(sim.air_us(sim.mtu) as Micros);
+    let mut ch = Channel::new(sim);
     // Two fixed sessions: the model has one life of each side.
     let (mut tx, mut rx) = (
         Sender::new(arq, SessionId(1)),
@@ -433,6 +496,12 @@ impl Transport for SimEnd {
         self.shared.0.lock().expect("sim lock").channel.cfg.mtu
     }
 
+    fn packet_time(&self) -> Option<Duration> {
+        let s = self.shared.0.lock().expect("sim lock");
+        let cfg = s.channel.cfg;
+        Some(Duration::from_secs_f64(cfg.air_us(cfg.mtu) / 1e6 / s.scale))
+    }
+
     fn describe(&self) -> String {
         let c = self.shared.0.lock().expect("sim lock").channel.cfg;
         format!("sim:?loss={}&seed={}&baud={}", c.loss, c.seed, c.baud)
@@ -448,23 +517,33 @@ mod tests {
         (0..n).map(|_| r.gen()).collect()
     }
 
-    /// On both firmwares' models, against the bound for message bytes (each
-    /// segment carries DATA_OVERHEAD bytes of header); and on ZigBee against
-    /// the UART bound itself: at least 90 % of it at no loss and 75 % at
-    /// 10 % loss (issue 18's targets).
+    /// On each firmware's model, against the bound for message bytes: each
+    /// segment carries DATA_OVERHEAD bytes of header, and where the air is
+    /// the limit (ZigBee, DigiMesh) the receiver's ACK, one per `ack_every`
+    /// fragments, takes its packet time on the shared air. At least 96 % of
+    /// that at no loss and 76 % at 10 % loss (issue 18's targets), and no
+    /// retransmission at all without loss.
     #[test]
     fn goodput_targets_at_zero_and_ten_percent_loss() {
-        let zigbee = SimConfig {
-            radio: Firmware::Zigbee,
+        let paced = |radio| SimConfig {
+            radio,
             mtu: 84,
             ..SimConfig::default()
         };
-        assert!((SimConfig::default().bound_bps() - 84_550.0).abs() < 100.0);
-        assert!((zigbee.bound_bps() - 75_900.0).abs() < 100.0);
+        assert!((SimConfig::default().uart_bound_bps() - 84_550.0).abs() < 100.0);
+        assert!((paced(Firmware::Zigbee).uart_bound_bps() - 75_900.0).abs() < 100.0);
         let msg = message(30_000, 1);
-        for sim in [SimConfig::default(), zigbee] {
+        for sim in [
+            SimConfig::default(),
+            paced(Firmware::Zigbee),
+            paced(Firmware::DigiMesh),
+        ] {
             let cfg = Config::for_mtu(sim.mtu);
-            let bound = sim.bound_bps() * cfg.fragment_size() as f64 / cfg.mtu as f64;
+            let mut bound = sim.bound_bps() * cfg.fragment_size() as f64 / cfg.mtu as f64;
+            if sim.radio != Firmware::Ieee802154 {
+                let data = sim.air_us(sim.mtu) * cfg.ack_every as f64;
+                bound *= data / (data + sim.air_us(crate::arq::MIN_MTU));
+            }
             let clean = transfer(sim, cfg, &msg);
             assert!(clean.delivered && clean.retransmissions == 0, "{clean:?}");
             assert!(
@@ -489,11 +568,76 @@ mod tests {
                 sim.radio,
                 lossy.goodput_bps
             );
-            if sim.radio == Firmware::Zigbee {
-                let uart = sim.bound_bps();
-                assert!(clean.goodput_bps >= 0.90 * uart, "{clean:?} of {uart:.0}");
-                assert!(lossy.goodput_bps >= 0.75 * uart, "{lossy:?} of {uart:.0}");
+        }
+    }
+
+    /// The calibrated models carry what Digi measured, less the ARQ's
+    /// headers and ACKs: ZigBee 1 hop 35 kb/s, DigiMesh 27, and ZigBee at 4
+    /// hops with security 5 kb/s.
+    #[test]
+    fn calibrated_models_carry_what_the_radios_carry() {
+        let msg = message(20_000, 3);
+        for (radio, hops, encrypted, digi) in [
+            (Firmware::Zigbee, 1, false, 35_000.0),
+            (Firmware::DigiMesh, 1, false, 27_000.0),
+            (Firmware::Zigbee, 4, true, 5_000.0),
+        ] {
+            let sim = SimConfig {
+                radio,
+                hops,
+                encrypted,
+                mtu: 84,
+                ..SimConfig::default()
+            };
+            assert!(
+                (sim.bound_bps() - digi).abs() < 1.0,
+                "{radio}: {}",
+                sim.bound_bps()
+            );
+            let rep = transfer(sim, Config::for_mtu(84), &msg);
+            let got = rep.goodput_bps;
+            assert!(
+                got <= digi && got >= 0.8 * digi,
+                "{radio} {hops} hops: {got:.0} b/s against Digi's {digi:.0}"
+            );
+        }
+    }
+
+    /// At 0 % loss every retransmission is spurious: fewer than 1 % of
+    /// the segments, from the first frame on, on every model from 6 hops
+    /// with security (about 3 kb/s) to 802.15.4 at 1 Mbaud.
+    #[test]
+    fn no_spurious_retransmissions_from_the_first_frame() {
+        let frame = message(4_400, 4);
+        let mut models = vec![
+            SimConfig::default(),
+            SimConfig {
+                baud: 1_000_000,
+                ..SimConfig::default()
+            },
+        ];
+        for radio in [Firmware::Zigbee, Firmware::DigiMesh] {
+            for hops in 1..=6 {
+                for encrypted in [false, true] {
+                    models.push(SimConfig {
+                        radio,
+                        hops,
+                        encrypted,
+                        mtu: 84,
+                        ..SimConfig::default()
+                    });
+                }
             }
+        }
+        for sim in models {
+            let rep = transfer(sim, Config::for_mtu(sim.mtu), &frame);
+            assert!(rep.delivered, "{:?}: {rep:?}", sim.path());
+            assert!(
+                rep.retransmissions as f64 <= 0.01 * rep.segments as f64,
+                "{:?} at {} baud: {rep:?}",
+                sim.path(),
+                sim.baud
+            );
         }
     }
 

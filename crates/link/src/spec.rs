@@ -12,7 +12,10 @@
 //!   (without `peer`, answer whoever sends first);
 //! * `sim:?loss=0.1&seed=3&baud=115200&mac_retries=0&ber=0&dup=0&reorder=0&speedup=20` —
 //!   the simulated XBee channel (inside one process); `radio=zigbee` models
-//!   ZigBee firmware (its frames and overheads, and `mtu` 84 by default);
+//!   ZigBee firmware (its frames and overheads, and `mtu` 84 by default) and
+//!   `radio=digimesh` DigiMesh, both at Digi's measured throughput for
+//!   `hops=1`, `encrypted=0` and `role=rr|re|er` ([`crate::throughput`]);
+//!   `buffer=256` is the radio's serial buffer in bytes;
 //! * `fallback:PRIMARY,SECONDARY?silence_ms=2000` (the query after the last
 //!   spec applies to the fallback).
 
@@ -22,6 +25,7 @@ use std::time::Duration;
 use crate::arq::MIN_MTU;
 use crate::radio::{self, Address, Firmware, RadioInfo};
 use crate::sim::SimConfig;
+use crate::throughput::{RadioPath, Role};
 use crate::transport::{Fallback, Serial, SerialFraming, Transport, Udp};
 use crate::xbee::ApiMode;
 
@@ -34,6 +38,10 @@ pub struct ApiSpec {
     pub dest: Address,
     /// `radio=`: the firmware family, or `None` (`auto`) to ask the radio.
     pub radio: Option<Firmware>,
+    /// `hops=`: radio hops to the peer (ZigBee, DigiMesh; default 1).
+    pub hops: u8,
+    /// `encrypted=1`: the radios' network security is on.
+    pub encrypted: bool,
 }
 
 /// A parsed link specification.
@@ -143,6 +151,7 @@ impl std::str::FromStr for LinkSpec {
                 let (mut baud, mut api, mut dest, mut mtu) =
                     (115_200u32, 2u8, Address::BROADCAST, 100usize);
                 let (mut radio, mut rtscts) = (None, false);
+                let (mut hops, mut encrypted) = (1u8, false);
                 for (k, v) in q {
                     match k {
                         "baud" => baud = num(k, v)?,
@@ -151,6 +160,8 @@ impl std::str::FromStr for LinkSpec {
                         "mtu" => mtu = num(k, v)?,
                         "radio" if v == "auto" => radio = None,
                         "radio" => radio = Some(v.parse()?),
+                        "hops" => hops = num(k, v)?,
+                        "encrypted" => encrypted = num::<u8>(k, v)? != 0,
                         "flow" => {
                             rtscts = match v {
                                 "rtscts" => true,
@@ -169,12 +180,31 @@ impl std::str::FromStr for LinkSpec {
                 };
                 if let Some(firmware) = radio {
                     radio::check_dest(firmware, dest)?;
+                    let role = Role::RouterToRouter;
+                    RadioPath {
+                        firmware,
+                        hops,
+                        encrypted,
+                        role,
+                    }
+                    .validate()?;
+                } else if hops == 0 || hops > crate::throughput::MAX_HOPS {
+                    return Err(format!(
+                        "hops={hops}: expected 1 to {}",
+                        crate::throughput::MAX_HOPS
+                    ));
                 }
                 check_mtu("serial", mtu)?;
                 Ok(LinkSpec::Serial {
                     path: target.into(),
                     baud,
-                    api: mode.map(|mode| ApiSpec { mode, dest, radio }),
+                    api: mode.map(|mode| ApiSpec {
+                        mode,
+                        dest,
+                        radio,
+                        hops,
+                        encrypted,
+                    }),
                     mtu,
                     rtscts,
                 })
@@ -209,6 +239,10 @@ impl std::str::FromStr for LinkSpec {
                         "ber" => c.bit_error = num(k, v)?,
                         "dup" => c.duplicate = num(k, v)?,
                         "reorder" => c.reorder = num(k, v)?,
+                        "hops" => c.hops = num(k, v)?,
+                        "encrypted" => c.encrypted = num::<u8>(k, v)? != 0,
+                        "role" => c.role = v.parse()?,
+                        "buffer" => c.buffer = num(k, v)?,
                         "speedup" => speedup = num(k, v)?,
                         _ => return Err(format!("sim: unknown option {k}")),
                     }
@@ -221,6 +255,7 @@ impl std::str::FromStr for LinkSpec {
                 if !(0.0..=1.0).contains(&c.loss) || c.baud == 0 {
                     return Err("sim: loss must be in 0..1 and baud > 0".into());
                 }
+                c.path().validate().map_err(|e| format!("sim: {e}"))?;
                 check_mtu("sim", c.mtu)?;
                 Ok(LinkSpec::Sim { config: c, speedup })
             }
@@ -314,8 +349,10 @@ pub fn open(spec: &LinkSpec) -> std::io::Result<Box<dyn Transport>> {
                 }
             };
             radio::check_dest(firmware, api.dest).map_err(invalid)?;
+            let radio_path = RadioPath { firmware, hops: api.hops, encrypted: api.encrypted, role: Role::RouterToRouter };
+            radio_path.validate().map_err(|e| invalid(format!("{path}: {e}")))?;
             let framing = SerialFraming::Api { mode: api.mode, firmware, dest: api.dest };
-            Box::new(Serial::new(port, framing, mtu, name))
+            Box::new(Serial::new(port, framing, mtu, name).on_path(radio_path))
         }
         LinkSpec::Udp { bind, peer, mtu } => Box::new(Udp::bind(*bind, *peer, *mtu)?),
         LinkSpec::Sim { .. } => {
@@ -345,7 +382,9 @@ mod tests {
                 api: Some(ApiSpec {
                     mode: ApiMode::Plain,
                     dest: Address::Short(0x1234),
-                    radio: None
+                    radio: None,
+                    hops: 1,
+                    encrypted: false,
                 }),
                 mtu: 100,
                 rtscts: true,
@@ -360,7 +399,8 @@ mod tests {
                 api: Some(ApiSpec {
                     mode: ApiMode::Escaped,
                     dest: Address::Long(0x0013_A200_4052_2BAA),
-                    radio: Some(Firmware::Zigbee)
+                    radio: Some(Firmware::Zigbee),
+                    ..
                 }),
                 ..
             }

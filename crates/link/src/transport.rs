@@ -38,6 +38,12 @@ pub trait Transport: Send {
     fn stats(&self) -> LinkStats {
         LinkStats::default()
     }
+    /// The air time one full packet takes, where the transport knows its
+    /// radio's pace ([`crate::throughput`]): the ARQ seeds its first
+    /// retransmission timeout from it ([`crate::arq::Config::with_packet_time`]).
+    fn packet_time(&self) -> Option<Duration> {
+        None
+    }
     /// What the transport has to say since it was last asked (each kind of
     /// trouble once).
     fn take_notices(&mut self) -> Vec<Notice> {
@@ -322,6 +328,10 @@ impl Transport for Fallback {
 
     fn mtu(&self) -> usize {
         self.links[0].mtu().min(self.links[1].mtu())
+    }
+
+    fn packet_time(&self) -> Option<Duration> {
+        self.links[0].packet_time().max(self.links[1].packet_time())
     }
 
     fn describe(&self) -> String {

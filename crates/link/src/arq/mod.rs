@@ -137,6 +137,21 @@ impl Config {
         }
     }
 
+    /// The same parameters with the first retransmission timeout seeded
+    /// from the air time of one full `packet` on the link (RFC 6298 §2.1
+    /// starts at 1 s before any round trip is measured; a radio's pace is
+    /// known better than that). A fragment's first round trip is at most
+    /// about `ack_every + 3` packet times: the radio's buffer ahead of it
+    /// (two packets), itself, the fragments the receiver waits for before
+    /// it acknowledges, and the ACK. The first timeout is twice that, and
+    /// never below the configured one; the largest timeout grows with it.
+    pub fn with_packet_time(mut self, packet: Micros) -> Self {
+        let round_trip = packet.saturating_mul(self.ack_every as Micros + 3);
+        self.initial_rto = self.initial_rto.max(round_trip.saturating_mul(2));
+        self.max_rto = self.max_rto.max(self.initial_rto.saturating_mul(2));
+        self
+    }
+
     /// Fragment bytes per DATA segment.
     pub fn fragment_size(&self) -> usize {
         self.mtu.saturating_sub(DATA_OVERHEAD).max(1)

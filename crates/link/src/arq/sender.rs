@@ -189,10 +189,11 @@ impl Sender {
             );
         }
         for i in 0..self.next_new {
-            if !self.acked[i]
-                && self.sent_at[i].is_some_and(|t| now >= self.timer.expires_at(t))
-                && !self.queue.contains(&i)
-            {
+            let Some(sent) = self.sent_at[i] else {
+                continue;
+            };
+            if !self.acked[i] && now >= self.timer.expires_at(sent) && !self.queue.contains(&i) {
+                self.timer.on_expired(sent, now);
                 self.queue.push_back(i);
                 self.sent_at[i] = None; // counted as lost until resent
             }

@@ -1,6 +1,9 @@
-//! The sender's retransmission timer: the timeout (RTO) from measured round
-//! trips after Jacobson/Karels, SRTT + 4·RTTVAR clamped to the configured
-//! bounds, fed only by fragments sent once (Karn's rule). Its own module
+//! The sender's retransmission timer, after RFC 6298: the timeout (RTO) from
+//! measured round trips (Jacobson/Karels, SRTT + 4·RTTVAR) clamped to the
+//! configured bounds, fed only by fragments sent once (Karn's rule), and
+//! doubled when it expires (§5.5) until a new sample sets it again. The
+//! first timeout is the configured one, which a radio link seeds from its
+//! packets' air time ([`super::Config::with_packet_time`]). Its own module
 //! because estimating the round trip is one idea apart from the window and
 //! the ACK rules: the sender keeps each fragment's send time and asks here
 //! when it expires.
@@ -15,6 +18,9 @@ pub(super) struct RetransmitTimer {
     rto: Micros,
     min_rto: Micros,
     max_rto: Micros,
+    /// When the timeout was last doubled: fragments sent before it expire
+    /// on the old timeout and do not double it again.
+    backed_off_at: Option<Micros>,
 }
 
 impl RetransmitTimer {
@@ -25,6 +31,17 @@ impl RetransmitTimer {
             rto: cfg.initial_rto,
             min_rto: cfg.min_rto,
             max_rto: cfg.max_rto,
+            backed_off_at: None,
+        }
+    }
+
+    /// Takes into account that a fragment sent at `sent_at` expired at
+    /// `now`: the timeout doubles (RFC 6298 §5.5), once for all the
+    /// fragments that were sent under the timeout that expired.
+    pub(super) fn on_expired(&mut self, sent_at: Micros, now: Micros) {
+        if self.backed_off_at.is_none_or(|b| sent_at >= b) {
+            self.rto = self.rto.saturating_mul(2).min(self.max_rto);
+            self.backed_off_at = Some(now);
         }
     }
 
