@@ -149,7 +149,9 @@ impl SimConfig {
         }
     }
 
-    fn air_us(&self, payload: usize) -> f64 {
+    /// The air time one packet of `payload` bytes holds the channel for,
+    /// µs: the firmware's frame, acknowledgements and every hop included.
+    pub fn packet_air_us(&self, payload: usize) -> f64 {
         if let Some(t) = self.path().packet_us(payload, self.mtu) {
             return t;
         }
@@ -170,7 +172,7 @@ impl SimConfig {
     /// or on ZigBee and DigiMesh the air's rate for full packets (Digi's
     /// measured throughput for the path), whichever is lower.
     pub fn bound_bps(&self) -> f64 {
-        let air = self.mtu as f64 * 8.0 / (self.air_us(self.mtu) / 1e6);
+        let air = self.mtu as f64 * 8.0 / (self.packet_air_us(self.mtu) / 1e6);
         self.uart_bound_bps().min(air)
     }
 }
@@ -225,7 +227,7 @@ impl Channel {
         self.held[from].push_back((t, size));
         let mut delivered = false;
         for _ in 0..=cfg.mac_retries {
-            t += cfg.air_us(packet.len());
+            t += cfg.packet_air_us(packet.len());
             if !self.rng.gen_bool(cfg.loss.clamp(0.0, 1.0)) {
                 delivered = true;
                 break;
@@ -301,7 +303,7 @@ pub fn transfer(sim: SimConfig, arq: Config, message: &[u8]) -> TransferReport {
         mtu: arq.mtu,
         ..sim
     };
-    let arq = arq.with_packet_time(sim.air_us(sim.mtu) as Micros);
+    let arq = arq.with_packet_time(sim.packet_air_us(sim.mtu) as Micros);
     let mut ch = Channel::new(sim);
     // Two fixed sessions: the model has one life of each side.
     let (mut tx, mut rx) = (
@@ -499,7 +501,9 @@ impl Transport for SimEnd {
     fn packet_time(&self) -> Option<Duration> {
         let s = self.shared.0.lock().expect("sim lock");
         let cfg = s.channel.cfg;
-        Some(Duration::from_secs_f64(cfg.air_us(cfg.mtu) / 1e6 / s.scale))
+        Some(Duration::from_secs_f64(
+            cfg.packet_air_us(cfg.mtu) / 1e6 / s.scale,
+        ))
     }
 
     fn describe(&self) -> String {
@@ -541,8 +545,8 @@ mod tests {
             let cfg = Config::for_mtu(sim.mtu);
             let mut bound = sim.bound_bps() * cfg.fragment_size() as f64 / cfg.mtu as f64;
             if sim.radio != Firmware::Ieee802154 {
-                let data = sim.air_us(sim.mtu) * cfg.ack_every as f64;
-                bound *= data / (data + sim.air_us(crate::arq::MIN_MTU));
+                let data = sim.packet_air_us(sim.mtu) * cfg.ack_every as f64;
+                bound *= data / (data + sim.packet_air_us(crate::arq::MIN_MTU));
             }
             let clean = transfer(sim, cfg, &msg);
             assert!(clean.delivered && clean.retransmissions == 0, "{clean:?}");

@@ -246,7 +246,7 @@ fn send_and_receive_over_two_emulated_zigbee_radios() {
 /// bit.
 #[test]
 fn paced_by_transmit_status_the_zigbee_radios_buffer_never_overruns() {
-    let radio = RadioLink::timed(Firmware::Zigbee, Timing::ZIGBEE_115200);
+    let radio = RadioLink::timed(Firmware::Zigbee, Timing::zigbee());
     let (a, b) = (radio.configs[0].serial, radio.configs[1].serial);
     run_pair(
         format!("serial:{}?baud=115200&api=2&dest=0x{a:016X}", radio.b),
@@ -263,7 +263,7 @@ fn paced_by_transmit_status_the_zigbee_radios_buffer_never_overruns() {
 /// the views still arrive bit for bit.
 #[test]
 fn a_radio_that_resets_mid_frame_loses_nothing() {
-    let radio = RadioLink::timed_with_reset(Firmware::Zigbee, Timing::ZIGBEE_115200, 10);
+    let radio = RadioLink::timed_with_reset(Firmware::Zigbee, Timing::zigbee(), 10);
     let (a, b) = (radio.configs[0].serial, radio.configs[1].serial);
     let said = run_pair(
         format!("serial:{}?baud=115200&api=2&dest=0x{a:016X}", radio.b),
@@ -280,7 +280,7 @@ fn a_radio_that_resets_mid_frame_loses_nothing() {
 #[test]
 fn a_host_that_ignores_the_radios_pace_overruns_its_buffer() {
     use std::io::Write;
-    let radio = RadioLink::timed(Firmware::Zigbee, Timing::ZIGBEE_115200);
+    let radio = RadioLink::timed(Firmware::Zigbee, Timing::zigbee());
     let mut port = serialport::new(&radio.a, 115_200).open().unwrap();
     let dest = radio.configs[1].serial;
     for id in 1..=12u8 {

@@ -16,7 +16,9 @@
 //!   sender's addresses. A broadcast always succeeds;
 //! * with [`Timing`] ([`RadioLink::timed`]), the host's bytes come in at the
 //!   UART's rate into a bounded serial receive buffer, and each transmit
-//!   request leaves it only when the one before has had its air time: a host
+//!   request leaves it only when the one before has had its air time (the
+//!   link crate's model calibrated to Digi's measured throughput), its
+//!   transmit status answered when that air time ends: a host
 //!   that writes faster than the air carries overruns the buffer, and, as
 //!   the manuals say happens with CTS ignored, the bytes that do not fit are
 //!   lost (the frame they belong to fails its checksum and is discarded);
@@ -33,6 +35,7 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use serialport::TTYPort;
+use stereolink_link::sim::SimConfig;
 use stereolink_link::xbee::{ApiMode, Frame, Parser};
 
 /// The firmware an emulated radio runs.
@@ -131,28 +134,29 @@ fn reset_announcements(firmware: Firmware) -> Vec<u8> {
     wire
 }
 
-/// The rates and buffer of a timed radio.
+/// The rates and buffer of a timed radio: the link crate's calibrated
+/// model ([`SimConfig`]: its baud rate, serial buffer, and the air time
+/// each packet takes for its firmware, hops and security, after Digi's
+/// measured throughput), so the emulator and `sim:` carry the same.
 #[derive(Clone, Copy, Debug)]
-pub struct Timing {
-    /// The UART's baud rate (10 bits a byte).
-    pub baud: u32,
-    /// The serial receive buffer, bytes.
-    pub buffer: usize,
-    /// Air time of one transmit request, acknowledgements included.
-    pub air: Duration,
-}
+pub struct Timing(pub SimConfig);
 
 impl Timing {
-    /// ZigBee at 115200 baud: Digi's measured ZigBee unicast throughput is
-    /// about 35 kb/s, so an 84-byte payload takes 19 ms on the air, more
-    /// than the 8.9 ms its 102-byte request takes on the UART; a buffer of
-    /// 256 bytes (an assumption: the manuals give the CTS thresholds, not
-    /// the size).
-    pub const ZIGBEE_115200: Timing = Timing {
-        baud: 115_200,
-        buffer: 256,
-        air: Duration::from_millis(19),
-    };
+    /// ZigBee, one hop router to router, no security, at 115200 baud:
+    /// Digi's 35 kb/s, so an 84-byte payload takes 19.2 ms on the air, more
+    /// than the 8.9 ms its 102-byte request takes on the UART.
+    pub fn zigbee() -> Timing {
+        Timing(SimConfig {
+            radio: stereolink_link::radio::Firmware::Zigbee,
+            mtu: 84,
+            ..SimConfig::default()
+        })
+    }
+
+    /// The air time of a transmit request carrying `payload` bytes.
+    fn air(&self, payload: usize) -> Duration {
+        Duration::from_secs_f64(self.0.packet_air_us(payload) / 1e6)
+    }
 }
 
 /// One radio: reads its host's frames from `host`, answers on `answer`,
@@ -299,7 +303,7 @@ impl Radio {
     fn run_timed(mut self, mut host: TTYPort, stop: Arc<AtomicBool>, t: Timing) {
         let mut answer = host.try_clone_native().unwrap();
         let mut parser = Parser::new(ApiMode::Escaped);
-        let byte_time = Duration::from_secs_f64(10.0 / t.baud as f64);
+        let byte_time = Duration::from_secs_f64(10.0 / t.0.baud as f64);
         let mut uart_clock = Instant::now();
         let (mut partial, mut waiting) = (0usize, VecDeque::<(Frame, usize)>::new());
         let mut on_air: Option<(Frame, Instant)> = None;
@@ -314,7 +318,8 @@ impl Radio {
             }
             if on_air.is_none() {
                 if let Some((frame, _)) = waiting.pop_front() {
-                    on_air = Some((frame, now + t.air));
+                    let payload = frame.payload().map_or(0, <[u8]>::len);
+                    on_air = Some((frame, now + t.air(payload)));
                 }
             }
             // The UART delivers no faster than its baud rate.
@@ -330,7 +335,7 @@ impl Radio {
             uart_clock += byte_time * n as u32;
             for &b in &buf[..n] {
                 let held = partial + waiting.iter().map(|(_, len)| len).sum::<usize>();
-                if held >= t.buffer {
+                if held >= t.0.buffer {
                     self.counters.overrun.fetch_add(1, Ordering::Relaxed);
                     continue;
                 }
