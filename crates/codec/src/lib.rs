@@ -246,6 +246,22 @@ pub struct DepthReport {
     pub histogram: Vec<u32>,
 }
 
+impl DepthReport {
+    /// The report cut down to fit in `max_bytes` as an encoded message, so
+    /// that it takes one radio packet: the target's distance and region
+    /// stay, the histogram goes, and the nearest levels stay while they fit.
+    /// `None` when not even the distance fits.
+    pub fn fitted(&self, max_bytes: usize) -> Option<DepthReport> {
+        let room = max_bytes.checked_sub(container::report_len(0, 0))?;
+        let levels = (room / container::REPORT_LEVEL_LEN).min(self.levels.len());
+        Some(DepthReport {
+            levels: self.levels[..levels].to_vec(),
+            histogram: Vec::new(),
+            ..*self
+        })
+    }
+}
+
 /// A message of the stereolink protocol.
 #[derive(Clone, Debug, PartialEq)]
 pub enum Message {

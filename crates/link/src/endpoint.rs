@@ -351,6 +351,19 @@ impl Endpoint {
         }
     }
 
+    /// The largest message that crosses the link in one packet: one DATA
+    /// segment, less the message's CRC-32 and, with keys, the secure layer's
+    /// counter and tag. A depth report of at most this many bytes costs the
+    /// radio one packet (and one ACK).
+    pub fn one_packet_message(&self) -> usize {
+        let sealing = if self.secure.is_some() {
+            crate::secure::wire::OVERHEAD
+        } else {
+            0
+        };
+        self.cfg.fragment_size().saturating_sub(4 + sealing)
+    }
+
     /// Starts sending `message` on `lane` (sealed, with keys: after a
     /// handshake when one is due and both lanes are idle);
     /// [`Endpoint::poll_sends`] drives it. A lane carries one message at a

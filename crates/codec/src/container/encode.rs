@@ -172,6 +172,15 @@ fn label_table(left: &IndexedImage, right: &IndexedImage) -> Vec<u16> {
         .collect()
 }
 
+/// Bytes one depth level takes in a report's body.
+pub const REPORT_LEVEL_LEN: usize = 12;
+
+/// The encoded length of a depth report message with `levels` levels and
+/// `bins` histogram bins, header included.
+pub fn report_len(levels: usize, bins: usize) -> usize {
+    HEADER_LEN + 4 + 8 + 1 + levels * REPORT_LEVEL_LEN + 4 + 4 * bins
+}
+
 fn encode_report(w: &mut Writer, r: &DepthReport) {
     w.f32(r.target_distance_m);
     for v in r.target_region {

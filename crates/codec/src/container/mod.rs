@@ -22,7 +22,9 @@ mod tests;
 
 pub(crate) use bytes::{Reader, Writer};
 pub use decoder::FrameDecoder;
-pub use encode::{conditioned_payload, encode, encode_with, right_prediction};
+pub use encode::{
+    conditioned_payload, encode, encode_with, report_len, right_prediction, REPORT_LEVEL_LEN,
+};
 pub use parse::{decode_header, parse, Body, FrameRef, ViewRef};
 
 use crate::{CodecError, Limits, Message};

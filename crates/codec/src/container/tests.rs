@@ -271,3 +271,36 @@ proptest! {
         }
     }
 }
+
+/// A report fitted to a budget encodes within it, keeps the distance and
+/// region, and keeps as many of the nearest levels as fit.
+#[test]
+fn a_fitted_report_encodes_within_its_budget() {
+    let level = ReportLevel {
+        disparity: 12.5,
+        distance_m: 1.25,
+        share: 0.5,
+    };
+    let r = DepthReport {
+        target_distance_m: 1.5,
+        target_region: [1, 2, 3, 4],
+        levels: vec![level; 5],
+        histogram: vec![7; 64],
+    };
+    let len = |r: &DepthReport| encode(&Message::DepthReport(r.clone()), 1, 2).len();
+    assert_eq!(len(&r), report_len(5, 64));
+    for budget in [44, 45, 49, 56, 57, 65, 200, 1000] {
+        let Some(f) = r.fitted(budget) else {
+            assert!(budget < report_len(0, 0), "{budget}");
+            continue;
+        };
+        assert!(len(&f) <= budget, "{budget}: {}", len(&f));
+        assert_eq!((f.target_distance_m, f.target_region), (1.5, [1, 2, 3, 4]));
+        assert!(f.histogram.is_empty());
+        let kept = f.levels.len();
+        assert!(
+            kept == 5 || len(&f) + REPORT_LEVEL_LEN > budget,
+            "{budget}: {kept}"
+        );
+    }
+}

@@ -154,6 +154,39 @@ mod tests {
         (Keys::new(a, public_key(&b)), Keys::new(b, public_key(&a)))
     }
 
+    /// A message of `one_packet_message()` bytes, sealed, crosses a ZigBee
+    /// model in one DATA segment; one byte more takes two.
+    #[test]
+    fn a_one_packet_message_takes_one_segment_sealed() {
+        let (ka, kb) = keys();
+        let zigbee = SimConfig {
+            radio: crate::radio::Firmware::Zigbee,
+            mtu: 84,
+            ..SimConfig::default()
+        };
+        let (a, b) = pair(zigbee, 20.0);
+        let rx = std::thread::spawn(move || {
+            let mut e = Endpoint::new(Box::new(b))
+                .unwrap()
+                .with_keys(kb, SecureConfig::default());
+            for _ in 0..2 {
+                e.recv_message(Duration::from_secs(20)).unwrap();
+            }
+            e.linger(Duration::from_millis(300)).unwrap();
+        });
+        let mut e = Endpoint::new(Box::new(a))
+            .unwrap()
+            .with_keys(ka, SecureConfig::default());
+        let n = e.one_packet_message();
+        assert_eq!(
+            n,
+            84 - crate::arq::DATA_OVERHEAD - 4 - crate::secure::wire::OVERHEAD
+        );
+        assert_eq!(e.send_message(&vec![1; n]).unwrap().segments, 1);
+        assert_eq!(e.send_message(&vec![2; n + 1]).unwrap().segments, 2);
+        rx.join().unwrap();
+    }
+
     #[test]
     fn sealed_messages_cross_a_lossy_link_and_a_sender_restart() {
         let (ka, kb) = keys();
