@@ -388,3 +388,24 @@ fn receive_stops_its_axis_on_an_axis_stop_and_holds_it() {
         "{err}"
     );
 }
+
+/// A link that goes quiet mid-move: the watchdog stops the axis within its
+/// period (0.5 s by default, at 50 mm/s: well short of the target), and the
+/// receiver still ends with its summary, which counts the report.
+#[test]
+fn a_quiet_link_stops_the_axis_and_the_summary_is_still_printed() {
+    let (port, peer_port) = (free_port(), free_port());
+    let mut peer = Peer::udp(peer_port, &format!("127.0.0.1:{port}"), None, PATIENCE);
+    let child = common::spawn_udp_receiver(peer_port, port, &["--timeout-s", "2", "--json"]);
+    // Sent to 800 mm at 50 mm/s: 16 s of travel, unless stopped.
+    peer.send(&report(1, 0.8));
+    let (out, err) = peer.wait(child, "receive");
+    let json: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let summary = &json["summary"];
+    assert_eq!(summary["reports"], 1, "{summary}");
+    assert_eq!(summary["ended"], "quiet", "{summary}");
+    assert_eq!(summary["frames"], 0, "{summary}");
+    let axis = summary["axis_mm"].as_f64().unwrap();
+    assert!(axis < 40.0, "the watchdog let the axis reach {axis} mm:\n{err}");
+    assert_eq!(err.matches("watchdog: ").count(), 1, "{err}");
+}

@@ -3,6 +3,8 @@
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
+use serde::Serialize;
+use stereolink_codec::container;
 use stereolink_display::open_sink;
 use stereolink_link::endpoint::{Endpoint, LinkError};
 use stereolink_link::secure::{Rejections, SecureConfig};
@@ -60,9 +62,12 @@ pub struct Args {
     /// Give up after this many seconds without a message.
     #[arg(long, default_value_t = 120)]
     pub timeout_s: u64,
-    /// Stop the axis when no valid depth report arrived for this long.
-    #[arg(long, default_value_t = 10)]
-    pub watchdog_s: u64,
+    /// Stop the axis when no valid depth report arrived for this long,
+    /// seconds: a few report periods of a sender that reports every pair
+    /// (about 0.5 s at 10 pairs/s). Raise it for a sender that reports
+    /// only with each frame.
+    #[arg(long, default_value_t = 0.5)]
+    pub watchdog_s: f64,
     /// Stand-off: stop this far short of the target, mm.
     #[arg(long, default_value_t = 0.0)]
     pub standoff_mm: f64,
@@ -83,6 +88,11 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         "the board matches with wta only (got {})",
         args.matcher
     );
+    anyhow::ensure!(
+        args.watchdog_s.is_finite() && args.watchdog_s > 0.0,
+        "--watchdog-s must be a positive number of seconds (got {})",
+        args.watchdog_s
+    );
     let keys = args.keys.load(args.robot.is_some())?;
     let mut eps = Vec::new();
     for link in std::iter::once(&args.link).chain(&args.report_link) {
@@ -96,7 +106,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         ep.on_notice(Box::new(move |notice| eprintln!("link {name}: {notice}")));
         eps.push(ep);
     }
-    let mut board = BoardReceiver::new(args.max_disp, 9, Duration::from_secs(args.watchdog_s));
+    let mut board = BoardReceiver::new(args.max_disp, 9, Duration::from_secs_f64(args.watchdog_s));
     board.source = args.disparity;
     board.policy = MotionPolicy {
         standoff_mm: args.standoff_mm,
@@ -115,125 +125,150 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     let mut frames = 0;
     let mut halves = std::collections::BTreeSet::new();
     let mut events = Vec::new();
+    let mut tally = Tally::default();
     let (timeout, mut heard) = (Duration::from_secs(args.timeout_s), Instant::now());
-    while args.frames == 0 || frames < args.frames {
-        // The watchdog is checked whether or not anything arrives: a link
-        // that falls silent must stop the axis too. Short waits, so that it
-        // and the screen follow the axis while the link is silent.
-        check_watchdog(&mut board, args.watchdog_s);
-        let msg = match next_message(&mut eps, POLL.min(timeout)) {
-            Ok(m) => m,
-            Err(LinkError::Timeout) if heard.elapsed() < timeout => {
-                board.follow_axis().context("display")?;
-                continue;
-            }
-            Err(LinkError::Timeout) if args.frames == 0 => break,
-            Err(e) => return Err(e).context("receiving"),
-        };
-        heard = Instant::now();
-        let event = board.handle(&msg);
-        // Shown and acted on: the sender may count it delivered now, before
-        // this process says so (a process killed after saying it showed a
-        // frame has acknowledged it, and its next life is not sent it again).
-        for ep in eps.iter_mut() {
-            ep.dealt_with().context("link")?;
-        }
-        if let (Some(dir), Event::Frame { .. }) = (&args.save, &event) {
-            let disparity = board.disparity();
-            if let Some((l, r)) = board.pair() {
-                std::fs::create_dir_all(dir)
-                    .with_context(|| format!("cannot create {}", dir.display()))?;
-                stereolink_image::io::write_rgb(dir.join("received-left.png"), l)?;
-                stereolink_image::io::write_rgb(dir.join("received-right.png"), r)?;
-                stereolink_image::pfm::write(dir.join("received-disparity.pfm"), &disparity)?;
-            }
-        }
-        if !out.json {
-            match &event {
-                Event::Frame {
-                    frame_id,
-                    bytes,
-                    ms,
-                } => println!(
-                    "frame {frame_id}: {bytes} B, rebuilt, matched and shown in {ms:.1} ms"
-                ),
-                Event::Report {
-                    frame_id,
-                    distance_m,
-                    commanded_mm,
-                    held,
-                } => println!(
-                    "report {frame_id}: distance {distance_m:.3} m, axis {}",
-                    match (commanded_mm, held) {
-                        (_, true) => "held (stopped by command)".into(),
-                        (None, false) => "not moved (no valid distance)".into(),
-                        (Some(p), false) => format!("to {p:.1} mm"),
-                    }
-                ),
-                Event::Command {
-                    id,
-                    command,
-                    result: Ok(()),
-                } => println!(
-                    "command {id} ({command}): done{}",
-                    board
-                        .axis
-                        .as_mut()
-                        .and_then(|a| a.position().ok())
-                        .map_or(String::new(), |p| format!(", axis at {p:.1} mm, held"))
-                ),
-                Event::Command {
-                    id,
-                    command,
-                    result: Err(why),
-                } => eprintln!("command {id} ({command}): refused: {why}"),
-                Event::Rejected(why) => eprintln!("{why}"),
-            }
-        }
-        if let Event::Frame { frame_id, .. } | Event::Report { frame_id, .. } = &event {
-            // A frame counts once both its views and its report arrived
-            // (the report usually first: it overtakes the frame).
-            if !halves.remove(frame_id) {
-                halves.insert(*frame_id);
-                if halves.len() > 16 {
-                    halves.pop_first();
+    let started = Instant::now();
+    // The loop in a closure, so that whatever ends it, the axis is dealt
+    // with and the summary printed below.
+    let mut receive = || -> anyhow::Result<End> {
+        while args.frames == 0 || frames < args.frames {
+            // The watchdog is checked whether or not anything arrives: a link
+            // that falls silent must stop the axis too. Short waits, so that it
+            // and the screen follow the axis while the link is silent.
+            check_watchdog(&mut board, args.watchdog_s);
+            let msg = match next_message(&mut eps, POLL.min(timeout)) {
+                Ok(m) => m,
+                Err(LinkError::Timeout) if heard.elapsed() < timeout => {
+                    board.follow_axis().context("display")?;
+                    continue;
                 }
-            } else {
-                frames += 1;
+                Err(LinkError::Timeout) if args.frames == 0 => return Ok(End::Quiet),
+                Err(e) => return Err(e).context("receiving"),
+            };
+            heard = Instant::now();
+            let sent_us = container::decode_header(&msg).ok().map(|h| h.timestamp_us);
+            let event = board.handle(&msg);
+            tally.count(&event, sent_us, msg.len());
+            // Shown and acted on: the sender may count it delivered now, before
+            // this process says so (a process killed after saying it showed a
+            // frame has acknowledged it, and its next life is not sent it again).
+            for ep in eps.iter_mut() {
+                ep.dealt_with().context("link")?;
+            }
+            if let (Some(dir), Event::Frame { .. }) = (&args.save, &event) {
+                let disparity = board.disparity();
+                if let Some((l, r)) = board.pair() {
+                    std::fs::create_dir_all(dir)
+                        .with_context(|| format!("cannot create {}", dir.display()))?;
+                    stereolink_image::io::write_rgb(dir.join("received-left.png"), l)?;
+                    stereolink_image::io::write_rgb(dir.join("received-right.png"), r)?;
+                    stereolink_image::pfm::write(dir.join("received-disparity.pfm"), &disparity)?;
+                }
+            }
+            if !out.json {
+                match &event {
+                    Event::Frame {
+                        frame_id,
+                        bytes,
+                        ms,
+                    } => println!(
+                        "frame {frame_id}: {bytes} B, rebuilt, matched and shown in {ms:.1} ms"
+                    ),
+                    Event::Report {
+                        frame_id,
+                        distance_m,
+                        commanded_mm,
+                        held,
+                    } => println!(
+                        "report {frame_id}: distance {distance_m:.3} m, axis {}",
+                        match (commanded_mm, held) {
+                            (_, true) => "held (stopped by command)".into(),
+                            (None, false) => "not moved (no valid distance)".into(),
+                            (Some(p), false) => format!("to {p:.1} mm"),
+                        }
+                    ),
+                    Event::Command {
+                        id,
+                        command,
+                        result: Ok(()),
+                    } => println!(
+                        "command {id} ({command}): done{}",
+                        board
+                            .axis
+                            .as_mut()
+                            .and_then(|a| a.position().ok())
+                            .map_or(String::new(), |p| format!(", axis at {p:.1} mm, held"))
+                    ),
+                    Event::Command {
+                        id,
+                        command,
+                        result: Err(why),
+                    } => eprintln!("command {id} ({command}): refused: {why}"),
+                    Event::Rejected(why) => eprintln!("{why}"),
+                }
+            }
+            if let Event::Frame { frame_id, .. } | Event::Report { frame_id, .. } = &event {
+                // A frame counts once both its views and its report arrived
+                // (the report usually first: it overtakes the frame).
+                if !halves.remove(frame_id) {
+                    halves.insert(*frame_id);
+                    if halves.len() > 16 {
+                        halves.pop_first();
+                    }
+                } else {
+                    frames += 1;
+                }
+            }
+            board.status.security = security_line(&eps);
+            // What the links measure: the radio's signal where its frames
+            // carry it, and the retransmitted segments received, as a count and
+            // as their share of all the segments received.
+            board.status.rssi_dbm = eps.iter().find_map(|e| e.link_stats().rssi_dbm);
+            let duplicates: u64 = eps.iter().map(Endpoint::duplicates).sum();
+            let segments: u64 = eps.iter().map(Endpoint::segments_received).sum();
+            board.status.retransmitted = Some(duplicates);
+            board.status.retransmit_rate =
+                (segments > 0).then(|| duplicates as f64 / segments as f64);
+            if matches!(event, Event::Report { .. } | Event::Command { .. }) {
+                if let Some(axis) = board.axis.as_mut() {
+                    board.status.axis_mm = axis.position().ok();
+                }
+                board.refresh().context("display")?;
+            }
+            events.push(event);
+        }
+        Ok(End::Frames)
+    };
+    let ended = receive();
+    // Answer late retransmissions (on a link still up).
+    if ended.is_ok() {
+        let share = Duration::from_millis(500) / eps.len() as u32;
+        for ep in eps.iter_mut() {
+            if let Err(e) = ep.linger(share) {
+                eprintln!("link: {e}");
             }
         }
-        board.status.security = security_line(&eps);
-        // What the links measure: the radio's signal where its frames
-        // carry it, and the retransmitted segments received, as a count and
-        // as their share of all the segments received.
-        board.status.rssi_dbm = eps.iter().find_map(|e| e.link_stats().rssi_dbm);
-        let duplicates: u64 = eps.iter().map(Endpoint::duplicates).sum();
-        let segments: u64 = eps.iter().map(Endpoint::segments_received).sum();
-        board.status.retransmitted = Some(duplicates);
-        board.status.retransmit_rate = (segments > 0).then(|| duplicates as f64 / segments as f64);
-        if matches!(event, Event::Report { .. } | Event::Command { .. }) {
-            if let Some(axis) = board.axis.as_mut() {
-                board.status.axis_mm = axis.position().ok();
-            }
-            board.refresh().context("display")?;
+    }
+    // The axis: after the frames asked for, it finishes the move the last
+    // fresh report commanded; a link gone quiet or failed leaves no fresh
+    // data, so it stops where it is.
+    let finish_move = matches!(ended, Ok(End::Frames));
+    let axis = settle_axis(&mut board, finish_move);
+    if let Some(Ok(pos)) = &axis.position_mm {
+        if axis.stopped {
+            eprintln!("link quiet: the axis was still moving on stale data; stopped");
         }
-        events.push(event);
-    }
-    // Answer late retransmissions, and let the axis finish its move.
-    let share = Duration::from_millis(500) / eps.len() as u32;
-    for ep in eps.iter_mut() {
-        ep.linger(share)?;
-    }
-    if let Some(axis) = board.axis.as_mut() {
-        let pos = stereolink_robot::wait_until_idle(axis.as_mut(), 6000)?
-            .context("the axis is still moving")?;
         if !out.json {
             println!("axis at {pos:.3} mm");
         }
     }
     // The screen shows where the axis settled.
-    board.follow_axis().context("display")?;
+    if let Err(e) = board.follow_axis() {
+        eprintln!("display: {e}");
+    }
+    let summary = tally.summary(started.elapsed(), &ended, &axis);
     if !out.json {
+        println!("{summary}");
         for (ep, label) in eps.iter().zip(["link", "report link"]) {
             println!("{label}: {}", ep.link_stats());
             if let Some(r) = ep.rejections() {
@@ -242,13 +277,19 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         }
     }
     if out.json {
-        out.emit(&events, String::new)?;
+        out.emit(
+            &serde_json::json!({ "summary": summary, "events": events }),
+            String::new,
+        )?;
     }
-    Ok(())
+    if let Some(Err(e)) = axis.position_mm {
+        return Err(e).context("the axis after the last report");
+    }
+    ended.map(|_| ())
 }
 
 /// Stops the axis if no valid depth report came for `secs`, and says so.
-fn check_watchdog(board: &mut BoardReceiver, secs: u64) {
+fn check_watchdog(board: &mut BoardReceiver, secs: f64) {
     match board.check_watchdog(Instant::now()) {
         Ok(true) => eprintln!("watchdog: no valid depth report for {secs} s, axis stopped"),
         Ok(false) => {}
@@ -292,5 +333,155 @@ fn security_line(eps: &[Endpoint]) -> String {
             )
         }
         None => "INSECURE".into(),
+    }
+}
+
+/// Why the receive loop ended without an error.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum End {
+    /// `--frames` frames arrived, each with its report.
+    Frames,
+    /// Nothing arrived for `--timeout-s`.
+    Quiet,
+}
+
+/// The axis after the loop: where it is, and whether it had to be stopped.
+struct AxisEnd {
+    position_mm: Option<anyhow::Result<f64>>,
+    stopped: bool,
+}
+
+/// Lets the axis finish its move (`finish`), or stops it where it is.
+fn settle_axis(board: &mut BoardReceiver, finish: bool) -> AxisEnd {
+    let Some(axis) = board.axis.as_mut() else {
+        return AxisEnd {
+            position_mm: None,
+            stopped: false,
+        };
+    };
+    let mut stopped = false;
+    let position = (|| {
+        if finish {
+            let pos = stereolink_robot::wait_until_idle(axis.as_mut(), 6000)?;
+            return pos.context("the axis is still moving");
+        }
+        if axis.is_moving()? {
+            axis.stop()?;
+            stopped = true;
+        }
+        Ok(axis.position()?)
+    })();
+    AxisEnd {
+        position_mm: Some(position),
+        stopped,
+    }
+}
+
+/// What the receiver counts for its summary.
+#[derive(Default)]
+struct Tally {
+    reports: u64,
+    frames: u64,
+    bytes: u64,
+    /// Sender's time stamp to the report's move, ms, per report.
+    latency_ms: Vec<f64>,
+}
+
+impl Tally {
+    fn count(&mut self, event: &Event, sent_us: Option<u64>, bytes: usize) {
+        self.bytes += bytes as u64;
+        match event {
+            Event::Frame { .. } => self.frames += 1,
+            Event::Report { .. } => {
+                self.reports += 1;
+                // A zero time stamp is a sender without a clock.
+                if let Some(sent) = sent_us.filter(|&t| t > 0) {
+                    let now = crate::pipeline::control::unix_us();
+                    self.latency_ms.push(now.saturating_sub(sent) as f64 / 1e3);
+                }
+            }
+            _ => {}
+        }
+    }
+
+    fn summary(&self, elapsed: Duration, ended: &anyhow::Result<End>, axis: &AxisEnd) -> Summary {
+        let seconds = elapsed.as_secs_f64().max(1e-9);
+        let mut sorted = self.latency_ms.clone();
+        sorted.sort_by(f64::total_cmp);
+        let quantile = |q: f64| sorted[((sorted.len() - 1) as f64 * q).round() as usize];
+        Summary {
+            reports: self.reports,
+            report_rate_hz: self.reports as f64 / seconds,
+            report_latency_ms: (!sorted.is_empty()).then(|| Latency {
+                p50: quantile(0.5),
+                p99: quantile(0.99),
+            }),
+            frames: self.frames,
+            frame_rate_hz: self.frames as f64 / seconds,
+            bytes: self.bytes,
+            seconds,
+            ended: match ended {
+                Ok(End::Frames) => "frames".into(),
+                Ok(End::Quiet) => "quiet".into(),
+                Err(e) => format!("error: {e:#}"),
+            },
+            axis_mm: axis
+                .position_mm
+                .as_ref()
+                .and_then(|p| p.as_ref().ok().copied()),
+            axis_stopped: axis.stopped,
+        }
+    }
+}
+
+/// Report latency percentiles, ms.
+#[derive(Serialize)]
+struct Latency {
+    p50: f64,
+    p99: f64,
+}
+
+/// The receiver's summary, printed on every way out.
+#[derive(Serialize)]
+struct Summary {
+    /// Depth reports applied.
+    reports: u64,
+    report_rate_hz: f64,
+    /// From the sender's time stamp (its capture) to the report's move;
+    /// the two clocks must agree (same host, or NTP).
+    report_latency_ms: Option<Latency>,
+    frames: u64,
+    frame_rate_hz: f64,
+    /// Message bytes received.
+    bytes: u64,
+    seconds: f64,
+    /// `frames`, `quiet` (nothing for --timeout-s) or `error: …`.
+    ended: String,
+    axis_mm: Option<f64>,
+    /// The link went quiet or failed mid-move, so the axis was stopped.
+    axis_stopped: bool,
+}
+
+impl std::fmt::Display for Summary {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "summary: {} reports ({:.1}/s), {} frames ({:.2}/s), {} B in {:.1} s, ended: {}",
+            self.reports,
+            self.report_rate_hz,
+            self.frames,
+            self.frame_rate_hz,
+            self.bytes,
+            self.seconds,
+            self.ended
+        )?;
+        if let Some(l) = &self.report_latency_ms {
+            write!(
+                f,
+                "; report latency p50 {:.0} ms, p99 {:.0} ms",
+                l.p50, l.p99
+            )?;
+        }
+        Ok(())
     }
 }
