@@ -406,6 +406,9 @@ fn a_quiet_link_stops_the_axis_and_the_summary_is_still_printed() {
     assert_eq!(summary["ended"], "quiet", "{summary}");
     assert_eq!(summary["frames"], 0, "{summary}");
     let axis = summary["axis_mm"].as_f64().unwrap();
-    assert!(axis < 40.0, "the watchdog let the axis reach {axis} mm:\n{err}");
+    assert!(
+        axis < 40.0,
+        "the watchdog let the axis reach {axis} mm:\n{err}"
+    );
     assert_eq!(err.matches("watchdog: ").count(), 1, "{err}");
 }

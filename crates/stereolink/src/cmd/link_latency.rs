@@ -2,8 +2,11 @@
 //! to reach the receiver while a frame is in flight on the same link. Both
 //! ends run in this process over the simulated channel in real time (its
 //! UART at the spec's baud rate): a frame of `--size` bytes goes on the bulk
-//! lane and, every [`REPORT_EVERY`] while it is in flight, a report of
-//! [`REPORT_BYTES`] on the urgent lane; the receiver timestamps each.
+//! lane and, every [`REPORT_EVERY`] (a camera's 10 pairs a second) while it
+//! is in flight, a report on the urgent lane, as large as one radio packet
+//! carries ([`Endpoint::one_packet_message`]: the sender's fitted depth
+//! report); the receiver timestamps each. A report due while the last one
+//! is still in flight is skipped and counted: the newest wins.
 
 use std::time::{Duration, Instant};
 
@@ -11,11 +14,8 @@ use serde::Serialize;
 use stereolink_link::endpoint::{Endpoint, Lane};
 use stereolink_link::sim::{self, SimConfig};
 
-/// A depth report's size on the wire (the sender's container for a
-/// 480x272 pair with nine depth levels).
-pub const REPORT_BYTES: usize = 293;
-/// How often a report is submitted while the frame is in flight.
-pub const REPORT_EVERY: Duration = Duration::from_millis(400);
+/// How often a report is due while the frame is in flight.
+pub const REPORT_EVERY: Duration = Duration::from_millis(100);
 
 #[derive(Serialize)]
 struct Latency {
@@ -23,6 +23,8 @@ struct Latency {
     frame_bytes: usize,
     frame_seconds: f64,
     report_bytes: usize,
+    /// Reports due while the one before was still in flight.
+    reports_skipped: usize,
     report_ms: Vec<f64>,
     median_ms: f64,
     max_ms: f64,
@@ -57,12 +59,17 @@ pub fn run(config: SimConfig, link: &str, size: usize, out: &super::Output) -> a
         Ok(latencies)
     });
     let mut ep = Endpoint::new(Box::new(a))?;
+    let report_bytes = ep.one_packet_message();
+    let mut skipped = 0;
     ep.submit(Lane::Bulk, &message(b'F', epoch, size))?;
     let start = Instant::now();
     let mut next_report = start + REPORT_EVERY;
     let frame_seconds = loop {
-        if Instant::now() >= next_report && ep.is_idle(Lane::Urgent) {
-            ep.submit(Lane::Urgent, &message(b'R', epoch, REPORT_BYTES))?;
+        if Instant::now() >= next_report {
+            match ep.is_idle(Lane::Urgent) {
+                true => ep.submit(Lane::Urgent, &message(b'R', epoch, report_bytes))?,
+                false => skipped += 1,
+            }
             next_report += REPORT_EVERY;
         }
         let ended = ep.poll_sends(Duration::from_millis(5))?;
@@ -88,19 +95,21 @@ pub fn run(config: SimConfig, link: &str, size: usize, out: &super::Output) -> a
         link: link.to_string(),
         frame_bytes: size,
         frame_seconds,
-        report_bytes: REPORT_BYTES,
+        report_bytes,
+        reports_skipped: skipped,
         median_ms: sorted[sorted.len() / 2],
         max_ms: sorted[sorted.len() - 1],
         report_ms: std::mem::take(&mut report_ms),
     };
     out.emit(&r, || {
         format!(
-            "{}: a {} B frame took {:.2} s; {} depth reports of {} B sent meanwhile reached the receiver in {:.0} ms median, {:.0} ms at most\n",
+            "{}: a {} B frame took {:.2} s; {} depth reports of {} B sent meanwhile ({} skipped: the one before still in flight) reached the receiver in {:.0} ms median, {:.0} ms at most\n",
             r.link,
             r.frame_bytes,
             r.frame_seconds,
             r.report_ms.len(),
             r.report_bytes,
+            r.reports_skipped,
             r.median_ms,
             r.max_ms
         )
