@@ -7,13 +7,12 @@
 //! range coded by their bit lengths, and each segment's index into that
 //! list is range coded, predicted by the planes of the segments just above
 //! and left of the segment's first pixel: the plane assignment favours neighbours sharing a
-//! plane, and one of those two has the segment's plane for 93–97 % of the
-//! segments of the Middlebury v2 scenes. Decoding the indices therefore
+//! plane, so one of those two mostly has the segment's plane
+//! (docs/benchmarks.md, “Plane table”). Decoding the indices therefore
 //! needs the decoded left labels' segments: a frame's table is parsed into a
 //! [`CodedPlaneTable`] and resolved once the labels are decoded.
-//! Version 1 spent 12 raw bytes on every plane and 1–2 on every index,
-//! which made the table 37–54 % of a frame; version 2 made it 5–10 times
-//! smaller on the Middlebury v2 scenes. Version 3 ([`TableCoding`]) codes
+//! Version 1 spent 12 raw bytes on every plane and 1–2 on every index;
+//! version 2 range coded them. Version 3 ([`TableCoding`]) codes
 //! the coefficients only to the precision the map needs and leaves the
 //! tiny segments' indices out: a segment of fewer than `implied_below`
 //! pixels takes the plane of the segment above (else left of) its first
@@ -42,18 +41,9 @@ pub const FRACTION_BITS: u32 = 16;
 pub type FixedPlane = [i32; 3];
 
 /// How a table is coded: its coefficients' precision and which segments'
-/// indices are left out. The defaults were measured with
-/// `examples/planes_over_radio fodpso 3` on Tsukuba / Venus / Teddy /
-/// Cones (table bytes; bad > 1 px of the board's map from the planes; the
-/// plane matcher with census alone, before its grey-difference term, with
-/// which the default gives 649 / 971 / 1632 / 3819 B and 6.33 / 0.73 / 5.95
-/// / 4.29 %):
-/// - exact (16, 16, 0): 954 / 1484 / 2519 / 5869 B; 6.95 / 0.67 / 6.56 / 4.32 %;
-/// - (12, 5, 0): 752 / 1227 / 2013 / 4840 B; 6.68 / 0.67 / 6.61 / 4.33 %;
-/// - (12, 5, 2), the default: 652 / 1021 / 1649 / 3826 B; 6.77 / 0.73 /
-///   6.73 / 4.39 %;
-/// - (12, 5, 4): 572 / 809 / 1415 / 3029 B; 6.91 / 0.81 / 6.95 / 4.44 %;
-/// - (13, 6, 8): 545 / 724 / 1324 / 2743 B; 7.47 / 0.90 / 7.28 / 4.66 %.
+/// indices are left out. The defaults trade table bytes against the
+/// accuracy of the board's map from the planes (docs/tuning.md, “Plane
+/// table coding”).
 ///
 /// A plane rounded so is off by at most 2^−(slant_bits+1) · (x + y) +
 /// 2^−(offset_bits+1) px at `(x, y)`: 0.12 px at the far corner of a

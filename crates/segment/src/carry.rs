@@ -18,12 +18,10 @@ use crate::{Method, Segmentation};
 pub const NOTHING: u16 = u16::MAX;
 
 /// The default margin of [`carry_over`] for `method`: 6 levels for the
-/// thresholding methods, 20 RGB units for the others. On the ten 2001–2005
-/// Middlebury pairs (3 levels, strong label coding) the right view then
-/// codes 34.6 % (FO-DPSO) and 31.8 % (k-means) smaller conditioned on the
-/// left than alone, against 10.0 % and 10.8 % segmented independently, at
-/// a right-view PSNR 0.13 and 0.12 dB lower (margins 8 and 30 gain 40.9 %
-/// and 39.1 % for 0.20 and 0.21 dB).
+/// thresholding methods, 20 RGB units for the others. A wider margin makes
+/// the right view cheaper to code conditioned on the left, for a little
+/// more of its PSNR (docs/tuning.md, “Carry margin of the
+/// stereo-consistent right view”).
 pub fn default_margin(method: &Method) -> f32 {
     match method {
         Method::Otsu | Method::Pso(_) | Method::Dpso(_) | Method::Fodpso(_) => 6.0,

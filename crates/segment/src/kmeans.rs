@@ -13,9 +13,9 @@ use stereolink_image::{Plane, RgbImage};
 use crate::{compact, SegmentError, Segmentation};
 
 /// Lloyd iterations stop when no centroid moves more than this (RGB units),
-/// or after 100: a hundredth of a level. Measured on the ten 2001–2005
-/// Middlebury scenes (k = 3), J stays below scikit-learn's on every one
-/// (ratio 0.99986–0.99999), and Cones takes 18 steps where 10⁻³ took 23.
+/// or after 100: a hundredth of a level, fine enough to keep J below
+/// scikit-learn's and coarse enough to save steps (docs/tuning.md,
+/// “k-means tolerance”).
 pub const TOLERANCE: f64 = 1e-2;
 const MAX_ITERATIONS: usize = 100;
 

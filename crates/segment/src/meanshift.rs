@@ -63,9 +63,8 @@ pub struct MeanShiftSpec {
     pub min_region: usize,
     /// Coarse-to-fine levels, as OpenCV's `pyrMeanShiftFiltering`
     /// `maxLevel` (0 = filter every pixel, the exact procedure): see
-    /// [`modes`]. At most [`MAX_PYRAMID`]. The default 1 was measured to
-    /// change the PSNR of the default segmentation by at most 0.04 dB on
-    /// Cones, Tsukuba and Teddy, and to take 0.3–0.8× the time.
+    /// [`modes`]. At most [`MAX_PYRAMID`]. The default 1 barely changes the
+    /// segmentation and saves time (docs/tuning.md, “Mean shift pyramid”).
     pub pyramid: usize,
 }
 

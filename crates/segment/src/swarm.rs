@@ -202,7 +202,7 @@ impl Fitness {
 #[derive(Clone)]
 struct Particle {
     x: Vec<f64>,
-    /// v[t], v[t−1], v[t−2], v[t−3].
+    /// `v[t]`, `v[t−1]`, `v[t−2]`, `v[t−3]`.
     v: [Vec<f64>; 4],
     best_x: Vec<f64>,
     best: f64,

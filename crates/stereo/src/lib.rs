@@ -150,16 +150,13 @@ impl FromStr for Algorithm {
     }
 }
 
-/// Default WTA gray precision: measured on the Middlebury scenes with the
-/// default refinement, 9 bits lower bad > 1 px on Tsukuba from 3.95 to
-/// 3.60 % against 8 (the rounding to whole luma levels) and the 20-scene
-/// average from 27.31 to 27.25 %.
+/// Default WTA gray precision: 9 bits keep the half level of luma that
+/// rounding to 8 would lose (docs/tuning.md, “9-bit gray samples”).
 pub const WTA_GRAY_BITS: u32 = 9;
 
-/// Default WTA min filter side: off. With the default refinement, a 3×3
-/// min filter improves Tsukuba and Venus (3.60 → 3.27, 1.03 → 0.66 %) but
-/// raises the 20-scene average (27.25 → 28.35 %); with the plain 5×5
-/// median it lowers Tsukuba, Venus and Teddy and raises Cones.
+/// Default WTA min filter side: off. With the default refinement a min
+/// filter helps some scenes and costs the 20-scene average (docs/tuning.md,
+/// “No min filter”).
 pub const WTA_MIN_FILTER: usize = 0;
 
 /// A validated matching request: algorithm, disparity range, window and refinement.
@@ -192,7 +189,8 @@ pub struct MatchSpec {
 }
 
 impl MatchSpec {
-    /// A spec with the measured defaults for `algorithm` over `min_disp..=max_disp`.
+    /// A spec with the defaults for `algorithm` over `min_disp..=max_disp`
+    /// (docs/tuning.md gives the reasons for each).
     pub fn new(
         algorithm: Algorithm,
         min_disp: usize,

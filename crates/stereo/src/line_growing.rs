@@ -41,7 +41,8 @@ pub struct LineGrowingParams {
 }
 
 impl Default for LineGrowingParams {
-    /// Measured on the Middlebury v2 scenes with `stereolink eval --algo lg`.
+    /// Chosen on the Middlebury v2 scenes with `stereolink eval --algo lg`
+    /// (docs/tuning.md, “Line growing”).
     fn default() -> Self {
         LineGrowingParams {
             passes: 1,

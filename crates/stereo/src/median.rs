@@ -312,9 +312,10 @@ impl Network {
 /// The selection network of the 5×5 median, built at compile time.
 const MEDIAN_5X5: Network = selection_network(25, 12);
 
-/// [`apply`] of [`MEDIAN_5X5`] written out comparator by comparator with
-/// constant indices, so that the 25 rows stay in vector registers instead of
-/// being loaded and stored through memory on every comparator (4× faster).
+/// The comparators of [`MEDIAN_5X5`], each a [`compare`], written out one
+/// by one with constant indices, so that the 25 rows stay in vector
+/// registers instead of being loaded and stored through memory on every
+/// comparator (docs/benchmarks.md, “Median filter”).
 ///
 /// # Safety
 /// `K`'s instruction set must be available.

@@ -3,8 +3,8 @@
 //! median filter, colour-weighted median, and hole filling so that the
 //! output can be dense.
 //!
-//! Defaults were chosen by measurement on the Middlebury v2 scenes
-//! (`stereolink eval`): every step lowers the bad-pixel rate there.
+//! Each default step lowers the bad-pixel rate on the Middlebury v2
+//! scenes (`stereolink eval`; docs/tuning.md, “All matchers” and “WTA”).
 
 use rayon::prelude::*;
 use stereolink_image::{DisparityMap, Plane, RgbImage};
@@ -45,8 +45,8 @@ pub enum HoleFill {
     Row,
     /// Each invalid pixel takes the median of the nearest valid disparities
     /// along the 8 directions (Hirschmüller 2008, §3.4, as for mismatches);
-    /// measured on the Middlebury v2 scenes it beats [`HoleFill::Row`] after
-    /// WTA on all four and after SGM on three (not Tsukuba).
+    /// see docs/tuning.md, “Hole filling”, for how it compares with
+    /// [`HoleFill::Row`].
     Directions,
 }
 
@@ -73,31 +73,24 @@ impl Refinement {
         fill: None,
     };
 
-    /// The measured defaults for an algorithm (dense output).
+    /// The defaults for an algorithm (dense output).
     ///
     /// The subpixel fit is off: on the Middlebury v2 scenes it raises the
-    /// bad > 1 px rate on all four after WTA and on three after SGM
-    /// (Tsukuba's ground truth is whole pixels, and a fit moves a winner one
-    /// pixel off to beyond one; SGM Tsukuba 3.05 → 4.23 %, WTA 6.45 →
-    /// 9.36 %). It is on where distances matter more than that score (the
-    /// depth report of `send` and `demo`): a region's median disparity is
-    /// then not rounded to whole pixels.
+    /// bad > 1 px rate, as Tsukuba's ground truth is whole pixels and a fit
+    /// moves a winner one pixel off to beyond one. It is on where distances
+    /// matter more than that score (the depth report of `send` and `demo`):
+    /// a region's median disparity is then not rounded to whole pixels.
+    /// See docs/tuning.md, “Subpixel fit”.
     pub fn default_for(algorithm: Algorithm) -> Refinement {
         match algorithm {
             // WTA: the LR check asks for equal disparities (tolerance 0.5
             // on whole pixels), then the colour-weighted median
             // (`WeightedMedian::DEFAULT`) before (valid pixels only) and
-            // after the fill: bad > 1 px 3.63 / 0.90 / 15.47 / 6.69 % on
-            // Tsukuba / Venus / Teddy / Cones, below the SSD+MF baseline of
-            // 5.23 / 3.74 / 16.5 / 10.6 %, and 26.82 % over the 20 scenes
-            // (with the first pass on all valid pixels 3.57 / 0.83 / 15.37 /
-            // 6.74 % and 26.99 %; with Gaussian weights 3.60 / 0.87 / 15.35
-            // / 6.85 % and 26.93 %; 27.25 % when the first pass filled holes
-            // too). A 5×5 median in its place takes about 0.8x the time
-            // on Cones (`bench match --iters 100`: 9.0 against 11.3 ms of
-            // CPU a frame, medians 4.8–4.9 against 6.0–6.1 ms) but gives
-            // 5.89 / 3.73 / 18.44 / 10.09 % and 29.14 %
-            // (`--weighted-median 0 --median 5`).
+            // after the fill. It beats the SSD+MF baseline on all four v2
+            // scenes; a 5×5 median in its place (`--weighted-median 0
+            // --median 5`) is a little faster but misses it on two
+            // (docs/tuning.md, “The colour-weighted median as the default
+            // refinement”).
             Algorithm::Wta => Refinement {
                 lr_check: Some(0.5),
                 subpixel: false,
@@ -184,15 +177,10 @@ pub fn postprocess(
     });
     if let Some(wm) = &mut wm {
         // Holes left to the fill, and only the pixels next to them, which
-        // the fill reads (measured after WTA: 26.82 against 26.99 % over the
-        // 20 scenes when all valid pixels take the median, at about 0.8x
-        // the first pass's time on Cones, where 71 % of the 16-pixel
-        // chunks hold such a pixel). With Gaussian weights, leaving holes
-        // to the fill beat filling them with the median too (after WTA,
-        // bad > 1 px
-        // 3.60 / 0.87 / 15.35 / 6.85 % against 3.60 / 1.03 / 15.71 /
-        // 7.25 % on Tsukuba / Venus / Teddy / Cones, 26.93 against 27.25 %
-        // over the 20 scenes), and it costs less.
+        // the fill reads: after WTA this is more accurate, and cheaper,
+        // than the median on all valid pixels or on the holes too
+        // (docs/tuning.md, “The colour-weighted median as the default
+        // refinement”).
         match r.fill {
             Some(_) => wm.filter_borders(&d, spare),
             None => wm.filter(&d, spare),

@@ -11,16 +11,16 @@
 //! column, so along rows it alternates far more often than the vertical
 //! second difference alternates along columns. The score is the difference
 //! of the two rates (opposite signs of adjacent second differences, in
-//! [−1, 1]). Of the 20 shared Middlebury left views, Tsukuba scores 0.183
-//! and the other 19 between −0.04 and 0.02.
+//! [−1, 1]). Of the 20 shared Middlebury left views only Tsukuba scores
+//! far above zero.
 //!
 //! **Removal** ([`suppress_column_ripple`]): the two-tap average
 //! `(g(x) + g(x+1)) / 2` along rows cancels a period-2 pattern exactly. It
 //! shifts both views by the same half pixel, so disparities are unchanged,
-//! and it blurs only the finest horizontal detail. Measured on Tsukuba
-//! (bad > 1 px, non-occluded): SGM 3.05 → 2.68 %, planes 4.67 → 2.70 %.
-//! Always on, it costs the 20-scene average 0.6–0.7 points: hence
-//! [`RippleFilter::Auto`].
+//! and it blurs only the finest horizontal detail. It helps SGM and planes
+//! much on Tsukuba, but always on it costs the other scenes: hence
+//! [`RippleFilter::Auto`]. The figures are in docs/tuning.md, “Column
+//! ripple filter”.
 
 use stereolink_image::GrayImage;
 
@@ -38,7 +38,8 @@ pub enum RippleFilter {
 }
 
 /// The [`column_ripple`] score above which [`RippleFilter::Auto`] filters:
-/// midway between Tsukuba's 0.183 and the highest other shared scene's 0.02.
+/// midway between Tsukuba's score and the highest of the other shared
+/// scenes (docs/tuning.md, “Column ripple filter”).
 pub const RIPPLE_THRESHOLD: f32 = 0.1;
 
 impl RippleFilter {

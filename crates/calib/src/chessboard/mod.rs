@@ -35,14 +35,9 @@
 //! [`ChessboardOptions::ring_radius`] plus a margin), every inner corner at
 //! least `ring_radius + 2` px inside the image, and the whole board visible.
 //!
-//! # Measured
-//!
-//! On the 25 ximea-9x6 pairs (`bench/chessboard_vs_opencv.py`): 50 of 50
-//! boards, OpenCV's order, corners 0.002 px RMS from OpenCV's
-//! `findChessboardCorners` + `cornerSubPix` (two OpenCV corners 5–7 px off
-//! the corner excepted), 9–12x faster. The `calib-targets` crate
-//! (0.16.1, ChESS corners and grid growing) also finds 50 of 50, but its
-//! corners lie 0.18–0.21 px RMS from OpenCV's and it took about 4x our time.
+//! How it compares with OpenCV's `findChessboardCorners` + `cornerSubPix`
+//! on the shared chessboard set (`bench/chessboard_vs_opencv.py`) is in
+//! docs/benchmarks.md, “Chessboard”.
 
 mod grid;
 mod saddle;
@@ -199,9 +194,8 @@ pub fn find_chessboard_with(
 
 /// The refinement's half window: at most `largest`, and at most 0.75 of
 /// the shortest distance between neighbouring corners, so that the window
-/// never reaches the next corner (at least 2 px). On the shared set 0.75
-/// keeps the corners 0.05 / 0.09 px RMS from OpenCV's fixed 23x23 window
-/// and gives lower reprojection errors than 0.4 or 0.55.
+/// never reaches the next corner (at least 2 px); docs/tuning.md, “Corner
+/// refinement window: 0.75 of the corner spacing”.
 fn refinement_window(corners: &[Point2<f64>], pattern: BoardSize, largest: usize) -> usize {
     let mut shortest = f64::INFINITY;
     for r in 0..pattern.rows {

@@ -37,11 +37,9 @@ pub struct SubpixOptions {
     pub epsilon: f64,
     /// Standard deviation (px) of a Gaussian applied before the gradients;
     /// 0 is OpenCV's behaviour. The default 0.8 removes the aliasing bias of
-    /// sharp, nearly axis-aligned edges (0.065 → 0.034 px RMS on a sharp
-    /// render, see the crate's tests) and on the shared real set lowers the
-    /// reprojection errors (stereo RMS 0.163 → 0.162 px) and the rectified
-    /// row offset (0.125 → 0.117 px), moving corners about 0.05 px from
-    /// OpenCV's.
+    /// sharp, nearly axis-aligned edges (see the crate's tests), and on the
+    /// shared real set it lowers the reprojection errors and the rectified
+    /// row offset (docs/tuning.md, “Gradient smoothing: 0.8 px”).
     pub sigma: f64,
 }
 

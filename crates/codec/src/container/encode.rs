@@ -154,8 +154,9 @@ fn prediction(left: &IndexedImage, table: &[u16]) -> LabelMap {
 /// right view so that any mapping decodes. The two views are segmented
 /// separately, so their classes correspond but their numbering may differ;
 /// this encoder maps each left label to the right label of the nearest
-/// colour (on the Middlebury pairs it predicts better than the most frequent
-/// co-located label at the dominant disparity, which was also measured).
+/// colour, which predicts better than the most frequent co-located label
+/// at the dominant disparity (docs/tuning.md, “The label table: nearest
+/// colour”).
 fn label_table(left: &IndexedImage, right: &IndexedImage) -> Vec<u16> {
     let dist = |a: &Rgb, b: &Rgb| {
         (0..3)

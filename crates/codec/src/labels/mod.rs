@@ -20,8 +20,8 @@
 //! of labels) and, for palettes of per-channel classes, four
 //! [channel models](crate::channels), with two weight sets averaged,
 //! refines the result with an [`Apm`](crate::mixer::Apm), and mixes the
-//! missed-label decisions too: about 14 % smaller (FO-DPSO) and about 27
-//! times slower to decode.
+//! missed-label decisions too: smaller, and far slower to decode, so fast
+//! is the default (docs/tuning.md, “The fast mode is the default”).
 //! Probabilities are [`Counter`](crate::rangecoder::Counter)s, which learn
 //! fast in rare contexts.
 //! `docs/wire-format.md` specifies the stream bit for bit.

@@ -38,9 +38,8 @@ pub(super) const CONTEXT_BITS: [u32; COUNTER_INPUTS] = [
 /// statistics of a segmented view drift across it.
 const STRONG_COUNT_LIMIT: u8 = 30;
 /// The limits of the strong mode's candidate counters, context by context:
-/// the sparse label hashes learn fastest, the dense masks slowest (about
-/// 0.2 % smaller than 30 for all; chosen on the ten 2001–2005 scenes and
-/// smaller on the ten 2006–2014 ones too).
+/// the sparse label hashes learn fastest, the dense masks slowest
+/// (docs/tuning.md, “The strong mode's counter limits”).
 const COUNT_LIMITS: [u8; COUNTER_INPUTS] = [120, 120, 60, 10, 10, 60, 10, 60, 30];
 /// Contexts of the strong mode's [`Apm`](crate::mixer::Apm): rank and own mask.
 pub(super) const APM_CONTEXTS: usize = RANKS << OWN_LEN;

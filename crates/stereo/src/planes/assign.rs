@@ -140,13 +140,9 @@ impl<'a> DataCost<'a> {
     /// went on, as the boundary step's right-view weights take it too: it
     /// costs what a mismatch costs, whatever the plane. Charging it the
     /// truncation made planes that keep the strip in view, the farther
-    /// ones, cheaper there: over the 20 shared scenes the border column
-    /// takes bad > 1 px from 15.22 to 14.79 % over all pixels (better on
-    /// 17 scenes, Playroom 19.65 → 16.14 %) and from 8.50 to 8.46 %
-    /// non-occluded (better on 12, worse on 6, Piano 12.79 → 13.48 %).
-    /// Fixed charges below the truncation (4 / 8 / 12 / 16, with the
-    /// boundary step's 9×7 census) gave 10.36 / 9.86 / 9.24 / 9.09 %
-    /// non-occluded against 8.63: they make near planes cheaper instead.
+    /// ones, cheaper there, and a fixed charge below the truncation makes
+    /// near planes cheaper instead (docs/tuning.md, “The strip the right
+    /// camera does not see”).
     #[inline]
     pub(crate) fn matching_with(&self, p: usize, x: usize, d: f32, census: CensusPart) -> f32 {
         let xr = (x as f32 - d).max(0.0);

@@ -33,44 +33,25 @@ use super::DisparityPlane;
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct BoundaryParams {
     /// Pixels within this distance (Chebyshev, px) of another segment
-    /// choose their plane; 0 turns the step off. Over the 20 shared scenes
-    /// (bad > 1 px non-occluded, with the other defaults) 3 / 4 / 5 give
-    /// 10.12 / 10.06 / 10.02 %; with left-view weights alone and a margin
-    /// of 0.2, 1 / 2 / 3 / 5 / 8 gave 10.47 / 10.38 / 10.32 / 10.25 / 10.20 %.
+    /// choose their plane; 0 turns the step off. The figures behind each
+    /// default of these parameters are in docs/tuning.md, “The per-pixel
+    /// plane choice near segment boundaries”.
     pub radius: usize,
-    /// Half side of the support window (px). Half sides 3 / 5 / 6 / 7 / 8
-    /// give 10.05 / 9.91 / 9.89 / 9.88 / 9.89 % over the 20 shared scenes,
-    /// and Tsukuba / Venus / Teddy / Cones 2.61 / 0.63 / 4.82 / 3.11, 2.41 /
-    /// 0.43 / 4.54 / 2.93, 2.35 / 0.39 / 4.47 / 2.91, 2.31 / 0.37 / 4.45 /
-    /// 2.89 and 2.31 / 0.36 / 4.43 / 2.87 %. With the row's cost cache the
-    /// whole match of Jadeplant, the slowest 2014 scene, takes 0.87 s with
-    /// 6 and 1.08 s with 8 (1.31–1.47 and 1.62–1.69 s with another process
-    /// loading both cores; the limit is 2 s).
+    /// Half side of the support window (px). A wider window gathers more
+    /// like-coloured support, at a cost that grows with its area.
     pub window: usize,
     /// Colour scale σ of the support weights (summed absolute RGB
-    /// difference). Left-view weights with σ 20 / 30 / 45 gave 10.16 /
-    /// 10.15 / 10.16 % over the 20 scenes (radius 5, margin 0.15); grey
-    /// differences with σ 10 10.28 against 10.25 % for colour (margin 0.2).
-    /// The right view's half of the weights takes the 20 scenes from 10.15
-    /// to 10.08 % (Tsukuba / Venus / Teddy / Cones 2.33 / 0.47 / 5.11 / 2.92
-    /// to 2.24 / 0.41 / 5.06 / 2.92).
+    /// difference), in both views (see the module doc).
     pub sigma: f32,
     /// Another plane replaces the pixel's own only when its cost is lower
     /// by more than this fraction of the own plane's: where colour does
     /// not follow depth the weights cannot tell the surfaces apart, and
-    /// close costs are noise. Margins 0.05 / 0.1 / 0.2 give 9.96 / 10.00 /
-    /// 10.18 % over the 20 scenes, and Tsukuba / Venus / Teddy / Cones 2.32
-    /// / 0.54 / 5.11 / 2.87, 2.23 / 0.43 / 5.07 / 2.87 and 2.29 / 0.42 /
-    /// 5.10 / 2.96 %. On the built-in synthetic scene (`synth --seed 5`,
-    /// 160×120), where one texture covers every surface, 0.1 gives 0.05 %
-    /// (0.09 without the step, SGM 0.62); left-view grey weights needed
-    /// 0.2 there to stay at 0.38 %.
+    /// close costs are noise.
     pub margin: f32,
     /// A neighbouring plane is tried only when it puts the pixel more
     /// than this many px from every plane already tried (its own first):
-    /// planes that nearly agree there choose alike. 0.5 px takes
-    /// Motorcycle's whole match from 2.85 to 2.03 s of CPU, and the 20
-    /// shared scenes from 10.00 to 10.02 % (before the refits).
+    /// planes that nearly agree there choose alike, and skipping them
+    /// saves time.
     pub distinct: f32,
     /// Width and height (odd, at most the census's 9×7) of the census
     /// window of the step's matching cost, and [`Self::census_weight`] the
@@ -80,25 +61,9 @@ pub struct BoundaryParams {
     /// 5×3 window 2 px. The weight keeps the census's share of the cost
     /// (14 comparisons instead of 62, against the grey difference and the
     /// truncation at 24); lighter census weights lose on the occluded
-    /// pixels. Over the 20 shared scenes (bad > 1 px, average of the
-    /// non-occluded and of all pixels; Tsukuba / Venus / Teddy / Cones
-    /// non-occluded):
-    ///
-    /// | window | weight | non-occluded | all | v2 |
-    /// |---|---|---|---|---|
-    /// | 9×7 | 1 | 8.63 % | 15.28 % | 2.13 / 0.15 / 3.22 / 2.56 |
-    /// | 7×5 | 1 / 1.8 | 8.51 / 8.57 % | 15.70 / 15.22 % | 2.10 / 0.16 / 3.05 / 2.37, 2.09 / 0.14 / 3.21 / 2.50 |
-    /// | 5×5 | 1 / 1.5 / 2.5 | 8.53 / 8.50 / 8.56 % | 15.94 / 15.65 / 15.23 % | 2.11 / 0.19 / 3.03 / 2.31, 2.09 / 0.16 / 3.05 / 2.30, 2.11 / 0.15 / 3.17 / 2.39 |
-    /// | 7×3 | 3 | 8.52 % | 15.18 % | 2.09 / 0.13 / 3.11 / 2.50 |
-    /// | **5×3** | 1 / 3 / **4** / 5 / 6 | 8.59 / 8.46 / **8.50** / 8.55 / 8.61 % | 16.15 / 15.47 / **15.22** / 15.12 / 15.08 % | 2.13 / 0.21 / 3.00 / 2.42, 2.07 / 0.15 / 3.04 / 2.34, **2.10 / 0.13 / 3.10 / 2.41**, 2.11 / 0.14 / 3.14 / 2.47, 2.11 / 0.15 / 3.19 / 2.54 |
-    /// | 3×3 | 1 / 3 / 4 / 5 | 8.75 / 8.51 / 8.47 / 8.47 % | 16.37 / 15.92 / 15.72 / 15.56 % | 2.15 / 0.22 / 3.06 / 2.53, 2.11 / 0.18 / 2.96 / 2.27, 2.10 / 0.16 / 2.98 / 2.27, 2.12 / 0.15 / 3.01 / 2.30 |
-    ///
-    /// 5×3 at 4 is better than 9×7 on 18 of the 20 scenes non-occluded
-    /// and on 16 over all pixels; at 3 it is better on more scenes
-    /// non-occluded but worse over all pixels on 18. The same window in
-    /// the assignment's data term too (at 3) gave 8.61 and 15.89 % (v2
-    /// 1.96 / 0.15 / 2.87 / 2.32): over a whole segment the wider census
-    /// is worth more.
+    /// pixels. Over a whole segment the wider census is worth more, so
+    /// the assignment keeps its 9×7. Measured windows and weights:
+    /// docs/tuning.md, “The boundary step's census: 5×3, weight 4”.
     pub census: [usize; 2],
     /// Weight of each census comparison in the step's cost (see
     /// [`Self::census`]).

@@ -75,16 +75,8 @@ impl DisparityPlane {
     }
 }
 
-/// Parameters of the plane matcher. The defaults were measured with `eval
-/// --algo planes` (bad > 1 px non-occluded) on Tsukuba / Venus / Teddy /
-/// Cones: without the agreement term and tiles 11.12 / 0.34 / 4.94 / 3.66
-/// %, with the agreement (4 per px, capped at 2 px) 6.65 / 0.34 / 4.72 /
-/// 3.60 %; λ from 4 to 16 moved the average by under 0.05. Tiles of 24 /
-/// 32 / 48 px then gave 5.58 / 1.41 / 5.56 / 3.31, 5.93 / 0.80 / 5.25 /
-/// 3.71 and 4.79 / 0.51 / 4.86 / 3.25 %, and over the 20 shared scenes an
-/// average of 11.46, 11.57 and 11.33 % against 15.86 % without (SGM 11.87 %):
-/// the large low-texture segments of the 2005 and 2014 scenes span several
-/// depths, and the tiles give them several planes.
+/// Parameters of the plane matcher. Each default, and the figures behind
+/// it, is in docs/tuning.md, “Planes”.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct PlanesParams {
     /// LR-check tolerance (px) of the initial SGM map.
@@ -99,13 +91,8 @@ pub struct PlanesParams {
     /// reliable pixels off by more than `fit.inlier` is not planar (a
     /// curved or folded surface, or two surfaces), and is cut again by
     /// tiles of half the side before the planes are fitted anew (0: never).
-    /// Over the 20 shared scenes, with the other defaults: 0.3 / 0.4 / 0.5
-    /// / 0.6 average 10.07 / 9.90 / 9.91 / 9.84 % against 9.95 % never, and
-    /// beat SGM on all ten 2014 scenes against 9 (Pipes 11.06 never, 10.06
-    /// at 0.5; SGM 10.22): curved surfaces (Recycle's and Piano's cloth and
-    /// walls) get more planes, at some cost on Teddy (4.85 / 4.93 / 4.54 /
-    /// 4.55 against 4.46 %). Tsukuba / Venus / Teddy / Cones at 0.5: 2.41
-    /// / 0.43 / 4.54 / 2.93 %.
+    /// A curved surface so gets several planes (docs/tuning.md,
+    /// “Splitting badly fitted segments”).
     pub split: f32,
     /// The plane fit's voting and refit tolerances.
     pub fit: fit::FitParams,
@@ -116,20 +103,15 @@ pub struct PlanesParams {
     /// the weighted grey difference).
     pub truncation: f32,
     /// Weight of the absolute grey difference in the data term (per grey
-    /// level; 0: census alone). With 1 (capped at 20 levels) bad > 1 px
-    /// over the 20 shared scenes averages 10.94 % against 11.33 % with
-    /// census alone (Tsukuba / Venus / Teddy / Cones 4.67 / 0.48 / 4.73 /
-    /// 3.09 against 4.79 / 0.51 / 4.86 / 3.25; better on 15 of 20, worst
-    /// on Piano, 18.69 against 17.53); the grey difference separates
-    /// planes where census is ambiguous (low texture, fine periodic
-    /// noise). Weights 0.5–1.5 and caps 15–30 gave 10.90–10.97 %; the
-    /// gradient's difference instead of the grey's 11.14–11.28 %.
+    /// level; 0: census alone). The grey difference separates planes
+    /// where census is ambiguous (low texture, fine periodic noise), as in
+    /// AD-Census (docs/tuning.md, “The grey difference in the data term”).
     pub intensity: f32,
     /// Largest grey difference counted (levels).
     pub intensity_cap: f32,
     /// Weight of the data term's disagreement with a reliable initial
-    /// disparity (per px of difference). 8 rather than 4: over the 20
-    /// shared scenes 10.73 against 10.84 % (Piano 16.99 against 18.69).
+    /// disparity (per px of difference); docs/tuning.md, “The agreement
+    /// weight: 8”.
     pub agreement: f32,
     /// Largest disagreement counted (px).
     pub agreement_cap: f32,
@@ -141,17 +123,8 @@ pub struct PlanesParams {
     /// difference, so cutting along a colour edge costs little and cutting
     /// through an even colour (a tile's or a split's cut, a gradient) costs
     /// `λ` per pair (`inf`: every pair weighs 1, the plain boundary
-    /// length). Over the 20 shared scenes, with the other defaults but
-    /// without group moves and with an 8-path initial map (bad > 1 px
-    /// non-occluded, average, and Tsukuba / Venus / Teddy / Cones):
-    ///
-    /// | σ | λ | 20 scenes | v2 | 2014 wins |
-    /// |---|---|---|---|---|
-    /// | inf | 8 | 9.89 % | 2.31 / 0.36 / 4.43 / 2.87 | 10 |
-    /// | 20 | 16 / 32 / 48 | 9.83 / 9.72 / 9.66 % | 2.09 / 0.34 / 4.22 / 2.87, 2.44 / 0.34 / 4.28 / 2.86, 2.48 / 0.34 / 4.31 / 2.77 | 10 |
-    /// | 10 | 48 / 96 / 128 | 9.63 / 9.67 / 9.54 % | 2.21 / 0.33 / 4.26 / 2.86, 2.48 / 0.18 / 4.02 / 2.84, 2.41 / 0.18 / 4.03 / 2.84 | 10 / 10 / 9 |
-    /// | 5 | 96 / 144 / **192** / 256 / 384 | 9.61 / 9.53 / **9.45** / 9.54 / 9.66 % | 2.08 / 0.34 / 4.23 / 2.90, 2.03 / 0.33 / 3.94 / 2.92, **2.05 / 0.18 / 3.97 / 2.93**, 2.06 / 0.18 / 3.97 / 2.95, 2.40 / 0.19 / 3.87 / 2.89 | 10 / 10 / **10** / 9 / 8 |
-    /// | 3 | 384 / 768 | 9.46 / 9.89 % | 2.07 / 0.19 / 3.95 / 2.93, 2.12 / 0.18 / 3.96 / 2.96 | 9 |
+    /// length). Measured pairs of σ and λ: docs/tuning.md, “The smoothness
+    /// term's colour contrast”.
     pub contrast: f32,
     /// Most sweeps of greedy moves.
     pub sweeps: usize,
@@ -159,33 +132,18 @@ pub struct PlanesParams {
     /// plane and are joined by boundaries weighing at least this per unit
     /// of length (an even colour across them: see `contrast`) move
     /// together to a neighbour's plane when that lowers the energy (`inf`:
-    /// no group moves). Over the 20 shared scenes, with the other defaults
-    /// but an 8-path initial map:
-    /// without 9.45 %, with 0.001 / 0.05 / **0.1** / 0.2 / 0.3 / 0.45 /
-    /// 0.6 9.14 / 9.15 / **9.10** / 9.13 / 9.17 / 9.17 / 9.27 %; Tsukuba /
-    /// Venus / Teddy / Cones at 0.1: 2.09 / 0.18 / 3.86 / 2.85 against
-    /// 2.05 / 0.18 / 3.97 / 2.93, and planes beat SGM on all ten 2014
-    /// scenes either way.
+    /// no group moves). See docs/tuning.md, “Group moves”.
     pub coupling: f32,
     /// Rounds of plane refinement after the assignment, as AdaptingBP
     /// iterates its fit and assignment: each plane is refitted over the
     /// reliable pixels of all the segments that took it, and the segments
-    /// are assigned again from where they were. Rounds 0 / 1 / 2 / 3 give
-    /// 10.02 / 9.90 / 9.90 / 9.90 % over the 20 shared scenes, and Tsukuba
-    /// / Venus / Teddy / Cones 2.24 / 0.42 / 5.06 / 2.88, 2.48 / 0.43 / 4.98
-    /// / 2.89, 2.38 / 0.43 / 4.93 / 2.92 and 2.38 / 0.43 / 4.89 / 2.92 %
-    /// (Vintage 21.68 against 20.15 with 2); 2 rounds cost Motorcycle 0.05
-    /// s of CPU. With today's other defaults (colour contrast, group moves)
-    /// 0 rounds give 9.35 % against 9.10 %.
+    /// are assigned again from where they were (docs/tuning.md,
+    /// “Refitting rounds”).
     pub refits: usize,
-    /// The per-pixel plane choice near segment boundaries ([`boundary`]):
-    /// with it (radius 5, 17×17 window, symmetric colour weights, margin
-    /// 0.1) the 20 shared scenes average 9.10 against 9.69 % without
-    /// (Tsukuba / Venus / Teddy / Cones 2.09 / 0.18 / 3.86 / 2.85 against
-    /// 2.70 / 0.25 / 4.07 / 3.19), and planes beat SGM on ten 2014 scenes
-    /// against eight. It takes most of the matcher's time (Jadeplant in
-    /// `eval`, with another process loading both cores: 1.62–1.73 s with
-    /// it, 0.62 s without).
+    /// The per-pixel plane choice near segment boundaries ([`boundary`]),
+    /// which places depth edges that the segments' edges miss. It takes
+    /// most of the matcher's time (docs/tuning.md, “The per-pixel plane
+    /// choice near segment boundaries”).
     pub boundary: boundary::BoundaryParams,
 }
 
@@ -383,16 +341,10 @@ pub fn split_bent(
 }
 
 /// SGM's paths for the initial map of the plane matcher (where
-/// [`MatchSpec::new`] puts them; SGM alone takes 8). Over the 20 shared
-/// scenes (bad > 1 px non-occluded, average; Tsukuba / Venus / Teddy /
-/// Cones), with the other defaults: 8 paths 9.10 % (2.09 / 0.18 / 3.86 /
-/// 2.85), 4 paths 8.71 % (2.29 / 0.18 / 3.36 / 2.66), and planes beat SGM
-/// on all ten 2014 scenes either way. Why is not established: on Cones
-/// both pass the LR check on 87.8 % of the pixels, and leave 5.87 against
-/// 5.92 % of the non-occluded ones bad or unchecked. P1 and P2 stay
-/// SGM's (24, 90): with 4 paths, P2 45 / 60 / 75 / 120 gave 9.10 / 8.51 /
-/// 8.74 / 9.11 % and P1 16 / 32 8.68 / 9.23 %, a spread too wide to choose
-/// by.
+/// [`MatchSpec::new`] puts them; SGM alone takes 8). P1 and P2 stay
+/// SGM's. Why 4 paths do better here than 8 is not established; the
+/// figures are in docs/tuning.md, “4 paths for the plane matcher's initial
+/// map”.
 pub const INITIAL_PATHS: u8 = 4;
 
 /// The LR-checked subpixel SGM map: finite where a pixel may vote (not
@@ -426,10 +378,8 @@ pub fn initial_disparity(
 /// among the disparities that keep its match in view, so a pixel of the
 /// strip the right camera does not see takes one of them, often its
 /// match in the first column, and the LR check can pass it: those pixels
-/// then fit planes of slope 1 (`d = x`) there. Over the 20 shared scenes
-/// (bad > 1 px, averages) dropping them takes all pixels from 14.79 to
-/// 14.64 % (better on 19 scenes; Teddy 9.05 → 8.09 %, Cones 9.51 →
-/// 8.20 %) and non-occluded from 8.46 to 8.45 %.
+/// then fit planes of slope 1 (`d = x`) there. See docs/tuning.md, “The
+/// strip the right camera does not see”.
 fn drop_border_matches(map: &mut DisparityMap) {
     let w = map.width().max(1);
     for row in map.as_mut_slice().chunks_mut(w) {

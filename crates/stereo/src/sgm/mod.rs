@@ -17,8 +17,8 @@
 //! Memory is the `u8` cost volume (census costs computed once for all
 //! paths) and the `u16` sum volume, `3·W·H·D'` bytes with `D'` the
 //! disparities padded to 32 lanes, plus a few rows of path costs (`u8`, see
-//! `step`); both volumes are kept in [`SgmBuffers`] between frames:
-//! 220 MiB peak RSS for the 741×497 Motorcycle scene at 190 disparities.
+//! `step`); both volumes are kept in [`SgmBuffers`] between frames
+//! (measured peaks: docs/benchmarks.md, “Memory”).
 //!
 //! Aggregation is two sweeps, down and up, that run in parallel and each
 //! add all their paths into a pixel's sums in one visit (see `sweep`); the
@@ -65,7 +65,8 @@ pub struct SgmParams {
 }
 
 impl Default for SgmParams {
-    /// Measured on the Middlebury v2 scenes with `stereolink eval`.
+    /// Chosen on the Middlebury v2 scenes with `stereolink eval`
+    /// (docs/tuning.md, “P1 24, P2 90, γ 24, 8 paths”).
     fn default() -> Self {
         SgmParams {
             p1: 24,

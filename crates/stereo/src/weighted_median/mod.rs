@@ -11,10 +11,10 @@
 //! difference in the left (reference) view ([`weight`]): `K` is
 //! [`WeightedMedian::color_reach`], and `s` the smallest shift that keeps a
 //! window's sum in 16 bits. Ma et al. weigh by a Gaussian of the colour
-//! difference; this truncated quadratic falls off alike (on the 20
-//! Middlebury scenes after WTA, bad > 1 px 26.99 % against 26.93 % with
-//! `exp(−diff / 50)`), reaches zero within the `u8` range, and is a few
-//! lane operations with no table and no weights kept in memory. Neighbours
+//! difference; this truncated quadratic falls off alike, about as
+//! accurate (docs/tuning.md, “The weighted median's weights, reach, window
+//! and step”), reaches zero within the `u8` range, and is a few lane
+//! operations with no table and no weights kept in memory. Neighbours
 //! of another colour, likely on another surface, barely count, so
 //! disparity edges follow colour edges: this undoes much of the edge
 //! fattening of window matching and cleans the streaks of the hole fill.
@@ -54,35 +54,22 @@ pub struct WeightedMedian {
 }
 
 impl WeightedMedian {
-    /// The measured default after WTA: a 17×17 window sampled every fourth
-    /// pixel (25 samples), `K` = 150. Bad > 1 px on the 20 Middlebury
-    /// scenes 27.00 % on average, 3.53 / 0.83 / 15.38 / 6.76 % on Tsukuba /
-    /// Venus / Teddy / Cones (`K` = 100 / 130 / 170 / 255: 27.02 / 27.00 /
-    /// 27.01 / 27.10 %; a triangle `K − diff` in place of its square at
-    /// `K` = 80 / 100 / 120: 27.05 / 27.06 / 27.07 %). The Gaussian weights
-    /// `exp(−diff / 50)` gave 26.93 % and 3.60 / 0.87 / 15.35 / 6.85 % at
-    /// 1.6–2.3x the time of the two passes. Earlier, with those weights:
-    /// every second pixel (81 samples, σ = 30) gave 27.02 % at about twice
-    /// the time; radius 9 at step 3 27.27 %, radius 10 at step 5 27.88 %,
-    /// radius 12 at step 6 28.75 %, radius 7 at step 3 27.87 %; radius 7 at
-    /// step 1 (225 samples) is better on the 2014 scenes but misses the
-    /// Teddy target (16.53 %).
+    /// The default after WTA: a 17×17 window sampled every fourth pixel
+    /// (25 samples), `K` = 150. Sparse samples keep a wide reach at a
+    /// fraction of the cost of every pixel; the window, step and reach are
+    /// explained in docs/tuning.md, “The weighted median's weights, reach,
+    /// window and step”.
     pub const DEFAULT: WeightedMedian = WeightedMedian {
         radius: 8,
         color_reach: 150,
         step: 4,
     };
 
-    /// The measured default after the plane matcher, whose map is dense and
-    /// subpixel already: a 5×5 window, every pixel, `K` = 250, once. Most
-    /// of the planes' remaining errors are a pixel or two of foreground
-    /// along depth edges, and the median snaps those to the colour edge.
-    /// Bad > 1 px over the 20 shared scenes 8.45 % against 8.52 % without,
-    /// Tsukuba / Venus / Teddy / Cones 2.09 / 0.13 / 3.07 / 2.40 against
-    /// 2.20 / 0.16 / 3.18 / 2.50 %. Chosen when the boundary step's census
-    /// was 9×7 (8.63 against 8.71 %): radius 1 / 3 / 4 gave 8.64 / 8.73 /
-    /// 8.86 % (`K` = 150 at radius 1, 3 and 4), and radius 2 with `K` = 80 /
-    /// 150 / 200 8.71 / 8.66 / 8.64 %.
+    /// The default after the plane matcher, whose map is dense and subpixel
+    /// already: a 5×5 window, every pixel, `K` = 250, once. Most of the
+    /// planes' remaining errors are a pixel or two of foreground along
+    /// depth edges, and the median snaps those to the colour edge
+    /// (docs/tuning.md, “The weighted median after the planes”).
     pub const AFTER_PLANES: WeightedMedian = WeightedMedian {
         radius: 2,
         color_reach: 250,

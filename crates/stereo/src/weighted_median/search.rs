@@ -63,8 +63,8 @@ pub(super) fn search<const N: usize>(
         // By index, with a bounds check LLVM keeps: without it, its loop
         // vectoriser takes this loop across samples (gathering each lane's
         // bins and weights) instead of leaving the lanes to one vector
-        // each (checked in the disassembly; a Cones frame with the default
-        // WTA then took 14.9 ms CPU on one thread, against 11.0 ms).
+        // each (checked in the disassembly), which is slower
+        // (docs/benchmarks.md, “WTA's CPU time by stage”).
         #[allow(clippy::needless_range_loop)]
         for j in 0..guide.offsets.len() {
             let [bins, weights] = &samples[j];

@@ -242,8 +242,8 @@ impl WtaMatcher {
     /// minimum of `xr`'s costs before its lane `d` is above its cost and
     /// the minimum of all of them, at the end of the row, equals it. A
     /// running minimum per right pixel is all it keeps (no lane, no map to
-    /// write and look up): on Cones, one thread, matching and check took
-    /// 4.74 against 5.38 ms of CPU time a frame.
+    /// write and look up), which is faster than checking against the right
+    /// view's map (docs/tuning.md, “LR check inside the matching pass”).
     ///
     /// # Panics
     /// As [`compute_into`](Self::compute_into), and if `params` asks for

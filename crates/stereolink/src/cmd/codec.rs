@@ -25,7 +25,7 @@ pub struct Args {
     #[arg(long)]
     pub original: bool,
     /// Label-map coding: `fast` (the receiver decodes fastest) or `strong`
-    /// (about 14 % smaller for FO-DPSO, about 27x slower to decode).
+    /// (smaller, far slower to decode; see docs/tuning.md).
     #[arg(long, default_value = "fast")]
     pub mode: labels::Mode,
     #[command(flatten)]
@@ -193,7 +193,7 @@ pub struct BenchArgs {
     #[arg(long, default_value_t = 10)]
     pub iters: usize,
     /// Label-map coding: `fast` (the receiver decodes fastest) or `strong`
-    /// (about 14 % smaller for FO-DPSO, about 27x slower to decode).
+    /// (smaller, far slower to decode; see docs/tuning.md).
     #[arg(long, default_value = "fast")]
     pub mode: labels::Mode,
     #[command(flatten)]

@@ -47,10 +47,9 @@ pub struct MatcherArgs {
     pub median: Option<usize>,
     /// Colour-weighted median guided by the left view, radius in pixels; it
     /// runs before and after the fill and replaces the plain median unless
-    /// --median is given too. Default 8 for wta (bad > 1 px 3.63 / 0.90 /
-    /// 15.47 / 6.69 % on Tsukuba / Venus / Teddy / Cones; `0 --median 5`
-    /// takes about 0.8x the time at 5.89 / 3.73 / 18.44 / 10.09 %), 2 for
-    /// planes (once, every pixel, reach 250), off (0) for lg and sgm.
+    /// --median is given too. Default 8 for wta (`0 --median 5` is a little
+    /// faster and less accurate; see docs/tuning.md), 2 for planes (once,
+    /// every pixel, reach 250), off (0) for lg and sgm.
     #[arg(long, value_name = "RADIUS")]
     pub weighted_median: Option<usize>,
     /// Colour reach of the weighted median: the summed RGB difference at
@@ -82,7 +81,7 @@ pub struct MatcherArgs {
     #[arg(long)]
     pub p2: Option<u16>,
     /// SGM paths: 4 or 8 (default 8; 4 for the initial map of planes,
-    /// which measured better there).
+    /// which scores better there).
     #[arg(long)]
     pub paths: Option<u8>,
     /// Line-growing threshold on the averaged error energy.
@@ -160,8 +159,7 @@ pub struct MatcherArgs {
     /// grey views first, with a two-tap average along rows. `auto` does so
     /// when the left view's second differences alternate in sign along
     /// rows far more often than along columns (of the 20 shared
-    /// Middlebury scenes, only Tsukuba: SGM 3.05 → 2.68 %, planes 4.67 →
-    /// 2.70 % bad > 1 px).
+    /// Middlebury scenes, only Tsukuba; see docs/tuning.md).
     #[arg(long, default_value = "auto", value_parser = parse_ripple)]
     pub ripple: RippleFilter,
 }
