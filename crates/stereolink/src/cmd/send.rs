@@ -24,16 +24,16 @@ use stereolink_link::transport::Transport;
 use stereolink_stereo::depth::{LevelSpec, Roi};
 
 use stereolink_capture::StereoCapture;
+use stereolink_pipeline::control::{Control, Reply};
+use stereolink_pipeline::sender::{prepare, Applied, SenderConfig};
+use stereolink_pipeline::uplink::{Kind, Outcome, Uplink};
+use stereolink_pipeline::watch::{Pair, Watcher};
 
 use super::calib::CalibArgs;
 use super::camera::CameraArgs;
 use super::keygen::KeyArgs;
 use super::matching::MatcherArgs;
 use super::segment::SegmentArgs;
-use crate::pipeline::control::{Control, Reply};
-use crate::pipeline::sender::{prepare, Applied, SenderConfig};
-use crate::pipeline::uplink::{Kind, Outcome, Uplink};
-use crate::pipeline::watch::{Pair, Watcher};
 
 /// Arguments of `stereolink send`.
 #[derive(Debug, clap::Args)]

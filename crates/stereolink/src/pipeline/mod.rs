@@ -1,24 +1,6 @@
-//! The pipelines that join the crates, as library functions the CLI and the
-//! tests call: the sender ([`sender`]: segment, encode, match, depth report)
-//! and the board's receiver ([`receiver`]: decode, rebuild, match, render,
-//! drive the axis), the whole system in one process ([`demo`]), the pairs
-//! arriving in a camera folder ([`watch`]), and the calibration of a raw
-//! pair ([`sensor`]: rectification maps and depth from `P1`/`P2`), the
-//! sender's link in its own thread ([`uplink`]: reports ahead of frames), and
-//! the segments of the plane matcher ([`planes`]) and its plane table over
-//! the radio ([`planetable`]), the commands a station takes and its
-//! replies ([`control`]); off the board, the MQTT gateway for many
-//! stations (`gateway`, `stereolink gateway`).
-
-pub mod control;
-pub mod demo;
-pub mod planes;
-pub mod planetable;
-pub mod receiver;
-pub mod sender;
-pub mod sensor;
-pub mod uplink;
-pub mod watch;
+//! Off the board, the MQTT gateway for many stations (`gateway`,
+//! `stereolink gateway`); the pipelines themselves are the
+//! `stereolink-pipeline` crate.
 
 // The MQTT gateway never goes into the board's build (no rumqttc on ARM).
 #[cfg(all(feature = "gateway", not(target_arch = "arm")))]

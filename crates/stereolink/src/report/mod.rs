@@ -25,11 +25,10 @@ use serde::Serialize;
 use stereolink_codec::{container, Message, SegmentationKind, StereoFrame, View};
 use stereolink_display::{anaglyph, Anaglyph};
 use stereolink_image::{colormap, io, metrics, DisparityMap, LabelMap, RgbImage, Scene};
+use stereolink_pipeline::planes::{left_segments, Segments};
 use stereolink_segment::{segment, Method};
 use stereolink_stereo::depth::{depth_levels, LevelSpec};
 use stereolink_stereo::{compute_disparity, Algorithm, MatchSpec, Matcher};
-
-use crate::pipeline::planes::{left_segments, Segments};
 
 /// Classes per method: k = 3 for k-means (the paper's), 3 levels per channel for thresholding.
 pub const LEVELS: usize = 3;

@@ -15,10 +15,9 @@ use stereolink_image::synth::SynthSpec;
 use stereolink_link::endpoint::{Endpoint, Lane, LinkError};
 use stereolink_link::secure::{Keys, SecureConfig};
 use stereolink_link::spec::{self, LinkSpec};
+use stereolink_pipeline::control::{unix_us, Command, Control, Reply};
+use stereolink_pipeline::receiver::synthetic_frame;
 use stereolink_robot::Axis;
-
-use crate::pipeline::control::{unix_us, Command, Control, Reply};
-use crate::pipeline::receiver::synthetic_frame;
 
 /// How a simulated station behaves.
 #[derive(Clone, Debug)]

@@ -20,9 +20,8 @@ use stereolink_link::arq::Config;
 use stereolink_link::endpoint::{Endpoint, Lane, LinkError};
 use stereolink_link::secure::{Keys, SecureConfig};
 use stereolink_link::spec::{self, LinkSpec};
-
-use crate::pipeline::control::{unix_us, Command, Control};
-use crate::pipeline::receiver::{BoardReceiver, Event};
+use stereolink_pipeline::control::{unix_us, Command, Control};
+use stereolink_pipeline::receiver::{BoardReceiver, Event};
 
 /// A station as the gateway knows it.
 #[derive(Clone, Debug)]
