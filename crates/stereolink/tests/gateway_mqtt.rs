@@ -19,7 +19,7 @@ use std::time::{Duration, Instant};
 
 use rumqttc::{Client, Event, MqttOptions, Packet, QoS};
 use serde_json::Value;
-use stereolink::pipeline::gateway::sim::{SimConfig, SimStation};
+use stereolink_gateway::sim::{SimConfig, SimStation};
 use stereolink_link::secure::{keyfile, Keys};
 use stereolink_pipeline::control::{unix_us, Command as StationCommand};
 
