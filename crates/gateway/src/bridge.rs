@@ -6,7 +6,7 @@ use std::time::{Duration, Instant};
 
 use rumqttc::{LastWill, MqttOptions, QoS};
 use serde_json::{json, Value};
-use stereolink_pipeline::control::unix_us;
+use stereolink_codec::control::unix_us;
 
 use crate::command;
 use crate::mqtt::{Outbox, Pub};

@@ -9,7 +9,7 @@
 //! the stations' events into publishes, tracks availability, and hands
 //! commands from `set` topics ([`command`]) to the stations. Commands reach
 //! a station only over its own link, sealed when keys are given, as a
-//! versioned Control message ([`stereolink_pipeline::control`]).
+//! versioned Control message ([`stereolink_codec::control`]).
 //!
 //! [`sim`] is a simulated station (synthetic frames and reports, an axis
 //! that obeys commands) for the tests and the measurements.

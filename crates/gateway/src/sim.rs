@@ -10,12 +10,12 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use stereolink_codec::container;
+use stereolink_codec::control::{unix_us, Command, Control, Reply};
 use stereolink_codec::{DepthReport, Message, ReportLevel};
 use stereolink_image::synth::SynthSpec;
 use stereolink_link::endpoint::{Endpoint, Lane, LinkError};
 use stereolink_link::secure::{Keys, SecureConfig};
 use stereolink_link::spec::{self, LinkSpec};
-use stereolink_pipeline::control::{unix_us, Command, Control, Reply};
 use stereolink_pipeline::receiver::synthetic_frame;
 use stereolink_robot::Axis;
 

@@ -11,6 +11,7 @@ use std::time::{Duration, Instant};
 
 use serde_json::{json, Value};
 use stereolink_codec::container::{self, Body};
+use stereolink_codec::control::{unix_us, Command, Control};
 use stereolink_codec::Limits;
 use stereolink_display::{anaglyph_into, Anaglyph};
 use stereolink_image::colormap::colorize;
@@ -20,7 +21,6 @@ use stereolink_link::arq::Config;
 use stereolink_link::endpoint::{Endpoint, Lane, LinkError};
 use stereolink_link::secure::{Keys, SecureConfig};
 use stereolink_link::spec::{self, LinkSpec};
-use stereolink_pipeline::control::{unix_us, Command, Control};
 use stereolink_pipeline::receiver::{BoardReceiver, Event};
 
 /// A station as the gateway knows it.

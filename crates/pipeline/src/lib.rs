@@ -6,8 +6,9 @@
 //! calibration of a raw pair ([`sensor`]: rectification maps and depth from
 //! `P1`/`P2`), the sender's link in its own thread ([`uplink`]: reports
 //! ahead of frames), and the segments of the plane matcher ([`planes`]) and
-//! its plane table over the radio ([`planetable`]), the commands a station
-//! takes and its replies ([`control`]).
+//! its plane table over the radio ([`planetable`]). The sender and the board
+//! obey the commands that come over the link (the Control message,
+//! `stereolink_codec::control`) and reply to them.
 //!
 //! Why a crate of its own: the binary only parses arguments and prints, and
 //! the receiver here is on the ARM926 board's build path, so this crate
@@ -18,7 +19,6 @@
 
 #![deny(missing_docs)]
 
-pub mod control;
 pub mod demo;
 pub mod planes;
 pub mod planetable;

@@ -15,6 +15,7 @@
 use std::time::Instant;
 
 use anyhow::Context;
+use stereolink_codec::control::Command;
 use stereolink_codec::{
     container, labels,
     planetable::{PlaneTable, TableCoding},
@@ -27,7 +28,6 @@ use stereolink_stereo::depth::{depth_levels, depth_of, metric, region_distance, 
 use stereolink_stereo::planes::match_planes;
 use stereolink_stereo::{Algorithm, MatchSpec, Matcher};
 
-use crate::control::Command;
 use crate::planetable;
 
 /// What the sender does with a pair.
@@ -224,7 +224,7 @@ pub fn prepare(
         right: View::Indexed(sr.image),
         planes,
     };
-    let timestamp = crate::control::unix_us();
+    let timestamp = stereolink_codec::control::unix_us();
     let frame_bytes =
         container::encode(&Message::StereoFrame(Box::new(frame)), frame_id, timestamp);
     let enc_ms = t.elapsed().as_secs_f64() * 1e3;

@@ -7,9 +7,9 @@
 //! reports go over that one instead.
 //!
 //! The thread also takes what the peer sends, busy or idle: Control
-//! messages (commands from a gateway, [`crate::control`]) come back to the
-//! send loop through [`Uplink::incoming`], and its replies go out on the
-//! urgent lane, as the reports do. With keys, only what the paired peer
+//! messages (commands from a gateway, [`stereolink_codec::control`]) come
+//! back to the send loop through [`Uplink::incoming`], and its replies go
+//! out on the urgent lane, as the reports do. With keys, only what the paired peer
 //! sealed gets this far (the secure layer refuses and counts the rest).
 
 use std::collections::VecDeque;
@@ -18,10 +18,9 @@ use std::thread::JoinHandle;
 use std::time::Duration;
 
 use anyhow::Context;
+use stereolink_codec::control::{Control, ControlError, Reply};
 use stereolink_link::endpoint::{Endpoint, Lane, LinkError, SendStats};
 use stereolink_link::transport::LinkStats;
-
-use crate::control::{Control, ControlError, Reply};
 
 /// What a message carries.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]

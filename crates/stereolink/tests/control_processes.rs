@@ -16,12 +16,12 @@ use std::time::{Duration, Instant};
 
 use common::{free_port, spawn, synth};
 use stereolink_codec::container::{self, Body};
+use stereolink_codec::control::{Command, Control, Reply};
 use stereolink_codec::{DepthReport, Limits, Message, ReportLevel};
 use stereolink_link::arq::Config;
 use stereolink_link::endpoint::{Endpoint, LinkError};
 use stereolink_link::secure::{keyfile, Keys, SecureConfig};
 use stereolink_link::spec::{self, LinkSpec};
-use stereolink_pipeline::control::{Command, Control, Reply};
 
 /// How long the peer waits for the station to acknowledge a message.
 const PATIENCE: Duration = Duration::from_secs(20);

@@ -19,9 +19,9 @@ use std::time::{Duration, Instant};
 
 use rumqttc::{Client, Event, MqttOptions, Packet, QoS};
 use serde_json::Value;
+use stereolink_codec::control::{unix_us, Command as StationCommand};
 use stereolink_gateway::sim::{SimConfig, SimStation};
 use stereolink_link::secure::{keyfile, Keys};
-use stereolink_pipeline::control::{unix_us, Command as StationCommand};
 
 const MOSQUITTO: &str = "/usr/sbin/mosquitto";
 const PASSWORDS: [(&str, &str); 3] = [

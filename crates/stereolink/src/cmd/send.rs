@@ -24,7 +24,7 @@ use stereolink_link::transport::Transport;
 use stereolink_stereo::depth::{LevelSpec, Roi};
 
 use stereolink_capture::StereoCapture;
-use stereolink_pipeline::control::{Control, Reply};
+use stereolink_codec::control::{Control, Reply};
 use stereolink_pipeline::sender::{prepare, Applied, SenderConfig};
 use stereolink_pipeline::uplink::{Kind, Outcome, Uplink};
 use stereolink_pipeline::watch::{Pair, Watcher};

@@ -18,8 +18,8 @@
 
 use std::fmt;
 
-use stereolink_codec::container::{self, Body};
-use stereolink_codec::{Limits, Message};
+use crate::container::{self, Body};
+use crate::{Limits, Message};
 
 /// The version of the Control body this build writes and reads.
 pub const CONTROL_VERSION: u8 = 1;
@@ -43,7 +43,7 @@ pub mod op {
 pub const MAX_REASON: usize = 120;
 
 /// A command for a station.
-#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
+#[derive(Clone, Debug, PartialEq, Eq)]
 pub enum Command {
     /// Stop the axis now.
     AxisStop,
@@ -308,7 +308,7 @@ mod tests {
             assert!(matches!(e, ControlError::Argument { .. }), "{bad:?}: {e}");
         }
         let report = container::encode(
-            &Message::DepthReport(stereolink_codec::DepthReport {
+            &Message::DepthReport(crate::DepthReport {
                 target_distance_m: 1.0,
                 target_region: [0; 4],
                 levels: vec![],
