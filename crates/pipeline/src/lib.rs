@@ -5,7 +5,8 @@
 //! ([`demo`]), the pairs arriving in a camera folder ([`watch`]), and the
 //! calibration of a raw pair ([`sensor`]: rectification maps and depth from
 //! `P1`/`P2`), the sender's link in its own thread ([`uplink`]: reports
-//! ahead of frames), and the segments of the plane matcher ([`planes`]) and
+//! ahead of frames) and its pair loop on that link ([`live`]: files, a
+//! camera folder or two cameras), and the segments of the plane matcher ([`planes`]) and
 //! its plane table over the radio ([`planetable`]). The sender and the board
 //! obey the commands that come over the link (the Control message,
 //! `stereolink_codec::control`) and reply to them.
@@ -15,11 +16,12 @@
 //! builds for the board (no gateway, no MQTT: that is `stereolink-gateway`).
 //!
 //! It depends on the crates it joins: image, segment, stereo, codec, link
-//! (with `std`), display, robot and calib; nothing above it.
+//! (with `std`), display, robot, calib and capture; nothing above it.
 
 #![deny(missing_docs)]
 
 pub mod demo;
+pub mod live;
 pub mod planes;
 pub mod planetable;
 pub mod receiver;
