@@ -15,6 +15,8 @@
 //!   timestamp, body length, CRC-32). The byte layout is in
 //!   `docs/wire-format.md`. A frame may carry a [`planetable`]: the
 //!   sender's disparity as planes over the left view's segments.
+//! * [`control`] writes and reads the Control body: the commands a station
+//!   takes and its replies.
 //!
 //! Decoding any byte string gives either the exact message or a
 //! [`CodecError`]: sizes declared in the data are checked against [`Limits`]
@@ -36,6 +38,7 @@
 
 pub mod channels;
 pub mod container;
+pub mod control;
 pub mod labels;
 pub mod mixer;
 pub mod planetable;

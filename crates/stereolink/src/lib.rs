@@ -1,9 +1,10 @@
-//! The stereolink system: the CLI commands and the pipelines that join the
-//! crates (segment → encode → link → decode → match → display → axis).
+//! The stereolink system: the CLI commands and the report; the pipelines
+//! that join the crates (segment → encode → link → decode → match → display
+//! → axis) are the `stereolink-pipeline` crate, the MQTT gateway the
+//! `stereolink-gateway` crate.
 //!
 //! The binary is thin: every command is a function in [`cmd`] that a test can
-//! call, and every pipeline lives in the library.
+//! call, and every pipeline lives in a library.
 
 pub mod cmd;
-pub mod pipeline;
 pub mod report;

@@ -15,8 +15,8 @@ use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use common::{free_port, spawn, synth};
-use stereolink::pipeline::control::{Command, Control, Reply};
 use stereolink_codec::container::{self, Body};
+use stereolink_codec::control::{Command, Control, Reply};
 use stereolink_codec::{DepthReport, Limits, Message, ReportLevel};
 use stereolink_link::arq::Config;
 use stereolink_link::endpoint::{Endpoint, LinkError};

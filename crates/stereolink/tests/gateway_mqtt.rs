@@ -19,8 +19,8 @@ use std::time::{Duration, Instant};
 
 use rumqttc::{Client, Event, MqttOptions, Packet, QoS};
 use serde_json::Value;
-use stereolink::pipeline::control::{unix_us, Command as StationCommand};
-use stereolink::pipeline::gateway::sim::{SimConfig, SimStation};
+use stereolink_codec::control::{unix_us, Command as StationCommand};
+use stereolink_gateway::sim::{SimConfig, SimStation};
 use stereolink_link::secure::{keyfile, Keys};
 
 const MOSQUITTO: &str = "/usr/sbin/mosquitto";

@@ -7,8 +7,7 @@ use std::path::{Path, PathBuf};
 
 use anyhow::Context;
 use stereolink_image::Calibration;
-
-use crate::pipeline::sensor::Sensor;
+use stereolink_pipeline::sensor::Sensor;
 
 /// Where focal length, baseline and `doffs` come from. A file gives all
 /// three; `--focal-px` and `--baseline-m` override it.

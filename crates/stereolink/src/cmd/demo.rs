@@ -9,14 +9,14 @@ use stereolink_image::synth::{synthesize, SynthSpec};
 use stereolink_image::Scene;
 use stereolink_link::secure::{keyfile, public_key, Keys};
 use stereolink_link::sim::SimConfig;
+use stereolink_pipeline::demo::{run as run_demo, DemoConfig};
+use stereolink_pipeline::sender::SenderConfig;
+use stereolink_pipeline::sensor::Sensor;
 use stereolink_stereo::depth::LevelSpec;
 
 use super::calib::metres_per_unit;
 use super::matching::MatcherArgs;
 use super::segment::SegmentArgs;
-use crate::pipeline::demo::{run as run_demo, DemoConfig};
-use crate::pipeline::sender::SenderConfig;
-use crate::pipeline::sensor::Sensor;
 
 /// Arguments of `stereolink demo`.
 #[derive(Debug, clap::Args)]

@@ -6,10 +6,10 @@ use std::time::Instant;
 use anyhow::Context;
 use serde::Serialize;
 use stereolink_image::{metrics::bad_pixel_rate, Scene};
+use stereolink_pipeline::planes::disparity;
 use stereolink_stereo::{Algorithm, Matcher};
 
 use super::matching::MatcherArgs;
-use crate::pipeline::planes::disparity;
 
 /// Arguments of `stereolink eval`.
 #[derive(Debug, clap::Args)]

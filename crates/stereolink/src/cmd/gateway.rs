@@ -6,10 +6,9 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use anyhow::Context;
+use stereolink_gateway::station::StationConfig;
+use stereolink_gateway::{self as gateway, Broker, GatewayConfig};
 use stereolink_link::secure::{keyfile, Keys};
-
-use crate::pipeline::gateway::station::StationConfig;
-use crate::pipeline::gateway::{self, Broker, GatewayConfig};
 
 /// Arguments of `stereolink gateway`.
 #[derive(Debug, clap::Args)]

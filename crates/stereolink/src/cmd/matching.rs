@@ -6,14 +6,14 @@ use std::time::Instant;
 use anyhow::Context;
 use serde::Serialize;
 use stereolink_image::{colormap, io, pfm, Scene};
+use stereolink_pipeline::planes::{disparity, Segments};
+use stereolink_pipeline::sender::default_roi;
 use stereolink_stereo::depth::region_distance;
 use stereolink_stereo::refine::{HoleFill, WeightedMedian};
 use stereolink_stereo::ripple::RippleFilter;
 use stereolink_stereo::{Algorithm, MatchSpec, Matcher, Refinement};
 
 use super::calib::CalibArgs;
-use crate::pipeline::planes::{disparity, Segments};
-use crate::pipeline::sender::default_roi;
 
 /// Matcher options shared by `match`, `eval` and `bench match`.
 #[derive(Debug, Clone, clap::Args)]

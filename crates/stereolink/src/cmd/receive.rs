@@ -9,11 +9,11 @@ use stereolink_display::open_sink;
 use stereolink_link::endpoint::{Endpoint, LinkError};
 use stereolink_link::secure::{Rejections, SecureConfig};
 use stereolink_link::spec;
+use stereolink_pipeline::receiver::{BoardReceiver, DisparitySource, Event};
 use stereolink_robot::open_axis;
 use stereolink_robot::policy::MotionPolicy;
 
 use super::keygen::KeyArgs;
-use crate::pipeline::receiver::{BoardReceiver, DisparitySource, Event};
 
 /// The longest wait for a message before the screen looks at the axis.
 const POLL: Duration = Duration::from_millis(200);

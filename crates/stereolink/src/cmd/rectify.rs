@@ -10,9 +10,9 @@ use stereolink_calib::files::{self, Side};
 use stereolink_calib::preview::side_by_side_with_guides;
 use stereolink_calib::StereoRectifier;
 use stereolink_image::{io, Plane};
+use stereolink_pipeline::sensor::{depth_of_rectified, read_stereo_yaml};
 
 use super::calib::metres_per_unit;
-use crate::pipeline::sensor::{depth_of_rectified, read_stereo_yaml};
 
 /// Guide-line spacing of the preview, in rows.
 const GUIDE_ROWS: usize = 32;

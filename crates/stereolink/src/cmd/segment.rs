@@ -6,11 +6,10 @@ use std::time::Instant;
 use anyhow::Context;
 use serde::Serialize;
 use stereolink_image::{io, metrics::psnr_rgb, RgbImage, Scene};
+use stereolink_pipeline::sender::segment_pair;
 use stereolink_segment::carry::default_margin;
 use stereolink_segment::meanshift::{ColourSpace, Kernel, MeanShiftSpec};
 use stereolink_segment::{segment, Method, Segmentation};
-
-use crate::pipeline::sender::segment_pair;
 
 /// Segmentation options shared by the commands that segment.
 #[derive(Debug, Clone, clap::Args)]

@@ -1,39 +1,31 @@
 //! `stereolink send`: the sender on a real link, for one pair (sent
 //! `--repeat` times), for every pair a camera writes into a folder
 //! (`--watch`), or live from two cameras (`--camera-left`/`--source-left`).
-//! All three feed one loop ([`Pairs`]): take a pair, prepare it, send it.
-//! Between pairs the loop obeys the commands that came over the link
-//! ([`Sender::obey`]): new levels or method from the next pair, the last
-//! pair again at once on a frame request; each is answered on the link.
+//! The arguments open the link and choose the pairs; the pair loop is the
+//! pipeline's ([`stereolink_pipeline::live`]); this prints each frame sent.
 
-use std::collections::{BTreeMap, VecDeque};
 use std::io::IsTerminal;
 use std::path::PathBuf;
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use anyhow::Context;
-use serde::Serialize;
-use stereolink_calib::StereoRectifier;
 use stereolink_codec::planetable::TableCoding;
-use stereolink_image::{io, Calibration, RgbImage};
+use stereolink_image::io;
 use stereolink_link::arq::Config;
-use stereolink_link::endpoint::{Endpoint, Progress, ProgressReport, SendStats};
+use stereolink_link::endpoint::{Endpoint, Progress, ProgressReport};
 use stereolink_link::secure::SecureConfig;
 use stereolink_link::spec;
 use stereolink_link::transport::Transport;
+use stereolink_pipeline::live::{Pairs, SendLoop, Sent};
+use stereolink_pipeline::sender::SenderConfig;
+use stereolink_pipeline::uplink::Uplink;
 use stereolink_stereo::depth::{LevelSpec, Roi};
-
-use stereolink_capture::StereoCapture;
 
 use super::calib::CalibArgs;
 use super::camera::CameraArgs;
 use super::keygen::KeyArgs;
 use super::matching::MatcherArgs;
 use super::segment::SegmentArgs;
-use crate::pipeline::control::{Control, Reply};
-use crate::pipeline::sender::{prepare, Applied, SenderConfig};
-use crate::pipeline::uplink::{Kind, Outcome, Uplink};
-use crate::pipeline::watch::{Pair, Watcher};
 
 /// Arguments of `stereolink send`.
 #[derive(Debug, clap::Args)]
@@ -161,30 +153,6 @@ impl Args {
     }
 }
 
-#[derive(Serialize)]
-struct Sent {
-    frame_id: u32,
-    frame_bytes: usize,
-    report_bytes: usize,
-    distance_m: f32,
-    /// From handing the frame to the link until its last fragment was acknowledged.
-    seconds: f64,
-    /// From handing the depth report to the link until it was acknowledged.
-    report_seconds: f64,
-    goodput_bps: f64,
-    retransmissions: u64,
-    /// Pairs the cameras delivered while the one before was prepared and sent.
-    skipped: u64,
-    wait_ms: f64,
-    rectify_ms: f64,
-    segment_ms: f64,
-    match_ms: f64,
-    encode_ms: f64,
-    send_ms: f64,
-    /// What the link measured so far (damaged frames, the radio's statuses).
-    link: String,
-}
-
 /// Prepares and sends the pair, or each pair of the watched folder.
 pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     let spec = super::link_spec(&args.link)?;
@@ -241,63 +209,31 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         };
         Ok((frames, reports))
     });
-    let mut sender = Sender {
+    let sender = SendLoop::new(
         uplink,
-        calib: sensor.depth,
-        rectifier: sensor.rectifier()?,
-        rectified: Default::default(),
+        sensor.depth,
+        sensor.rectifier()?,
         cfg,
-        save: args.save.clone(),
-        json: out.json,
-        waiting: BTreeMap::new(),
-        sent: Vec::new(),
-        last: None,
-    };
-    let mut pairs = match (&args.watch, &args.left, &args.right) {
-        (Some(dir), _, _) => Pairs::Folder {
-            dir: dir.clone(),
-            poll: Duration::from_millis(args.poll_ms),
-            watcher: Watcher::new(),
-            pending: VecDeque::new(),
-        },
-        (None, Some(left), Some(right)) => Pairs::Files {
-            left: io::read_rgb(left)?,
-            right: io::read_rgb(right)?,
-            remaining: args.repeat,
-        },
-        _ if args.camera.given() => Pairs::Cameras {
-            timeout: args.camera.frame_timeout()?,
-            capture: Box::new(args.camera.open()?),
-            skipped: 0,
-        },
+        args.save.clone(),
+    );
+    let pairs = match (&args.watch, &args.left, &args.right) {
+        (Some(dir), _, _) => Pairs::folder(dir.clone(), Duration::from_millis(args.poll_ms)),
+        (None, Some(left), Some(right)) => {
+            Pairs::files(io::read_rgb(left)?, io::read_rgb(right)?, args.repeat)
+        }
+        _ if args.camera.given() => {
+            Pairs::cameras(args.camera.frame_timeout()?, args.camera.open()?)
+        }
         _ => anyhow::bail!("give --left and --right, --watch DIR, or the cameras"),
     };
-    let mut frame_id = 0;
-    while args.frames.is_none_or(|n| frame_id < n) {
-        let next = match (sender.obey()?, sender.last.take()) {
-            // The last pair again, now, with the current settings.
-            (Applied::FrameNow, Some(last)) if !pairs.live() => Next {
-                wait_ms: 0.0,
-                skipped: 0,
-                ..last
-            },
-            (_, last) => {
-                sender.last = last;
-                match pairs.next()? {
-                    Got::Pair(next) => next,
-                    Got::Wait => continue,
-                    Got::End => break,
-                }
-            }
-        };
-        frame_id += 1;
-        sender.send(&next, frame_id)?;
-        sender.last = Some(next);
-    }
-    let rest = sender.uplink.finish()?;
-    sender.collect(rest)?;
+    let json = out.json;
+    let sent = sender.run(pairs, args.frames, |s| {
+        if !json {
+            print(s)
+        }
+    })?;
     if out.json {
-        out.emit(&sender.sent, String::new)?;
+        out.emit(&sent, String::new)?;
     }
     Ok(())
 }
@@ -340,324 +276,22 @@ fn progress_bar() -> ProgressReport {
     })
 }
 
-/// The link thread and what every frame is prepared with.
-struct Sender {
-    uplink: Uplink,
-    calib: Calibration,
-    /// The maps of a raw pair (`--calib stereo.yml`).
-    rectifier: Option<StereoRectifier>,
-    /// The rectified views, reused from pair to pair.
-    rectified: (RgbImage, RgbImage),
-    cfg: SenderConfig,
-    save: Option<PathBuf>,
-    json: bool,
-    /// Frames handed to the link whose frame or report has not ended yet.
-    waiting: BTreeMap<u32, Waiting>,
-    sent: Vec<Sent>,
-    /// The last pair sent, for a frame request.
-    last: Option<Next>,
-}
-
-/// A frame on its way: what was measured preparing it, and how its two
-/// messages ended so far.
-struct Waiting {
-    sent: Sent,
-    frame: Option<SendStats>,
-    report: Option<SendStats>,
-}
-
-/// A pair to send, and what getting it cost.
-struct Next {
-    left: RgbImage,
-    right: RgbImage,
-    /// Time spent waiting for the pair (reading it, or for the cameras).
-    wait_ms: f64,
-    /// Pairs skipped since the previous one (live cameras only).
-    skipped: u64,
-}
-
-/// What [`Pairs::next`] found.
-enum Got {
-    Pair(Next),
-    /// Nothing yet (a folder with no new pair): ask again.
-    Wait,
-    /// No more pairs.
-    End,
-}
-
-/// Where the pairs come from; the send loop is the same for all.
-enum Pairs {
-    /// One pair of files, sent `remaining` more times.
-    Files {
-        left: RgbImage,
-        right: RgbImage,
-        remaining: u32,
-    },
-    /// Each new pair a capture program writes into `dir`, read every `poll`.
-    Folder {
-        dir: PathBuf,
-        poll: Duration,
-        watcher: Watcher,
-        pending: VecDeque<Pair>,
-    },
-    /// Two live cameras; `skipped` is their count at the last pair.
-    Cameras {
-        capture: Box<StereoCapture>,
-        timeout: Duration,
-        skipped: u64,
-    },
-}
-
-impl Pairs {
-    /// Whether the pairs come live from cameras (the next one is always
-    /// fresh, and comes at once).
-    fn live(&self) -> bool {
-        matches!(self, Pairs::Cameras { .. })
-    }
-
-    /// The next pair, [`Got::Wait`] after one poll interval of an empty
-    /// folder (a folder is waited on forever), or [`Got::End`]. A camera
-    /// that stops is an error.
-    fn next(&mut self) -> anyhow::Result<Got> {
-        let start = Instant::now();
-        let wait_ms = || start.elapsed().as_secs_f64() * 1e3;
-        match self {
-            Pairs::Files {
-                left,
-                right,
-                remaining,
-            } => {
-                if *remaining == 0 {
-                    return Ok(Got::End);
-                }
-                *remaining -= 1;
-                Ok(Got::Pair(Next {
-                    left: left.clone(),
-                    right: right.clone(),
-                    wait_ms: wait_ms(),
-                    skipped: 0,
-                }))
-            }
-            Pairs::Folder {
-                dir,
-                poll,
-                watcher,
-                pending,
-            } => loop {
-                let Some(pair) = pending.pop_front() else {
-                    pending.extend(watcher.pending(dir).with_context(|| {
-                        format!("cannot read the camera folder {}", dir.display())
-                    })?);
-                    if pending.is_empty() {
-                        std::thread::sleep(*poll);
-                        return Ok(Got::Wait);
-                    }
-                    continue;
-                };
-                if let Some((left, right)) = read_pair(watcher, &pair)? {
-                    return Ok(Got::Pair(Next {
-                        left,
-                        right,
-                        wait_ms: wait_ms(),
-                        skipped: 0,
-                    }));
-                }
-            },
-            Pairs::Cameras {
-                capture,
-                timeout,
-                skipped,
-            } => {
-                let pair = capture.next_pair(*timeout)?;
-                let new = pair.stats.skipped - *skipped;
-                *skipped = pair.stats.skipped;
-                Ok(Got::Pair(Next {
-                    left: pair.left,
-                    right: pair.right,
-                    wait_ms: wait_ms(),
-                    skipped: new,
-                }))
-            }
-        }
-    }
-}
-
-/// Takes a folder's pair and reads it; a pair that cannot be read (a file
-/// half written, views of different sizes) is reported and skipped until
-/// its files change.
-fn read_pair(watcher: &mut Watcher, pair: &Pair) -> anyhow::Result<Option<(RgbImage, RgbImage)>> {
-    watcher
-        .take(pair)
-        .with_context(|| format!("cannot read {}", pair.left.display()))?;
-    let views = io::read_rgb(&pair.left).and_then(|l| Ok((l, io::read_rgb(&pair.right)?)));
-    match views {
-        Ok(views) if views.0.dims() == views.1.dims() => Ok(Some(views)),
-        Ok(_) => {
-            eprintln!("skipping {}: the views differ in size", pair.left.display());
-            Ok(None)
-        }
-        Err(e) => {
-            eprintln!(
-                "skipping {}: {:#}",
-                pair.left.display(),
-                anyhow::Error::from(e)
-            );
-            Ok(None)
-        }
-    }
-}
-
-impl Sender {
-    /// Prepares one pair (rectified first with `--calib stereo.yml`) and
-    /// sends its frame and depth report.
-    fn send(&mut self, next: &Next, frame_id: u32) -> anyhow::Result<()> {
-        let start = Instant::now();
-        let (left, right) = match &self.rectifier {
-            Some(r) => {
-                let (a, b) = &mut self.rectified;
-                r.rectify_into(&next.left, &next.right, a, b)
-                    .with_context(|| format!("cannot rectify pair {frame_id}"))?;
-                (&self.rectified.0, &self.rectified.1)
-            }
-            None => (&next.left, &next.right),
-        };
-        let rectify_ms = start.elapsed().as_secs_f64() * 1e3;
-        let p = prepare(left, right, &self.calib, &self.cfg, frame_id)?;
-        if let Some(dir) = &self.save {
-            std::fs::create_dir_all(dir)
-                .with_context(|| format!("cannot create {}", dir.display()))?;
-            io::write_rgb(dir.join("sent-left.png"), &p.sent.0)?;
-            io::write_rgb(dir.join("sent-right.png"), &p.sent.1)?;
-            stereolink_image::pfm::write(dir.join("sent-disparity.pfm"), &p.disparity)?;
-        }
-        let (frame_bytes, report_bytes) = (p.frame_bytes.len(), p.report_bytes.len());
-        // The report first: it goes ahead of the frame still in flight.
-        self.uplink.report(frame_id, p.report_bytes)?;
-        self.uplink.frame(frame_id, p.frame_bytes)?;
-        let (segment_ms, encode_ms, match_ms) = p.times_ms;
-        let sent = Sent {
-            frame_id,
-            frame_bytes,
-            report_bytes,
-            distance_m: p.report.target_distance_m,
-            seconds: 0.0,
-            report_seconds: 0.0,
-            goodput_bps: 0.0,
-            retransmissions: 0,
-            skipped: next.skipped,
-            wait_ms: next.wait_ms,
-            rectify_ms,
-            segment_ms,
-            match_ms,
-            encode_ms,
-            send_ms: 0.0,
-            link: String::new(),
-        };
-        let waiting = Waiting {
-            sent,
-            frame: None,
-            report: None,
-        };
-        self.waiting.insert(frame_id, waiting);
-        let outcomes = self.uplink.outcomes();
-        self.collect(outcomes)
-    }
-
-    /// Obeys the commands that came over the link since the last call and
-    /// answers each on the link; says whether a frame is wanted now (and
-    /// there is a pair to send again).
-    fn obey(&mut self) -> anyhow::Result<Applied> {
-        let mut wanted = Applied::FromNextPair;
-        for incoming in self.uplink.incoming() {
-            let (id, command) = match incoming {
-                Ok(Control::Command { id, command }) => (id, command),
-                Ok(Control::Reply(r)) => {
-                    eprintln!("ignored a reply from the peer (to command {})", r.id);
-                    continue;
-                }
-                Err(e) => {
-                    eprintln!("refused a message from the peer: {e}");
-                    continue;
-                }
-            };
-            let result = match self.cfg.apply(&command) {
-                Ok(Applied::FrameNow) if self.last.is_none() => {
-                    Err("no pair has been sent yet: the first goes when it comes".into())
-                }
-                Ok(applied) => {
-                    if applied == Applied::FrameNow {
-                        wanted = applied;
-                    }
-                    Ok(())
-                }
-                Err(e) => Err(e),
-            };
-            match &result {
-                Ok(()) => eprintln!("command {id} ({}): done", command.name()),
-                Err(why) => eprintln!("command {id} ({}): refused: {why}", command.name()),
-            }
-            self.uplink.reply(&Reply { id, result })?;
-        }
-        Ok(wanted)
-    }
-
-    /// Takes the ends of sends: a failure stops the sender, naming the
-    /// message; a frame whose two messages both arrived is printed.
-    fn collect(&mut self, outcomes: Vec<Outcome>) -> anyhow::Result<()> {
-        for o in outcomes {
-            let what = match o.kind {
-                Kind::Frame => format!("sending frame {}", o.frame_id),
-                Kind::Report => format!("sending the depth report of frame {}", o.frame_id),
-                Kind::Reply => {
-                    if let Err(e) = o.result {
-                        eprintln!("the reply to command {} was not delivered: {e}", o.frame_id);
-                    }
-                    continue;
-                }
-            };
-            let stats = o.result.context(what)?;
-            let Some(w) = self.waiting.get_mut(&o.frame_id) else {
-                continue;
-            };
-            match o.kind {
-                Kind::Frame => w.frame = Some(stats),
-                Kind::Report => w.report = Some(stats),
-                Kind::Reply => {} // no frame waits for a reply (taken above)
-            }
-            w.sent.link = o.link.to_string();
-            if let (Some(f), Some(r)) = (w.frame, w.report) {
-                if let Some(w) = self.waiting.remove(&o.frame_id) {
-                    self.print(w.sent, f, r);
-                }
-            }
-        }
-        Ok(())
-    }
-
-    fn print(&mut self, mut s: Sent, frame: SendStats, report: SendStats) {
-        s.seconds = frame.elapsed.as_secs_f64();
-        s.report_seconds = report.elapsed.as_secs_f64();
-        s.goodput_bps = frame.goodput_bps();
-        s.retransmissions = frame.retransmissions + report.retransmissions;
-        s.send_ms = s.seconds * 1e3;
-        if !self.json {
-            println!(
-                "frame {}: {} B sent in {:.2} s ({:.1} kb/s, {} retransmissions); its {} B depth report delivered in {:.2} s, distance {:.3} m",
-                s.frame_id,
-                s.frame_bytes,
-                s.seconds,
-                s.goodput_bps / 1e3,
-                s.retransmissions,
-                s.report_bytes,
-                s.report_seconds,
-                s.distance_m
-            );
-            println!(
-                "  timing: capture wait {:.1} ms, rectify {:.1} ms, segment {:.1} ms, match {:.1} ms, encode {:.1} ms, send {:.1} ms; {} pairs skipped",
-                s.wait_ms, s.rectify_ms, s.segment_ms, s.match_ms, s.encode_ms, s.send_ms, s.skipped
-            );
-            println!("  link: {}", s.link);
-        }
-        self.sent.push(s);
-    }
+/// The lines of one frame sent.
+fn print(s: &Sent) {
+    println!(
+        "frame {}: {} B sent in {:.2} s ({:.1} kb/s, {} retransmissions); its {} B depth report delivered in {:.2} s, distance {:.3} m",
+        s.frame_id,
+        s.frame_bytes,
+        s.seconds,
+        s.goodput_bps / 1e3,
+        s.retransmissions,
+        s.report_bytes,
+        s.report_seconds,
+        s.distance_m
+    );
+    println!(
+        "  timing: capture wait {:.1} ms, rectify {:.1} ms, segment {:.1} ms, match {:.1} ms, encode {:.1} ms, send {:.1} ms; {} pairs skipped",
+        s.wait_ms, s.rectify_ms, s.segment_ms, s.match_ms, s.encode_ms, s.send_ms, s.skipped
+    );
+    println!("  link: {}", s.link);
 }

@@ -18,8 +18,8 @@
 
 use std::fmt;
 
-use stereolink_codec::container::{self, Body};
-use stereolink_codec::{Limits, Message};
+use crate::container::{self, Body};
+use crate::{Limits, Message};
 
 /// The version of the Control body this build writes and reads.
 pub const CONTROL_VERSION: u8 = 1;
@@ -43,7 +43,7 @@ pub mod op {
 pub const MAX_REASON: usize = 120;
 
 /// A command for a station.
-#[derive(Clone, Debug, PartialEq, Eq, serde::Serialize)]
+#[derive(Clone, Debug, PartialEq, Eq)]
 pub enum Command {
     /// Stop the axis now.
     AxisStop,
@@ -61,7 +61,9 @@ pub const METHODS: [&str; 6] = ["kmeans", "meanshift", "pso", "dpso", "fodpso", 
 /// A station's answer to command `id`: done, or refused with the reason.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Reply {
+    /// The id of the command it answers.
     pub id: u32,
+    /// Done, or refused with the reason.
     pub result: Result<(), String>,
 }
 
@@ -69,7 +71,12 @@ pub struct Reply {
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub enum Control {
     /// Command `id`.
-    Command { id: u32, command: Command },
+    Command {
+        /// The command's id (its reply carries it back).
+        id: u32,
+        /// What it asks.
+        command: Command,
+    },
     /// A station's reply.
     Reply(Reply),
 }
@@ -88,7 +95,12 @@ pub enum ControlError {
     /// An operation this build does not know.
     Operation(u8),
     /// The argument does not fit the operation.
-    Argument { op: u8, why: String },
+    Argument {
+        /// The operation code.
+        op: u8,
+        /// What is wrong with the argument.
+        why: String,
+    },
 }
 
 impl fmt::Display for ControlError {
@@ -296,7 +308,7 @@ mod tests {
             assert!(matches!(e, ControlError::Argument { .. }), "{bad:?}: {e}");
         }
         let report = container::encode(
-            &Message::DepthReport(stereolink_codec::DepthReport {
+            &Message::DepthReport(crate::DepthReport {
                 target_distance_m: 1.0,
                 target_region: [0; 4],
                 levels: vec![],

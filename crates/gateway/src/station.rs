@@ -11,6 +11,7 @@ use std::time::{Duration, Instant};
 
 use serde_json::{json, Value};
 use stereolink_codec::container::{self, Body};
+use stereolink_codec::control::{unix_us, Command, Control};
 use stereolink_codec::Limits;
 use stereolink_display::{anaglyph_into, Anaglyph};
 use stereolink_image::colormap::colorize;
@@ -20,9 +21,7 @@ use stereolink_link::arq::Config;
 use stereolink_link::endpoint::{Endpoint, Lane, LinkError};
 use stereolink_link::secure::{Keys, SecureConfig};
 use stereolink_link::spec::{self, LinkSpec};
-
-use crate::pipeline::control::{unix_us, Command, Control};
-use crate::pipeline::receiver::{BoardReceiver, Event};
+use stereolink_pipeline::receiver::{BoardReceiver, Event};
 
 /// A station as the gateway knows it.
 #[derive(Clone, Debug)]
@@ -51,32 +50,54 @@ pub enum Up {
     Heard(usize),
     /// A depth report, as its JSON payload.
     Depth {
+        /// The station's index in the gateway's list.
         station: usize,
+        /// The report's frame id.
         frame_id: u32,
+        /// The JSON payload.
         payload: Value,
     },
     /// A frame's metadata and, when rebuilt, its images as PNG.
     Frame {
+        /// The station's index in the gateway's list.
         station: usize,
+        /// The frame's metadata, as its JSON payload.
         meta: Value,
+        /// The rebuilt frame's images, when it was rebuilt.
         images: Option<FrameImages>,
     },
     /// The link statistics, as their JSON payload.
-    Link { station: usize, payload: Value },
+    Link {
+        /// The station's index in the gateway's list.
+        station: usize,
+        /// The JSON payload.
+        payload: Value,
+    },
     /// How a command's delivery ended.
     Done {
+        /// The station's index in the gateway's list.
         station: usize,
+        /// The command.
         request: Request,
+        /// Delivered (after this long), or why not.
         result: Result<Duration, String>,
     },
     /// The station's reply to a delivered command: done, or refused and why.
     Acted {
+        /// The station's index in the gateway's list.
         station: usize,
+        /// The command it answers.
         request: Request,
+        /// Done, or refused with the reason.
         result: Result<(), String>,
     },
     /// Something worth a line on stderr.
-    Notice { station: usize, text: String },
+    Notice {
+        /// The station's index in the gateway's list.
+        station: usize,
+        /// The line.
+        text: String,
+    },
 }
 
 /// The PNGs of one rebuilt frame.
@@ -93,6 +114,7 @@ pub struct FrameImages {
 /// A command on its way to a station, with what the response echoes.
 #[derive(Clone, Debug)]
 pub struct Request {
+    /// The command.
     pub command: Command,
     /// The client's `transaction` field, if any.
     pub transaction: Option<Value>,

@@ -14,8 +14,8 @@
 
 use std::time::Duration;
 
-use stereolink::pipeline::receiver::{synthetic_frame, BoardReceiver, Event};
 use stereolink_image::synth::SynthSpec;
+use stereolink_pipeline::receiver::{synthetic_frame, BoardReceiver, Event};
 
 fn main() {
     let frames: u32 = std::env::args()

@@ -15,6 +15,7 @@
 use std::time::Instant;
 
 use anyhow::Context;
+use stereolink_codec::control::Command;
 use stereolink_codec::{
     container, labels,
     planetable::{PlaneTable, TableCoding},
@@ -27,8 +28,7 @@ use stereolink_stereo::depth::{depth_levels, depth_of, metric, region_distance, 
 use stereolink_stereo::planes::match_planes;
 use stereolink_stereo::{Algorithm, MatchSpec, Matcher};
 
-use super::control::Command;
-use super::planetable;
+use crate::planetable;
 
 /// What the sender does with a pair.
 #[derive(Clone, Debug)]
@@ -224,7 +224,7 @@ pub fn prepare(
         right: View::Indexed(sr.image),
         planes,
     };
-    let timestamp = super::control::unix_us();
+    let timestamp = stereolink_codec::control::unix_us();
     let frame_bytes =
         container::encode(&Message::StereoFrame(Box::new(frame)), frame_id, timestamp);
     let enc_ms = t.elapsed().as_secs_f64() * 1e3;

@@ -8,8 +8,8 @@ use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Duration;
 
-use stereolink::pipeline::receiver::{synthetic_frame, BoardReceiver, Event};
 use stereolink_image::synth::SynthSpec;
+use stereolink_pipeline::receiver::{synthetic_frame, BoardReceiver, Event};
 
 struct Counting;
 

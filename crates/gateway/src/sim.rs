@@ -10,23 +10,25 @@ use std::thread::JoinHandle;
 use std::time::{Duration, Instant};
 
 use stereolink_codec::container;
+use stereolink_codec::control::{unix_us, Command, Control, Reply};
 use stereolink_codec::{DepthReport, Message, ReportLevel};
 use stereolink_image::synth::SynthSpec;
 use stereolink_link::endpoint::{Endpoint, Lane, LinkError};
 use stereolink_link::secure::{Keys, SecureConfig};
 use stereolink_link::spec::{self, LinkSpec};
+use stereolink_pipeline::receiver::synthetic_frame;
 use stereolink_robot::Axis;
-
-use crate::pipeline::control::{unix_us, Command, Control, Reply};
-use crate::pipeline::receiver::synthetic_frame;
 
 /// How a simulated station behaves.
 #[derive(Clone, Debug)]
 pub struct SimConfig {
+    /// The station's link to the gateway.
     pub link: LinkSpec,
+    /// The link keys (the station's private key, the gateway's public key).
     pub keys: Option<Keys>,
     /// Depth reports to send (frame ids `first_id..first_id + reports`).
     pub reports: u32,
+    /// The first report's frame id.
     pub first_id: u32,
     /// A frame goes with every this many reports (0: none).
     pub frame_every: u32,
@@ -68,7 +70,9 @@ impl SimConfig {
 pub struct SimLog {
     /// Reports whose every fragment the gateway acknowledged.
     pub reports_delivered: u32,
+    /// Frames whose every fragment the gateway acknowledged.
     pub frames_delivered: u32,
+    /// What went wrong, one line each.
     pub failures: Vec<String>,
     /// Commands taken, with when.
     pub commands: Vec<(Command, Instant)>,
@@ -82,6 +86,7 @@ pub struct SimLog {
 
 /// A running simulated station.
 pub struct SimStation {
+    /// What it did so far.
     pub log: Arc<Mutex<SimLog>>,
     stop: Arc<AtomicBool>,
     kill: Arc<AtomicBool>,

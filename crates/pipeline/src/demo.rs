@@ -16,8 +16,8 @@ use stereolink_link::sim::{pair, SimConfig};
 use stereolink_robot::sim::{MotorParams, SimAxis};
 use stereolink_stereo::depth::{region_distance, Roi};
 
-use super::receiver::{BoardReceiver, Event};
-use super::sender::{default_roi, prepare, SenderConfig};
+use crate::receiver::{BoardReceiver, Event};
+use crate::sender::{default_roi, prepare, SenderConfig};
 
 /// Demo settings.
 pub struct DemoConfig {

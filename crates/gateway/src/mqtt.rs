@@ -17,9 +17,13 @@ use rumqttc::{Outgoing, QoS};
 /// One publish the gateway wants made.
 #[derive(Clone, Debug)]
 pub struct Pub {
+    /// The topic.
     pub topic: String,
+    /// The payload.
     pub payload: Vec<u8>,
+    /// The quality of service it goes with.
     pub qos: QoS,
+    /// Whether the broker keeps it for later subscribers.
     pub retain: bool,
     /// What it is, for the drop counts (`depth`, `link`, `response`, ...).
     pub kind: &'static str,

@@ -6,12 +6,12 @@ use std::time::{Duration, Instant};
 
 use rumqttc::{LastWill, MqttOptions, QoS};
 use serde_json::{json, Value};
+use stereolink_codec::control::unix_us;
 
-use super::command;
-use super::mqtt::{Outbox, Pub};
-use super::station::{Request, Up};
-use super::{Broker, GatewayConfig};
-use crate::pipeline::control::unix_us;
+use crate::command;
+use crate::mqtt::{Outbox, Pub};
+use crate::station::{Request, Up};
+use crate::{Broker, GatewayConfig};
 
 /// A station's state on the bridge side.
 #[derive(Default)]

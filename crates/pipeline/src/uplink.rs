@@ -7,9 +7,9 @@
 //! reports go over that one instead.
 //!
 //! The thread also takes what the peer sends, busy or idle: Control
-//! messages (commands from a gateway, [`super::control`]) come back to the
-//! send loop through [`Uplink::incoming`], and its replies go out on the
-//! urgent lane, as the reports do. With keys, only what the paired peer
+//! messages (commands from a gateway, [`stereolink_codec::control`]) come
+//! back to the send loop through [`Uplink::incoming`], and its replies go
+//! out on the urgent lane, as the reports do. With keys, only what the paired peer
 //! sealed gets this far (the secure layer refuses and counts the rest).
 
 use std::collections::VecDeque;
@@ -18,10 +18,9 @@ use std::thread::JoinHandle;
 use std::time::Duration;
 
 use anyhow::Context;
+use stereolink_codec::control::{Control, ControlError, Reply};
 use stereolink_link::endpoint::{Endpoint, Lane, LinkError, SendStats};
 use stereolink_link::transport::LinkStats;
-
-use super::control::{Control, ControlError, Reply};
 
 /// What a message carries.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -40,9 +39,11 @@ pub type Incoming = Result<Control, ControlError>;
 /// How one message's send ended.
 #[derive(Debug)]
 pub struct Outcome {
+    /// Which message it was.
     pub kind: Kind,
     /// The frame's id (a reply's: the id of the command it answers).
     pub frame_id: u32,
+    /// Delivered (with what the send cost), or why not.
     pub result: Result<SendStats, LinkError>,
     /// The link's statistics when it ended.
     pub link: LinkStats,

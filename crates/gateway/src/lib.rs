@@ -9,10 +9,20 @@
 //! the stations' events into publishes, tracks availability, and hands
 //! commands from `set` topics ([`command`]) to the stations. Commands reach
 //! a station only over its own link, sealed when keys are given, as a
-//! versioned Control message ([`crate::pipeline::control`]).
+//! versioned Control message ([`stereolink_codec::control`]).
 //!
 //! [`sim`] is a simulated station (synthetic frames and reports, an axis
 //! that obeys commands) for the tests and the measurements.
+//!
+//! Why a crate of its own: the gateway is never in the ARM926 board's
+//! build, and it alone needs an MQTT client (rumqttc); the binary's
+//! `gateway` feature pulls it in off ARM only.
+//!
+//! It depends on the pipeline (the board's receiver, the Control message),
+//! link and codec, and on image, display and robot for the frames it
+//! rebuilds and the simulated station's axis.
+
+#![deny(missing_docs)]
 
 mod bridge;
 pub mod command;
@@ -34,10 +44,13 @@ use station::{Request, StationConfig, Up};
 /// Where the broker is and who the gateway is there.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Broker {
+    /// The broker's host name or address.
     pub host: String,
+    /// Its TCP port.
     pub port: u16,
     /// User name and password, if the broker asks for them.
     pub login: Option<(String, String)>,
+    /// The gateway's MQTT client id.
     pub client_id: String,
 }
 
@@ -80,7 +93,9 @@ impl Broker {
 /// Everything the gateway needs.
 #[derive(Clone, Debug)]
 pub struct GatewayConfig {
+    /// The stations, each on its own link.
     pub stations: Vec<StationConfig>,
+    /// The broker to bridge them to.
     pub broker: Broker,
     /// The first topic level (`stereolink`).
     pub prefix: String,
@@ -98,10 +113,15 @@ pub struct GatewayConfig {
 /// What a gateway run did.
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct Summary {
+    /// Publishes acknowledged by the broker (or written, QoS 0).
     pub published: u64,
+    /// Publishes handed again after a lost connection.
     pub republished: u64,
+    /// Publishes dropped because the queue was full, by kind.
     pub dropped: BTreeMap<&'static str, u64>,
+    /// Reconnections to the broker.
     pub reconnects: u64,
+    /// Commands taken from `set` topics.
     pub commands: u64,
 }
 

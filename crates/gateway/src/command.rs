@@ -1,10 +1,9 @@
 //! The JSON a client publishes on `PREFIX/<station>/set`, read into the
 //! [`Command`] that goes down the station's link as a Control message
-//! ([`crate::pipeline::control`]).
+//! ([`stereolink_codec::control`]).
 
 use serde_json::Value;
-
-use crate::pipeline::control::{Command, METHODS};
+use stereolink_codec::control::{Command, METHODS};
 
 /// Reads the command of a `set` payload: exactly one of
 /// `{"axis":"stop"}`, `{"frame":"request"}`, `{"levels":N}` or

@@ -11,19 +11,20 @@
 //!
 //! With [`DisparitySource::Planes`] the board does not match: it rebuilds
 //! the map from the decoded left labels and the frame's plane table
-//! ([`super::planetable`]); a frame without a table is rejected.
+//! ([`crate::planetable`]); a frame without a table is rejected.
 //!
-//! An axis stop from the link (a Control command, [`super::control`]) is
-//! the safety path: it stops the axis at once and holds it, so that no
-//! later report moves it again until the receiver restarts. The board takes
-//! no other command (segmentation is the sender's).
+//! An axis stop from the link (a Control command,
+//! [`stereolink_codec::control`]) is the safety path: it stops the axis at
+//! once and holds it, so that no later report moves it again until the
+//! receiver restarts. The board takes no other command (segmentation is the
+//! sender's).
 
 use std::time::Instant;
 
 use std::fmt::Write;
 
-use super::control::{Command, Control};
 use stereolink_codec::container::{self, Body, FrameDecoder, FrameRef};
+use stereolink_codec::control::{Command, Control};
 use stereolink_codec::{CodecError, Limits, Message, SegmentationKind, StereoFrame, View};
 use stereolink_display::{
     anaglyph_into, anaglyph_labels_shown_into, Anaglyph, Screen, ScreenStatus, Sink,
@@ -310,7 +311,7 @@ impl BoardReceiver {
                         "the frame has no plane table (send --algo planes)".into(),
                     ));
                 };
-                super::planetable::rebuild_coded_into(labels, table, &mut self.planes)?;
+                crate::planetable::rebuild_coded_into(labels, table, &mut self.planes)?;
             }
         }
         match indexed {

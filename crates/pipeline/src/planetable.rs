@@ -85,7 +85,7 @@ fn fill(ids: &Plane<u32>, table: &PlaneTable, out: &mut DisparityMap) {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::pipeline::receiver::{BoardReceiver, DisparitySource, Event};
+    use crate::receiver::{BoardReceiver, DisparitySource, Event};
     use stereolink_codec::{container, Message, SegmentationKind, StereoFrame, View};
     use stereolink_image::IndexedImage;
 

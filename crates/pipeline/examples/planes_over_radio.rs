@@ -21,11 +21,11 @@
 
 use std::time::Duration;
 
-use stereolink::pipeline::receiver::{BoardReceiver, DisparitySource, Event};
-use stereolink::pipeline::sender::{prepare, SenderConfig};
 use stereolink_codec::planetable::TableCoding;
 use stereolink_codec::{container, Limits, Message};
 use stereolink_image::{metrics, Scene};
+use stereolink_pipeline::receiver::{BoardReceiver, DisparitySource, Event};
+use stereolink_pipeline::sender::{prepare, SenderConfig};
 use stereolink_segment::carry::default_margin;
 use stereolink_stereo::depth::LevelSpec;
 use stereolink_stereo::{Algorithm, MatchSpec};
