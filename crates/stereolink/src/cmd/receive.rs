@@ -396,7 +396,7 @@ impl Tally {
                 self.reports += 1;
                 // A zero time stamp is a sender without a clock.
                 if let Some(sent) = sent_us.filter(|&t| t > 0) {
-                    let now = crate::pipeline::control::unix_us();
+                    let now = stereolink_codec::control::unix_us();
                     self.latency_ms.push(now.saturating_sub(sent) as f64 / 1e3);
                 }
             }
