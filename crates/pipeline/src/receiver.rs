@@ -122,6 +122,10 @@ pub struct BoardReceiver {
     /// A stop command holds the axis: reports no longer move it (the
     /// latch itself; `status.axis_held` only shows it).
     held: bool,
+    /// The sender's time stamp of the last report applied: an older one
+    /// (overtaken on the link, or replayed by a restarted sender's queue)
+    /// is never applied after it.
+    last_report_us: Option<u64>,
 }
 
 impl BoardReceiver {
@@ -157,6 +161,7 @@ impl BoardReceiver {
             status: ScreenStatus::default(),
             source: DisparitySource::default(),
             held: false,
+            last_report_us: None,
         }
     }
 
@@ -208,6 +213,16 @@ impl BoardReceiver {
                 }
             }
             Ok((header, Body::DepthReport(report))) => {
+                if self
+                    .last_report_us
+                    .is_some_and(|last| header.timestamp_us < last)
+                {
+                    return Event::Rejected(format!(
+                        "report of frame {} is older than the last one applied: not applied",
+                        header.frame_id
+                    ));
+                }
+                self.last_report_us = Some(header.timestamp_us);
                 let d = report.target_distance_m;
                 self.status.distance_m = d.is_finite().then_some(d as f64);
                 let commanded = ValidatedDistance::new(d as f64).map(|v| self.policy.plan(v));
@@ -490,5 +505,51 @@ mod tests {
             !board.check_watchdog(later).unwrap(),
             "stopped once per silence"
         );
+    }
+
+    /// A report older than the last one applied (by the sender's time
+    /// stamp) is refused and moves nothing; a newer one moves the axis.
+    #[test]
+    fn a_report_older_than_the_last_applied_is_never_applied() {
+        use stereolink_codec::DepthReport;
+        let report = |frame_id, distance_m, at_us| {
+            let r = DepthReport {
+                target_distance_m: distance_m,
+                target_region: [0, 0, 8, 8],
+                levels: Vec::new(),
+                histogram: Vec::new(),
+            };
+            container::encode(&Message::DepthReport(r), frame_id, at_us)
+        };
+        let mut board = BoardReceiver::new(15, 5, std::time::Duration::from_secs(10));
+        board.axis = Some(stereolink_robot::open_axis("sim").unwrap());
+        let applied = |e: &Event| {
+            matches!(
+                e,
+                Event::Report {
+                    commanded_mm: Some(_),
+                    ..
+                }
+            )
+        };
+        assert!(applied(&board.handle(&report(2, 0.5, 2_000_000))));
+        let stale = board.handle(&report(1, 0.9, 1_000_000));
+        assert!(
+            matches!(&stale, Event::Rejected(why) if why.contains("older")),
+            "{stale:?}"
+        );
+        let target = board
+            .policy
+            .plan(ValidatedDistance::new(0.5).unwrap())
+            .position_mm;
+        let stopped_at =
+            stereolink_robot::wait_until_idle(board.axis.as_mut().unwrap().as_mut(), 100_000)
+                .unwrap()
+                .unwrap();
+        assert!(
+            (stopped_at - target).abs() < 1.0,
+            "{stopped_at} against {target}"
+        );
+        assert!(applied(&board.handle(&report(3, 0.6, 3_000_000))));
     }
 }
