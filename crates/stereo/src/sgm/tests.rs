@@ -1,7 +1,7 @@
 //! Tests of SGM: the AVX2 kernels against the portable ones, bit for bit,
 //! and the path step against its recurrence.
 
-use super::aggregate::{cell, step, PixelSteps};
+use super::aggregate::{cell, step};
 use super::cost::cost_row;
 use super::*;
 
@@ -105,8 +105,8 @@ fn avx2_pixel_steps_equal_portable_steps() {
         acc: &mut [u16],
         cost: &[u8],
         p1: u8,
-    ) -> PixelSteps<4> {
-        PixelSteps {
+    ) -> super::aggregate::PixelSteps<4> {
+        super::aggregate::PixelSteps {
             prev: std::array::from_fn(|p| prev[p].as_ptr()),
             cur: std::array::from_fn(|p| cur[p].as_mut_ptr()),
             p2: [90, 40, 193, 30],

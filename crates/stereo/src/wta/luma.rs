@@ -4,7 +4,7 @@
 
 use stereolink_image::{LabelMap, Rgb, RgbImage};
 
-use super::{avx2_available, Samples};
+use super::Samples;
 
 /// Writes the luma of `img` into `out` (resized, storage reused) in fixed
 /// point with `bits` bits (8..=10): BT.601 weights `(77 R + 150 G + 29 B) / 256`
@@ -16,7 +16,7 @@ pub fn luma_samples_into(img: &RgbImage, bits: u32, out: &mut Samples) {
         out.reset(img.width(), img.height(), 0);
     }
     #[cfg(target_arch = "x86_64")]
-    if avx2_available() {
+    if super::avx2_available() {
         // SAFETY: the CPU has AVX2.
         return unsafe { luma_avx2(img.as_slice(), bits, out.as_mut_slice()) };
     }
