@@ -46,6 +46,7 @@ pub mod pfm;
 mod plane;
 pub mod scene;
 pub mod segments;
+pub mod shared_data;
 pub mod synth;
 
 pub use error::{Error, Result};

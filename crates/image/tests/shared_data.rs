@@ -1,32 +1,13 @@
 //! Loads every scene of the shared Middlebury data (`STEREOLINK_DATA`) and
 //! checks sizes, ground-truth scales and masks against `manifest.json`.
 
-use std::path::PathBuf;
-
 use stereolink_image::{colormap::finite_range, Scene};
-
-/// The shared Middlebury folder (`STEREOLINK_DATA`), or `None` to skip.
-/// Under CI (`CI=true`) a missing folder fails instead of passing silently,
-/// unless `STEREOLINK_DATA=skip` says the skip is meant (the ARM926 board's
-/// emulated run, where the data sweeps would take minutes).
-fn shared_data() -> Option<PathBuf> {
-    match std::env::var_os("STEREOLINK_DATA") {
-        Some(dir) if dir == "skip" => None,
-        Some(dir) => Some(PathBuf::from(dir)),
-        None if std::env::var("CI").is_ok_and(|v| v == "true") => panic!(
-            "STEREOLINK_DATA is unset under CI=true: this data-backed test would pass \
-             without running; set it to the shared Middlebury folder, or to `skip`"
-        ),
-        None => {
-            eprintln!("STEREOLINK_DATA is unset: skipping the data-backed test");
-            None
-        }
-    }
-}
 
 #[test]
 fn every_shared_scene_loads_with_manifest_sizes_scales_and_masks() {
-    let Some(dir) = shared_data() else { return };
+    let Some(dir) = stereolink_image::shared_data::dir() else {
+        return;
+    };
     let manifest: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(dir.join("manifest.json")).unwrap()).unwrap();
     let scenes = manifest["scenes"].as_object().unwrap();

@@ -1,34 +1,13 @@
 //! Accuracy on the real Middlebury v2 scenes (`STEREOLINK_DATA`), and depth
 //! of a synthetic plane at a known distance.
 
-use std::path::PathBuf;
-
 use stereolink_image::synth::{synthesize, SynthSpec};
 use stereolink_image::{metrics::bad_pixel_rate, Scene};
 use stereolink_stereo::depth::{region_distance, Roi};
 use stereolink_stereo::{compute_disparity, Algorithm, MatchSpec};
 
-/// The shared Middlebury folder (`STEREOLINK_DATA`), or `None` to skip.
-/// Under CI (`CI=true`) a missing folder fails instead of passing silently,
-/// unless `STEREOLINK_DATA=skip` says the skip is meant (the ARM926 board's
-/// emulated run, where the data sweeps would take minutes).
-fn shared_data() -> Option<PathBuf> {
-    match std::env::var_os("STEREOLINK_DATA") {
-        Some(dir) if dir == "skip" => None,
-        Some(dir) => Some(PathBuf::from(dir)),
-        None if std::env::var("CI").is_ok_and(|v| v == "true") => panic!(
-            "STEREOLINK_DATA is unset under CI=true: this data-backed test would pass \
-             without running; set it to the shared Middlebury folder, or to `skip`"
-        ),
-        None => {
-            eprintln!("STEREOLINK_DATA is unset: skipping the data-backed test");
-            None
-        }
-    }
-}
-
 fn scene(name: &str) -> Option<Scene> {
-    Some(Scene::load(shared_data()?.join(name)).unwrap())
+    Some(Scene::load(stereolink_image::shared_data::dir()?.join(name)).unwrap())
 }
 
 fn bad1(s: &Scene, algo: Algorithm) -> f64 {

@@ -1,6 +1,5 @@
 //! The CLI frame: exit codes, one-line errors, `synth` and `info`.
 
-use std::path::PathBuf;
 use std::process::Command;
 
 fn stereolink() -> Command {
@@ -256,29 +255,10 @@ fn planes_matches_through_eval_and_match_with_any_segments() {
     assert!(err.contains("foo"), "{err}");
 }
 
-/// The shared Middlebury folder (`STEREOLINK_DATA`), or `None` to skip.
-/// Under CI (`CI=true`) a missing folder fails instead of passing silently,
-/// unless `STEREOLINK_DATA=skip` says the skip is meant (the ARM926 board's
-/// emulated run, where the data sweeps would take minutes).
-fn shared_data() -> Option<PathBuf> {
-    match std::env::var_os("STEREOLINK_DATA") {
-        Some(dir) if dir == "skip" => None,
-        Some(dir) => Some(PathBuf::from(dir)),
-        None if std::env::var("CI").is_ok_and(|v| v == "true") => panic!(
-            "STEREOLINK_DATA is unset under CI=true: this data-backed test would pass \
-             without running; set it to the shared Middlebury folder, or to `skip`"
-        ),
-        None => {
-            eprintln!("STEREOLINK_DATA is unset: skipping the data-backed test");
-            None
-        }
-    }
-}
-
 /// The bad > 1 px non-occluded rates of SGM and planes on `scenes` of
 /// `STEREOLINK_DATA` (`None` when it is unset), through `eval --json`.
 fn sgm_and_planes(scenes: &[&str]) -> Option<Vec<(String, f64, f64)>> {
-    let data = shared_data()?;
+    let data = stereolink_image::shared_data::dir()?;
     let out = stereolink()
         .args(["--json", "eval", "--data"])
         .arg(data)
