@@ -26,6 +26,7 @@ pub mod carry;
 pub mod kmeans;
 pub mod meanshift;
 pub mod otsu;
+mod regions;
 pub mod swarm;
 
 use std::fmt;
