@@ -35,6 +35,12 @@ use std::str::FromStr;
 use serde::Serialize;
 use stereolink_image::{IndexedImage, LabelMap, Plane, Rgb, RgbImage};
 
+/// The most labels a segmentation numbers: labels are `u16`
+/// ([`LabelMap`]), and a frame's palette holds at most this many colours.
+/// Mean shift merges its smallest regions into their most similar
+/// neighbours to stay within it; k-means has at most 256 labels.
+pub const MAX_LABELS: usize = 1 << 16;
+
 /// Errors of the segmentation methods.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 #[non_exhaustive]
@@ -258,14 +264,16 @@ pub(crate) fn compact(
     let out = labels.map(|l| {
         let s = &mut slot[l as usize];
         if *s == UNSEEN {
-            overflow |= palette.len() > u16::MAX as usize;
+            overflow |= palette.len() >= MAX_LABELS;
             *s = palette.len() as u32;
             palette.push(colours(l));
         }
         *s as u16
     });
     if overflow {
-        return Err(SegmentError::Parameter("more than 65536 segments".into()));
+        return Err(SegmentError::Parameter(format!(
+            "more than {MAX_LABELS} segments"
+        )));
     }
     IndexedImage::new(out, palette).map_err(|e| SegmentError::Parameter(e.to_string()))
 }
