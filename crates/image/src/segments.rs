@@ -8,6 +8,10 @@
 //! segments the same way as the sender (the plane table relies on it), and
 //! a pixel's upper and left neighbours lie in segments numbered no higher
 //! than its own.
+//!
+//! Ids are `u32` whatever the labels' type, so a map may have as many
+//! segments as pixels (a `u16` label map of noise has far more components
+//! than labels); maps of 2³² pixels or more are beyond them.
 
 use crate::{LabelMap, Plane};
 

@@ -14,7 +14,9 @@ use stereolink_image::{IndexedImage, LabelMap, RgbImage};
 
 use crate::{Method, Segmentation};
 
-/// Marks a pixel of a carried map with nothing carried.
+/// Marks a pixel of a carried map with nothing carried. It is also the last
+/// label of a full palette ([`crate::MAX_LABELS`] colours), which therefore
+/// is never carried over.
 pub const NOTHING: u16 = u16::MAX;
 
 /// The default margin of [`carry_over`] for `method`: 6 levels for the
@@ -105,7 +107,7 @@ pub fn carry_over(
         .zip(carried.as_slice())
         .zip(image.as_slice())
     {
-        if to != *l && (to as usize) < n && consistent(px, *l, to) {
+        if to != *l && to != NOTHING && (to as usize) < n && consistent(px, *l, to) {
             *l = to;
         }
     }
@@ -150,5 +152,21 @@ mod tests {
             let none = carry_over(&img, &seg, &LabelMap::new(20, 4, NOTHING), 500.0);
             assert_eq!(none, seg, "{method}");
         }
+    }
+
+    /// A full palette's last label is NOTHING: proposing nothing carries
+    /// nothing there too (it carried that label wherever the colour let it).
+    #[test]
+    fn nothing_carries_nothing_in_a_full_palette() {
+        let image = RgbImage::from_fn(256, 256, |x, y| [x as u8, y as u8, 0]);
+        let labels = LabelMap::from_fn(256, 256, |x, y| (y * 256 + x) as u16);
+        let palette = image.as_slice().to_vec();
+        let seg = Segmentation {
+            image: IndexedImage::new(labels, palette).unwrap(),
+            channels: None,
+            iterations: 0,
+        };
+        let none = carry_over(&image, &seg, &LabelMap::new(256, 256, NOTHING), 1000.0);
+        assert_eq!(none, seg);
     }
 }

@@ -26,6 +26,7 @@ pub mod carry;
 pub mod kmeans;
 pub mod meanshift;
 pub mod otsu;
+mod regions;
 pub mod swarm;
 
 use std::fmt;
@@ -33,6 +34,13 @@ use std::str::FromStr;
 
 use serde::Serialize;
 use stereolink_image::{IndexedImage, LabelMap, Plane, Rgb, RgbImage};
+
+/// The most labels a segmentation numbers: labels are `u16`
+/// ([`LabelMap`]), and a frame's palette holds at most this many colours.
+/// Mean shift merges its smallest regions into their most similar
+/// neighbours to stay within it, the thresholding methods their least
+/// populated classes into the nearest kept ones; k-means has at most 256.
+pub const MAX_LABELS: usize = 1 << 16;
 
 /// Errors of the segmentation methods.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
@@ -212,17 +220,36 @@ fn threshold_image(
         }
         thresholds[c] = t;
     }
-    let mut index = vec![u16::MAX; levels * levels * levels];
-    let mut palette: Vec<Rgb> = Vec::new();
-    let labels: LabelMap = image.map(|p| {
+    // Labels in order of first appearance, one per occurring class triple.
+    const UNSEEN: u32 = u32::MAX;
+    let key_of = |p: Rgb| {
         let cls = [0, 1, 2].map(|c| class_of[c][p[c] as usize] as usize);
-        let key = (cls[0] * levels + cls[1]) * levels + cls[2];
-        if index[key] == u16::MAX {
-            index[key] = palette.len() as u16;
-            palette.push([0, 1, 2].map(|c| means[c][cls[c]]));
+        (cls[0] * levels + cls[1]) * levels + cls[2]
+    };
+    let mut index = vec![UNSEEN; levels * levels * levels];
+    let mut keys: Vec<usize> = Vec::new();
+    let labels: Plane<u32> = image.map(|p| {
+        let key = key_of(p);
+        if index[key] == UNSEEN {
+            index[key] = keys.len() as u32;
+            keys.push(key);
         }
         index[key]
     });
+    let colour = |key: usize| {
+        let cls = [key / (levels * levels), key / levels % levels, key % levels];
+        [0, 1, 2].map(|c| means[c][cls[c]])
+    };
+    let (labels, palette): (LabelMap, Vec<Rgb>) = if keys.len() <= MAX_LABELS {
+        (
+            labels.map(|l| l as u16),
+            keys.iter().map(|&k| colour(k)).collect(),
+        )
+    } else {
+        let kept = cap_classes(&labels, &keys, &mut index, levels);
+        let labels = labels.map(|l| index[keys[l as usize]] as u16);
+        (labels, kept.into_iter().map(colour).collect())
+    };
     let image =
         IndexedImage::new(labels, palette).map_err(|e| SegmentError::Parameter(e.to_string()))?;
     Ok(Segmentation {
@@ -234,6 +261,60 @@ fn threshold_image(
         }),
         iterations,
     })
+}
+
+/// Keeps the [`MAX_LABELS`] most populated class triples of a thresholding
+/// (`labels` numbers them in order of first appearance, `keys` holds each
+/// one's key `(r·levels + g)·levels + b`) and gives each other triple the
+/// nearest kept one in class steps (a breadth-first search over the
+/// `levels³` grid of triples from the kept ones): a class the thresholds
+/// put next to another is the most similar. Returns the kept keys in order
+/// of first appearance and leaves in `index` (by key) each triple's new
+/// label. Only a fine thresholding of a noisy image has that many triples
+/// (41 levels or more per channel); the search costs `O(levels³)`.
+fn cap_classes(
+    labels: &Plane<u32>,
+    keys: &[usize],
+    index: &mut [u32],
+    levels: usize,
+) -> Vec<usize> {
+    let mut count = vec![0u64; keys.len()];
+    for &l in labels.as_slice() {
+        count[l as usize] += 1;
+    }
+    // The most populated first, ties to the first seen; then kept in the
+    // order of first appearance.
+    let mut order: Vec<u32> = (0..keys.len() as u32).collect();
+    order.sort_unstable_by_key(|&l| (std::cmp::Reverse(count[l as usize]), l));
+    order.truncate(MAX_LABELS);
+    order.sort_unstable();
+    const UNSEEN: u32 = u32::MAX;
+    index.fill(UNSEEN);
+    let mut frontier: Vec<usize> = order.iter().map(|&l| keys[l as usize]).collect();
+    for (new, &key) in frontier.iter().enumerate() {
+        index[key] = new as u32;
+    }
+    let kept = frontier.clone();
+    let steps = [1, levels, levels * levels];
+    let mut next = Vec::new();
+    while !frontier.is_empty() {
+        for &key in &frontier {
+            for step in steps {
+                let class = key / step % levels;
+                let down = (class > 0).then(|| key - step);
+                let up = (class + 1 < levels).then(|| key + step);
+                for n in [down, up].into_iter().flatten() {
+                    if index[n] == UNSEEN {
+                        index[n] = index[key];
+                        next.push(n);
+                    }
+                }
+            }
+        }
+        std::mem::swap(&mut frontier, &mut next);
+        next.clear();
+    }
+    kept
 }
 
 /// Relabels so that labels are `0..n` in order of first appearance and the
@@ -257,14 +338,16 @@ pub(crate) fn compact(
     let out = labels.map(|l| {
         let s = &mut slot[l as usize];
         if *s == UNSEEN {
-            overflow |= palette.len() > u16::MAX as usize;
+            overflow |= palette.len() >= MAX_LABELS;
             *s = palette.len() as u32;
             palette.push(colours(l));
         }
         *s as u16
     });
     if overflow {
-        return Err(SegmentError::Parameter("more than 65536 segments".into()));
+        return Err(SegmentError::Parameter(format!(
+            "more than {MAX_LABELS} segments"
+        )));
     }
     IndexedImage::new(out, palette).map_err(|e| SegmentError::Parameter(e.to_string()))
 }
@@ -337,5 +420,38 @@ mod tests {
                 "{name}"
             );
         }
+    }
+
+    /// 64 levels per channel on noise give more class triples than labels:
+    /// the least populated join the nearest kept class, where their labels
+    /// once wrapped around (a garbled image, 11.6 dB).
+    #[test]
+    fn fine_thresholds_on_noise_keep_the_label_cap() {
+        let mut s = 5u32;
+        let img = RgbImage::from_fn(400, 300, |_, _| {
+            s = s.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            [(s >> 24) as u8, (s >> 16) as u8, (s >> 8) as u8]
+        });
+        let seg = segment(&img, &Method::Otsu, 64, 0).unwrap();
+        let ch = seg.channels.as_ref().unwrap();
+        assert_eq!(seg.image.palette().len(), MAX_LABELS);
+        // A pixel's colour is its own class's, or one a class step or a
+        // few away (a dropped class takes the nearest kept).
+        let class = |c: usize, v: u8| ch.thresholds[c].iter().filter(|&&t| v > t).count();
+        let rgb = seg.to_rgb();
+        let mut steps = 0;
+        for (p, q) in img.as_slice().iter().zip(rgb.as_slice()) {
+            let d: usize = (0..3)
+                .map(|c| class(c, p[c]).abs_diff(class(c, q[c])))
+                .sum();
+            assert!(d <= 3, "{p:?} shown as {q:?}");
+            steps += d;
+        }
+        assert!(steps < img.len() / 2, "{steps} class steps");
+        let psnr = psnr_rgb(&img, &rgb).unwrap().overall;
+        assert!(psnr > 30.0, "{psnr:.1} dB");
+        // Below the cap, the labels are as before: one per triple.
+        let seg = segment(&img, &Method::Otsu, 16, 0).unwrap();
+        assert_eq!(seg.image.palette().len(), 16 * 16 * 16);
     }
 }

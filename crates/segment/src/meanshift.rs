@@ -9,7 +9,9 @@
 //! **Clustering**: neighbouring pixels whose modes are closer than `h_r / 2`
 //! in colour join one region (their basins of attraction merged); regions
 //! smaller than `min_region` pixels are merged into the adjacent region of
-//! the most similar colour. Each region is shown in its mean original colour.
+//! the most similar colour (mostly: see [`MeanShiftSpec::min_region`]), and beyond
+//! [`crate::MAX_LABELS`] regions the smallest merge into their most similar
+//! neighbours. Each region is shown in its mean original colour.
 //!
 //! The window sums run on the colours as three planes, eight pixels per
 //! step in lanes (lanes past a row's end weigh 0): with AVX2 intrinsics for
@@ -24,7 +26,8 @@ use rayon::prelude::*;
 use serde::Serialize;
 use stereolink_image::{color, Plane, RgbImage};
 
-use crate::{compact, SegmentError, Segmentation};
+use crate::regions::{cap_regions, find, merge_small_regions, region_sums};
+use crate::{compact, SegmentError, Segmentation, MAX_LABELS};
 
 /// Colour space of the range domain.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
@@ -59,7 +62,9 @@ pub struct MeanShiftSpec {
     pub colour_space: ColourSpace,
     /// Range kernel.
     pub kernel: Kernel,
-    /// Regions smaller than this are merged into a neighbour.
+    /// Regions smaller than this are merged into a neighbour, in a few
+    /// rounds that leave equal regions picking each other alone (the
+    /// one-pixel regions of pixel noise).
     pub min_region: usize,
     /// Coarse-to-fine levels, as OpenCV's `pyrMeanShiftFiltering`
     /// `maxLevel` (0 = filter every pixel, the exact procedure): see
@@ -365,13 +370,6 @@ pub fn mean_shift(image: &RgbImage, spec: &MeanShiftSpec) -> Result<Segmentation
     let (modes, iterations_used) = modes(&feat, spec, spec.pyramid, avx2);
     // Cluster: union neighbours with close modes.
     let mut parent: Vec<u32> = (0..(w * h) as u32).collect();
-    fn find(p: &mut [u32], mut i: u32) -> u32 {
-        while p[i as usize] != i {
-            p[i as usize] = p[p[i as usize] as usize];
-            i = p[i as usize];
-        }
-        i
-    }
     let join = (spec.range / 2.0).powi(2);
     let close =
         |a: [f32; 3], b: [f32; 3]| (0..3).map(|k| (a[k] - b[k]).powi(2)).sum::<f32>() <= join;
@@ -393,6 +391,7 @@ pub fn mean_shift(image: &RgbImage, spec: &MeanShiftSpec) -> Result<Segmentation
     }
     let mut labels: Plane<u32> = Plane::from_fn(w, h, |x, y| find(&mut parent, (y * w + x) as u32));
     merge_small_regions(&mut labels, image, spec.min_region);
+    cap_regions(&mut labels, image, MAX_LABELS);
     let sums = region_sums(&labels, image);
     let image = compact(labels, |l| {
         let (s, n) = sums[l as usize];
@@ -497,70 +496,6 @@ fn modes(
     (pixels.into_iter().map(|m| m.0).collect(), iterations)
 }
 
-/// Per root label: summed colour and pixel count.
-fn region_sums(labels: &Plane<u32>, image: &RgbImage) -> Vec<([u64; 3], u64)> {
-    let mut sums = vec![([0u64; 3], 0u64); labels.len()];
-    for (&l, p) in labels.as_slice().iter().zip(image.as_slice()) {
-        let e = &mut sums[l as usize];
-        for k in 0..3 {
-            e.0[k] += p[k] as u64;
-        }
-        e.1 += 1;
-    }
-    sums
-}
-
-/// Merges every region smaller than `min_region` into the adjacent region of
-/// the closest mean colour, smallest regions first, until none is left.
-fn merge_small_regions(labels: &mut Plane<u32>, image: &RgbImage, min_region: usize) {
-    let (w, h) = labels.dims();
-    for _ in 0..8 {
-        let sums = region_sums(labels, image);
-        let mean = |l: u32| {
-            let (s, n) = sums[l as usize];
-            s.map(|v| v as f64 / n.max(1) as f64)
-        };
-        let mut target: Vec<Option<(f64, u32)>> = vec![None; labels.len()];
-        for y in 0..h {
-            for x in 0..w {
-                let a = labels.get(x, y);
-                if sums[a as usize].1 as usize >= min_region {
-                    continue;
-                }
-                for (nx, ny) in [
-                    (x + 1, y),
-                    (x, y + 1),
-                    (x.wrapping_sub(1), y),
-                    (x, y.wrapping_sub(1)),
-                ] {
-                    if nx >= w || ny >= h {
-                        continue;
-                    }
-                    let b = labels.get(nx, ny);
-                    if b == a {
-                        continue;
-                    }
-                    let d: f64 = (0..3).map(|k| (mean(a)[k] - mean(b)[k]).powi(2)).sum();
-                    if target[a as usize].is_none_or(|(bd, _)| d < bd) {
-                        target[a as usize] = Some((d, b));
-                    }
-                }
-            }
-        }
-        if target.iter().all(Option::is_none) {
-            return;
-        }
-        for l in labels.as_mut_slice() {
-            if let Some((_, b)) = target[*l as usize] {
-                // Merge only into a region that is not itself moving this round.
-                if target[b as usize].is_none() || sums[b as usize].1 > sums[*l as usize].1 {
-                    *l = b;
-                }
-            }
-        }
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -655,6 +590,36 @@ mod tests {
         for (w, h) in [(1, 1), (1, 9), (9, 1), (2, 3)] {
             let seg = mean_shift(&two_halves(w, h), &spec).unwrap();
             assert_eq!(seg.image.labels().dims(), (w, h));
+        }
+    }
+
+    /// Uniform noise, a fixed sequence.
+    fn noise(w: usize, h: usize) -> RgbImage {
+        let mut s = 3u32;
+        RgbImage::from_fn(w, h, |_, _| {
+            s = s.wrapping_mul(1_664_525).wrapping_add(1_013_904_223);
+            [(s >> 24) as u8, (s >> 16) as u8, (s >> 8) as u8]
+        })
+    }
+
+    /// A 400x300 noise image stopped this with "more than 65536 segments":
+    /// its modes differ everywhere, and its one-pixel regions, equal, do
+    /// not merge for the minimum size. Now the smallest regions merge down
+    /// to the label cap.
+    #[test]
+    fn noise_images_segment_within_the_label_cap() {
+        let image = noise(400, 300);
+        for (min_region, pyramid) in [(50, 1), (30, 0), (1, 1), (0, 1)] {
+            let spec = MeanShiftSpec {
+                min_region,
+                pyramid,
+                ..MeanShiftSpec::default()
+            };
+            let seg = mean_shift(&image, &spec).unwrap();
+            let labels = seg.image.labels();
+            assert_eq!(labels.dims(), (400, 300));
+            let n = seg.image.palette().len();
+            assert_eq!(n, crate::MAX_LABELS, "min_region {min_region}");
         }
     }
 }

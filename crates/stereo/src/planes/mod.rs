@@ -34,8 +34,16 @@
 //!
 //! Bad input: a label map of another size than the views is a
 //! [`StereoError::LabelMapSize`]; segments of one pixel, segments without a
-//! reliable pixel (they borrow a neighbour's plane) and thousands of
-//! segments are matched like any others.
+//! reliable pixel (they borrow a neighbour's plane) and any number of
+//! segments are matched like any others. Segments are components, numbered
+//! `u32` whatever the labels' type, and so are pixel indices: the only cap
+//! is views of fewer than 2³² pixels (else a [`StereoError::Parameter`]).
+//! Memory is linear in the pixels (the segment graph keeps only adjacent
+//! pairs; step 2's SGM volumes hold pixels times disparities), and so is
+//! the time with tiles: a segment then has at most `tile²` pixels and as
+//! many neighbours, whose planes it tries. Without tiles (`tile` 0) a
+//! segment around many others with planes of their own costs their number
+//! squared.
 
 pub mod assign;
 pub mod boundary;
@@ -236,6 +244,13 @@ pub(crate) fn match_planes_with(
     crate::check_pair(left, right)?;
     spec.validate(left.width(), left.height())?;
     spec.planes.validate()?;
+    if left.len() >= u32::MAX as usize {
+        return Err(StereoError::Parameter(format!(
+            "the plane matcher numbers pixels in 32 bits: {}x{} views are too large",
+            left.width(),
+            left.height()
+        )));
+    }
     if labels.dims() != left.dims() {
         return Err(StereoError::LabelMapSize {
             labels: labels.dims(),
