@@ -4,9 +4,9 @@
 //! than 65536 regions, which stopped `match` with "invalid parameter: more
 //! than 65536 segments"; now it must return a map, and a good one.
 
-use stereolink::pipeline::planes::{disparity, Segments};
 use stereolink_image::metrics::bad_pixel_rate;
 use stereolink_image::{DisparityMap, Mask, RgbImage};
+use stereolink_pipeline::planes::{disparity, Segments};
 use stereolink_stereo::{Algorithm, MatchSpec, Matcher};
 
 /// A fronto-parallel rectangle or ellipse at a constant disparity.
