@@ -60,7 +60,7 @@ fn main() -> anyhow::Result<()> {
             levels_spec: LevelSpec::default(),
             plane_table: TableCoding::default(),
         };
-        let p = prepare(&scene.left, &scene.right, &scene.calib, &cfg, 1)?;
+        let p = prepare(&scene.left, &scene.right, &scene.calib, &cfg, (1, 0))?;
         let board = |source| {
             let mut b = BoardReceiver::new(max_disp, 9, Duration::from_secs(10));
             b.source = source;

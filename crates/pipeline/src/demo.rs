@@ -18,6 +18,7 @@ use stereolink_stereo::depth::{region_distance, Roi};
 
 use crate::receiver::{BoardReceiver, Event};
 use crate::sender::{default_roi, prepare, SenderConfig};
+use stereolink_codec::control::unix_us;
 
 /// Demo settings.
 pub struct DemoConfig {
@@ -114,7 +115,13 @@ pub fn run(cfg: DemoConfig, progress: &dyn Fn(&str)) -> anyhow::Result<DemoRepor
         .with_context(|| format!("cannot create {}", cfg.out.display()))?;
     std::fs::create_dir_all(cfg.out.join("received"))?;
     progress("segmenting, encoding and matching on the sender");
-    let prepared = prepare(&scene.left, &scene.right, &scene.calib, &cfg.sender, 1)?;
+    let prepared = prepare(
+        &scene.left,
+        &scene.right,
+        &scene.calib,
+        &cfg.sender,
+        (1, unix_us()),
+    )?;
     write_png(&cfg.out, "sent/left.png", &prepared.sent.0)?;
     write_png(&cfg.out, "sent/right.png", &prepared.sent.1)?;
     let original_png_bytes =

@@ -22,8 +22,10 @@
 
 pub mod demo;
 pub mod live;
+pub mod pairs;
 pub mod planes;
 pub mod planetable;
+pub mod rates;
 pub mod receiver;
 pub mod sender;
 pub mod sensor;

@@ -1,32 +1,38 @@
 //! The sender's pair loop on a real link, for one pair (sent again and
-//! again), for every pair a camera writes into a folder, or live from two
-//! cameras. All three feed one loop ([`Pairs`]): take a pair, rectify and
-//! prepare it, send it. Between pairs the loop obeys the commands that
-//! came over the link ([`SendLoop::run`]): new levels or method from the
-//! next pair, the last pair again at once on a frame request; each is
-//! answered on the link. `stereolink send` builds it and prints what it sent.
+//! again), for the pairs a camera writes into a folder, a recorded sequence,
+//! or live from two cameras ([`Pairs`]). Every pair taken is matched, and
+//! its depth report goes at once on the urgent lane, whatever frame is in
+//! flight: the robot gets depth at the camera's rate. A live pair becomes a
+//! frame only when the link has finished the frame before (frames as fast
+//! as the link carries them, the newest pair winning); each pair of files
+//! is a frame. Between pairs the loop obeys the commands that came over the
+//! link ([`SendLoop::run`]): new levels or method from the next pair, the
+//! last pair again at once on a frame request; each is answered on the
+//! link. Once a second, and at the end, it says what the link carried
+//! ([`Status`]). `stereolink send` builds it and prints what it sent.
 
-use std::collections::{BTreeMap, VecDeque};
+use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use serde::Serialize;
 use stereolink_calib::StereoRectifier;
-use stereolink_capture::StereoCapture;
-use stereolink_codec::control::{Control, Reply};
+use stereolink_codec::control::{unix_us, Control, Reply};
+use stereolink_codec::DepthReport;
 use stereolink_image::{io, Calibration, RgbImage};
 use stereolink_link::endpoint::SendStats;
 
-use crate::sender::{prepare, Applied, SenderConfig};
-use crate::uplink::{Kind, Outcome, Uplink};
-use crate::watch::{Pair, Watcher};
+use crate::pairs::{Got, Next, Pairs};
+use crate::rates::{Figures, Rates};
+use crate::sender::{measure_depth, prepare, report_message, Applied, SenderConfig};
+use crate::uplink::{Ended, Kind, Outcome, Uplink};
 
 /// One frame sent: its sizes, what preparing it cost, and how its frame
 /// and depth report were delivered.
 #[derive(Debug, Serialize)]
 pub struct Sent {
-    /// The frame's id (1, 2, ...).
+    /// The id of the frame's pair (1, 2, ...: every pair taken has one).
     pub frame_id: u32,
     /// Bytes of the frame message.
     pub frame_bytes: usize,
@@ -36,13 +42,14 @@ pub struct Sent {
     pub distance_m: f32,
     /// From handing the frame to the link until its last fragment was acknowledged.
     pub seconds: f64,
-    /// From handing the depth report to the link until it was acknowledged.
-    pub report_seconds: f64,
+    /// From handing the depth report to the link until it was
+    /// acknowledged; `None` when a newer pair's report took its place first.
+    pub report_seconds: Option<f64>,
     /// The frame's goodput, bits a second.
     pub goodput_bps: f64,
     /// Retransmissions of the frame and of its report.
     pub retransmissions: u64,
-    /// Pairs the cameras delivered while the one before was prepared and sent.
+    /// Pairs passed over for this newer one.
     pub skipped: u64,
     /// Time spent waiting for the pair (reading it, or for the cameras), ms.
     pub wait_ms: f64,
@@ -60,6 +67,79 @@ pub struct Sent {
     pub link: String,
 }
 
+/// What the loop did over a span: once a second, and for the whole run.
+#[derive(Clone, Debug, Serialize)]
+pub struct Status {
+    /// Pairs taken and matched (each gave a depth report).
+    pub pairs: u64,
+    /// Pairs passed over for a newer one.
+    pub skipped: u64,
+    /// Reports replaced by a newer one before the link took them.
+    pub superseded: u64,
+    /// Reports and frames the peer acknowledged; a report's latency runs
+    /// from its pair's capture to that acknowledgement.
+    #[serde(flatten)]
+    pub delivered: Figures,
+    /// Delivered message bits a second.
+    pub goodput_bps: f64,
+    /// DATA segments sent again.
+    pub retransmissions: u64,
+    /// What the link measured so far.
+    pub link: String,
+}
+
+/// What the loop tells its caller as it goes.
+pub enum Update<'a> {
+    /// A frame and its report ended.
+    Frame(&'a Sent),
+    /// The last second.
+    Second(&'a Status),
+}
+
+/// What a run sent.
+#[derive(Debug, Serialize)]
+pub struct Summary {
+    /// Every frame, in the order they ended.
+    pub frames: Vec<Sent>,
+    /// The whole run.
+    pub status: Status,
+}
+
+/// The counts behind a [`Status`].
+#[derive(Clone)]
+struct Counts {
+    rates: Rates,
+    pairs: u64,
+    skipped: u64,
+    superseded: u64,
+    retransmissions: u64,
+}
+
+impl Counts {
+    fn new(since: Instant) -> Counts {
+        Counts {
+            rates: Rates::new(since),
+            pairs: 0,
+            skipped: 0,
+            superseded: 0,
+            retransmissions: 0,
+        }
+    }
+
+    fn status(&self, now: Instant, link: &str) -> Status {
+        let delivered = self.rates.figures(now);
+        Status {
+            pairs: self.pairs,
+            skipped: self.skipped,
+            superseded: self.superseded,
+            goodput_bps: delivered.bytes as f64 * 8.0 / delivered.seconds.max(1e-9),
+            delivered,
+            retransmissions: self.retransmissions,
+            link: link.to_string(),
+        }
+    }
+}
+
 /// The link thread and what every frame is prepared with.
 pub struct SendLoop {
     uplink: Uplink,
@@ -72,191 +152,24 @@ pub struct SendLoop {
     save: Option<PathBuf>,
     /// Frames handed to the link whose frame or report has not ended yet.
     waiting: BTreeMap<u32, Waiting>,
+    /// Reports handed to the link: when, and their pair's capture (µs).
+    handed: BTreeMap<u32, (u64, u64)>,
     sent: Vec<Sent>,
-    /// The last pair sent, for a frame request.
+    /// The last pair taken, for a frame request.
     last: Option<Next>,
+    /// The whole run, and the last second.
+    total: Counts,
+    second: Counts,
+    /// What the link said last.
+    link: String,
 }
 
 /// A frame on its way: what was measured preparing it, and how its two
-/// messages ended so far.
+/// messages ended so far (its report: delivered, or `None` if superseded).
 struct Waiting {
     sent: Sent,
     frame: Option<SendStats>,
-    report: Option<SendStats>,
-}
-
-/// A pair to send, and what getting it cost.
-struct Next {
-    left: RgbImage,
-    right: RgbImage,
-    /// Time spent waiting for the pair (reading it, or for the cameras).
-    wait_ms: f64,
-    /// Pairs skipped since the previous one (live cameras only).
-    skipped: u64,
-}
-
-/// What [`Pairs::next`] found.
-enum Got {
-    Pair(Next),
-    /// Nothing yet (a folder with no new pair): ask again.
-    Wait,
-    /// No more pairs.
-    End,
-}
-
-/// Where the pairs come from; the send loop is the same for all.
-pub struct Pairs(Source);
-
-enum Source {
-    /// One pair of files, sent `remaining` more times.
-    Files {
-        left: RgbImage,
-        right: RgbImage,
-        remaining: u32,
-    },
-    /// Each new pair a capture program writes into `dir`, read every `poll`.
-    Folder {
-        dir: PathBuf,
-        poll: Duration,
-        watcher: Watcher,
-        pending: VecDeque<Pair>,
-    },
-    /// Two live cameras; `skipped` is their count at the last pair.
-    Cameras {
-        capture: Box<StereoCapture>,
-        timeout: Duration,
-        skipped: u64,
-    },
-}
-
-impl Pairs {
-    /// One pair of files, sent `repeat` times.
-    pub fn files(left: RgbImage, right: RgbImage, repeat: u32) -> Pairs {
-        Pairs(Source::Files {
-            left,
-            right,
-            remaining: repeat,
-        })
-    }
-
-    /// Each new pair a capture program writes into `dir` (`left*.png` with
-    /// the `right*.png` of the same name, in name order; a rewritten pair
-    /// is sent again), the folder read every `poll`.
-    pub fn folder(dir: PathBuf, poll: Duration) -> Pairs {
-        Pairs(Source::Folder {
-            dir,
-            poll,
-            watcher: Watcher::new(),
-            pending: VecDeque::new(),
-        })
-    }
-
-    /// Two live cameras; one that delivers nothing for `timeout` stops the
-    /// loop with an error.
-    pub fn cameras(timeout: Duration, capture: StereoCapture) -> Pairs {
-        Pairs(Source::Cameras {
-            timeout,
-            capture: Box::new(capture),
-            skipped: 0,
-        })
-    }
-
-    /// Whether the pairs come live from cameras (the next one is always
-    /// fresh, and comes at once).
-    fn live(&self) -> bool {
-        matches!(self.0, Source::Cameras { .. })
-    }
-
-    /// The next pair, [`Got::Wait`] after one poll interval of an empty
-    /// folder (a folder is waited on forever), or [`Got::End`]. A camera
-    /// that stops is an error.
-    fn next(&mut self) -> anyhow::Result<Got> {
-        let start = Instant::now();
-        let wait_ms = || start.elapsed().as_secs_f64() * 1e3;
-        match &mut self.0 {
-            Source::Files {
-                left,
-                right,
-                remaining,
-            } => {
-                if *remaining == 0 {
-                    return Ok(Got::End);
-                }
-                *remaining -= 1;
-                Ok(Got::Pair(Next {
-                    left: left.clone(),
-                    right: right.clone(),
-                    wait_ms: wait_ms(),
-                    skipped: 0,
-                }))
-            }
-            Source::Folder {
-                dir,
-                poll,
-                watcher,
-                pending,
-            } => loop {
-                let Some(pair) = pending.pop_front() else {
-                    pending.extend(watcher.pending(dir).with_context(|| {
-                        format!("cannot read the camera folder {}", dir.display())
-                    })?);
-                    if pending.is_empty() {
-                        std::thread::sleep(*poll);
-                        return Ok(Got::Wait);
-                    }
-                    continue;
-                };
-                if let Some((left, right)) = read_pair(watcher, &pair)? {
-                    return Ok(Got::Pair(Next {
-                        left,
-                        right,
-                        wait_ms: wait_ms(),
-                        skipped: 0,
-                    }));
-                }
-            },
-            Source::Cameras {
-                capture,
-                timeout,
-                skipped,
-            } => {
-                let pair = capture.next_pair(*timeout)?;
-                let new = pair.stats.skipped - *skipped;
-                *skipped = pair.stats.skipped;
-                Ok(Got::Pair(Next {
-                    left: pair.left,
-                    right: pair.right,
-                    wait_ms: wait_ms(),
-                    skipped: new,
-                }))
-            }
-        }
-    }
-}
-
-/// Takes a folder's pair and reads it; a pair that cannot be read (a file
-/// half written, views of different sizes) is reported and skipped until
-/// its files change.
-fn read_pair(watcher: &mut Watcher, pair: &Pair) -> anyhow::Result<Option<(RgbImage, RgbImage)>> {
-    watcher
-        .take(pair)
-        .with_context(|| format!("cannot read {}", pair.left.display()))?;
-    let views = io::read_rgb(&pair.left).and_then(|l| Ok((l, io::read_rgb(&pair.right)?)));
-    match views {
-        Ok(views) if views.0.dims() == views.1.dims() => Ok(Some(views)),
-        Ok(_) => {
-            eprintln!("skipping {}: the views differ in size", pair.left.display());
-            Ok(None)
-        }
-        Err(e) => {
-            eprintln!(
-                "skipping {}: {:#}",
-                pair.left.display(),
-                anyhow::Error::from(e)
-            );
-            Ok(None)
-        }
-    }
+    report: Option<Option<SendStats>>,
 }
 
 impl SendLoop {
@@ -271,6 +184,7 @@ impl SendLoop {
         cfg: SenderConfig,
         save: Option<PathBuf>,
     ) -> SendLoop {
+        let now = Instant::now();
         SendLoop {
             uplink,
             calib,
@@ -279,68 +193,131 @@ impl SendLoop {
             cfg,
             save,
             waiting: BTreeMap::new(),
+            handed: BTreeMap::new(),
             sent: Vec::new(),
             last: None,
+            total: Counts::new(now),
+            second: Counts::new(now),
+            link: String::new(),
         }
     }
 
-    /// Sends `pairs` until they end or `frames` pairs are sent, obeying the
-    /// link's commands between pairs; `on_sent` sees each frame once both
-    /// its messages arrived. Returns every frame sent, in that order. A
-    /// failed send stops the loop, naming the message.
+    /// Sends `pairs` until they end or `frames` frames are sent, obeying
+    /// the link's commands between pairs; `on` sees each frame once both
+    /// its messages ended, and the status once a second. A failed send
+    /// stops the loop, naming the message.
     pub fn run(
         mut self,
         mut pairs: Pairs,
         frames: Option<u32>,
-        mut on_sent: impl FnMut(&Sent),
-    ) -> anyhow::Result<Vec<Sent>> {
-        let mut frame_id = 0;
-        while frames.is_none_or(|n| frame_id < n) {
-            let next = match (self.obey()?, self.last.take()) {
+        mut on: impl FnMut(Update),
+    ) -> anyhow::Result<Summary> {
+        let room = self.uplink.report_room()?;
+        let (mut pair_id, mut frames_sent) = (0, 0);
+        let mut next_second = Instant::now() + Duration::from_secs(1);
+        while frames.is_none_or(|n| frames_sent < n) {
+            let outcomes = self.uplink.outcomes();
+            self.collect(outcomes, &mut on)?;
+            let now = Instant::now();
+            if now >= next_second {
+                let status = self.second.status(now, &self.link);
+                self.second = Counts::new(now);
+                on(Update::Second(&status));
+                next_second = now + Duration::from_secs(1);
+            }
+            let wanted = self.obey()?;
+            let next = match (wanted, self.last.take()) {
                 // The last pair again, now, with the current settings.
-                (Applied::FrameNow, Some(last)) if !pairs.live() => Next {
+                (Applied::FrameNow, Some(last)) if !pairs.cameras_live() => Next {
                     wait_ms: 0.0,
                     skipped: 0,
                     ..last
                 },
                 (_, last) => {
                     self.last = last;
-                    match pairs.next()? {
+                    match pairs.take()? {
                         Got::Pair(next) => next,
                         Got::Wait => continue,
                         Got::End => break,
                     }
                 }
             };
-            frame_id += 1;
-            self.send(&next, frame_id, &mut on_sent)?;
+            pair_id += 1;
+            let frame =
+                wanted == Applied::FrameNow || !pairs.paced() || !self.uplink.frame_in_flight();
+            if frame {
+                self.send_frame(&next, pair_id, room)?;
+                frames_sent += 1;
+            } else {
+                self.send_report(&next, pair_id, room)?;
+            }
+            for c in [&mut self.total, &mut self.second] {
+                c.pairs += 1;
+                c.skipped += next.skipped;
+            }
             self.last = Some(next);
         }
         let rest = self.uplink.finish()?;
-        self.collect(rest, &mut on_sent)?;
-        Ok(self.sent)
+        self.collect(rest, &mut on)?;
+        let status = self.total.status(Instant::now(), &self.link);
+        Ok(Summary {
+            frames: self.sent,
+            status,
+        })
     }
 
-    /// Prepares one pair (rectified first with `--calib stereo.yml`) and
-    /// sends its frame and depth report.
-    fn send(
-        &mut self,
-        next: &Next,
-        frame_id: u32,
-        on_sent: &mut impl FnMut(&Sent),
-    ) -> anyhow::Result<()> {
+    /// The pair's views, rectified first with `--calib stereo.yml`, and
+    /// how long that took (ms).
+    fn views<'a>(
+        &'a mut self,
+        next: &'a Next,
+        pair_id: u32,
+    ) -> anyhow::Result<((&'a RgbImage, &'a RgbImage), f64)> {
         let start = Instant::now();
-        let (left, right) = match &self.rectifier {
+        let views = match &self.rectifier {
             Some(r) => {
                 let (a, b) = &mut self.rectified;
                 r.rectify_into(&next.left, &next.right, a, b)
-                    .with_context(|| format!("cannot rectify pair {frame_id}"))?;
+                    .with_context(|| format!("cannot rectify pair {pair_id}"))?;
                 (&self.rectified.0, &self.rectified.1)
             }
             None => (&next.left, &next.right),
         };
-        let rectify_ms = start.elapsed().as_secs_f64() * 1e3;
-        let p = prepare(left, right, &self.calib, &self.cfg, frame_id)?;
+        Ok((views, start.elapsed().as_secs_f64() * 1e3))
+    }
+
+    /// Hands a depth report to the link, cut down to one radio packet.
+    fn hand_report(
+        &mut self,
+        report: &DepthReport,
+        (pair_id, captured_us): (u32, u64),
+        room: usize,
+    ) -> anyhow::Result<usize> {
+        let fitted = report.fitted(room).with_context(|| {
+            format!("a depth report does not fit the link's {room}-byte packet")
+        })?;
+        let bytes = report_message(&fitted, pair_id, captured_us);
+        let len = bytes.len();
+        self.uplink.report(pair_id, bytes)?;
+        self.handed.insert(pair_id, (unix_us(), captured_us));
+        Ok(len)
+    }
+
+    /// Matches a pair and sends its depth report alone.
+    fn send_report(&mut self, next: &Next, pair_id: u32, room: usize) -> anyhow::Result<()> {
+        let (calib, cfg) = (self.calib, self.cfg.clone());
+        let (views, _) = self.views(next, pair_id)?;
+        let depth = measure_depth(views, None, &calib, &cfg)?;
+        self.hand_report(&depth.report, (pair_id, next.captured_us), room)?;
+        Ok(())
+    }
+
+    /// Prepares a pair and sends its depth report and its frame (waiting
+    /// here until the frame before has ended).
+    fn send_frame(&mut self, next: &Next, pair_id: u32, room: usize) -> anyhow::Result<()> {
+        let (calib, cfg) = (self.calib, self.cfg.clone());
+        let ((left, right), rectify_ms) = self.views(next, pair_id)?;
+        let p = prepare(left, right, &calib, &cfg, (pair_id, next.captured_us))?;
         if let Some(dir) = &self.save {
             std::fs::create_dir_all(dir)
                 .with_context(|| format!("cannot create {}", dir.display()))?;
@@ -348,18 +325,18 @@ impl SendLoop {
             io::write_rgb(dir.join("sent-right.png"), &p.sent.1)?;
             stereolink_image::pfm::write(dir.join("sent-disparity.pfm"), &p.disparity)?;
         }
-        let (frame_bytes, report_bytes) = (p.frame_bytes.len(), p.report_bytes.len());
         // The report first: it goes ahead of the frame still in flight.
-        self.uplink.report(frame_id, p.report_bytes)?;
-        self.uplink.frame(frame_id, p.frame_bytes)?;
+        let report_bytes = self.hand_report(&p.report, (pair_id, next.captured_us), room)?;
+        let frame_bytes = p.frame_bytes.len();
+        self.uplink.frame(pair_id, p.frame_bytes)?;
         let (segment_ms, encode_ms, match_ms) = p.times_ms;
         let sent = Sent {
-            frame_id,
+            frame_id: pair_id,
             frame_bytes,
             report_bytes,
             distance_m: p.report.target_distance_m,
             seconds: 0.0,
-            report_seconds: 0.0,
+            report_seconds: None,
             goodput_bps: 0.0,
             retransmissions: 0,
             skipped: next.skipped,
@@ -376,9 +353,8 @@ impl SendLoop {
             frame: None,
             report: None,
         };
-        self.waiting.insert(frame_id, waiting);
-        let outcomes = self.uplink.outcomes();
-        self.collect(outcomes, on_sent)
+        self.waiting.insert(pair_id, waiting);
+        Ok(())
     }
 
     /// Obeys the commands that came over the link since the last call and
@@ -420,36 +396,60 @@ impl SendLoop {
     }
 
     /// Takes the ends of sends: a failure stops the sender, naming the
-    /// message; a frame whose two messages both arrived is done.
+    /// message; a delivered message is counted; a frame whose two messages
+    /// both ended is done.
     fn collect(
         &mut self,
         outcomes: Vec<Outcome>,
-        on_sent: &mut impl FnMut(&Sent),
+        on: &mut impl FnMut(Update),
     ) -> anyhow::Result<()> {
         for o in outcomes {
             let what = match o.kind {
                 Kind::Frame => format!("sending frame {}", o.frame_id),
-                Kind::Report => format!("sending the depth report of frame {}", o.frame_id),
+                Kind::Report => format!("sending the depth report of pair {}", o.frame_id),
                 Kind::Reply => {
-                    if let Err(e) = o.result {
+                    if let Ended::Failed(e) = o.ended {
                         eprintln!("the reply to command {} was not delivered: {e}", o.frame_id);
                     }
                     continue;
                 }
             };
-            let stats = o.result.context(what)?;
+            self.link = o.link.to_string();
+            let stats = match o.ended {
+                Ended::Failed(e) => return Err(e).context(what),
+                Ended::Superseded => None,
+                Ended::Delivered(stats) => Some(stats),
+            };
+            let handed = match o.kind {
+                Kind::Report => self.handed.remove(&o.frame_id),
+                _ => None,
+            };
+            for c in [&mut self.total, &mut self.second] {
+                match (o.kind, stats) {
+                    (Kind::Report, Some(s)) => {
+                        // Capture to hand-over, then hand-over to acknowledgement.
+                        let latency = handed.map(|(handed_us, captured_us)| {
+                            Duration::from_micros(handed_us.saturating_sub(captured_us)) + s.elapsed
+                        });
+                        c.rates.report(s.bytes as usize, latency);
+                    }
+                    (Kind::Report, None) => c.superseded += 1,
+                    (_, Some(s)) => c.rates.frame(s.bytes as usize),
+                    (_, None) => {}
+                }
+                c.retransmissions += stats.map_or(0, |s| s.retransmissions);
+            }
             let Some(w) = self.waiting.get_mut(&o.frame_id) else {
                 continue;
             };
             match o.kind {
-                Kind::Frame => w.frame = Some(stats),
-                Kind::Report => w.report = Some(stats),
-                Kind::Reply => {} // no frame waits for a reply (taken above)
+                Kind::Frame => w.frame = stats,
+                _ => w.report = Some(stats),
             }
-            w.sent.link = o.link.to_string();
+            w.sent.link = self.link.clone();
             if let (Some(f), Some(r)) = (w.frame, w.report) {
                 if let Some(w) = self.waiting.remove(&o.frame_id) {
-                    self.done(w.sent, f, r, on_sent);
+                    self.done(w.sent, f, r, on);
                 }
             }
         }
@@ -457,20 +457,20 @@ impl SendLoop {
     }
 
     /// Completes a frame's record from how its two messages were delivered
-    /// and hands it to `on_sent`.
+    /// and hands it to `on`.
     fn done(
         &mut self,
         mut s: Sent,
         frame: SendStats,
-        report: SendStats,
-        on_sent: &mut impl FnMut(&Sent),
+        report: Option<SendStats>,
+        on: &mut impl FnMut(Update),
     ) {
         s.seconds = frame.elapsed.as_secs_f64();
-        s.report_seconds = report.elapsed.as_secs_f64();
+        s.report_seconds = report.map(|r| r.elapsed.as_secs_f64());
         s.goodput_bps = frame.goodput_bps();
-        s.retransmissions = frame.retransmissions + report.retransmissions;
+        s.retransmissions = frame.retransmissions + report.map_or(0, |r| r.retransmissions);
         s.send_ms = s.seconds * 1e3;
-        on_sent(&s);
+        on(Update::Frame(&s));
         self.sent.push(s);
     }
 }

@@ -158,38 +158,124 @@ pub fn segment_pair(
     Ok((sl, sr))
 }
 
-/// The sender's disparity on the original pair. The plane matcher fits its
-/// planes to the transmitted left labels; its map is then the one its
-/// plane table rebuilds, the very map a receiver rebuilds from the frame.
-fn match_pair(
+/// The plane matcher's disparity on the original pair, with the planes
+/// fitted to the transmitted left labels: its map is the one its plane
+/// table rebuilds, the very map a receiver rebuilds from the frame.
+fn plane_depth(
     (left, right): (&RgbImage, &RgbImage),
     left_labels: &LabelMap,
     cfg: &SenderConfig,
-) -> anyhow::Result<(DisparityMap, Option<PlaneTable>)> {
-    let spec = &cfg.matcher;
-    if spec.algorithm != Algorithm::Planes {
-        return Ok((Matcher::new().compute(left, right, spec)?, None));
-    }
+) -> anyhow::Result<(DisparityMap, PlaneTable)> {
     // The table carries a plane per segment of the labels cut by the
     // tiles, as the receiver finds them: no further cut of bent segments,
     // and no per-pixel boundary step, which would be thrown away.
-    let mut spec = spec.clone();
+    let mut spec = cfg.matcher.clone();
     spec.planes.split = 0.0;
     spec.planes.boundary.radius = 0;
     let matched = match_planes(left, right, left_labels, &spec)?;
     let table = planetable::table_of(&matched, &spec, cfg.plane_table)?;
     let mut disparity = DisparityMap::default();
     planetable::rebuild_into(left_labels, &table, &mut disparity)?;
-    Ok((disparity, Some(table)))
+    Ok((disparity, table))
 }
 
-/// Segments, matches, encodes and reports.
+/// The depth of one pair: the sender's disparity map, the plane table
+/// that rebuilds it (plane matcher only) and the depth report.
+pub struct Depth {
+    /// The sender's disparity map.
+    pub disparity: DisparityMap,
+    /// The plane table (with the plane matcher).
+    pub planes: Option<PlaneTable>,
+    /// The depth report.
+    pub report: DepthReport,
+    /// Matching time, ms.
+    pub match_ms: f64,
+}
+
+/// Matches a pair and builds its depth report. The plane matcher fits its
+/// planes to the left view's labels: those transmitted when given, else the
+/// left view is segmented for them (a report sent without a frame).
+pub fn measure_depth(
+    (left, right): (&RgbImage, &RgbImage),
+    left_labels: Option<&LabelMap>,
+    calib: &Calibration,
+    cfg: &SenderConfig,
+) -> anyhow::Result<Depth> {
+    anyhow::ensure!(
+        left.dims() == right.dims(),
+        "left is {:?} but right is {:?}",
+        left.dims(),
+        right.dims()
+    );
+    let t = Instant::now();
+    let (disparity, planes) = if cfg.matcher.algorithm != Algorithm::Planes {
+        (Matcher::new().compute(left, right, &cfg.matcher)?, None)
+    } else {
+        let segmented;
+        let labels = match left_labels {
+            Some(l) => l,
+            None => {
+                segmented = segment(left, &cfg.method, cfg.levels, cfg.seed)
+                    .context("segmenting the left view")?;
+                segmented.image.labels()
+            }
+        };
+        let (disparity, table) = plane_depth((left, right), labels, cfg)?;
+        (disparity, Some(table))
+    };
+    let match_ms = t.elapsed().as_secs_f64() * 1e3;
+    let report = depth_report(&disparity, calib, cfg);
+    Ok(Depth {
+        disparity,
+        planes,
+        report,
+        match_ms,
+    })
+}
+
+/// The depth report of a disparity map: the target region's distance,
+/// the depth levels with their distances, the histogram.
+fn depth_report(disparity: &DisparityMap, calib: &Calibration, cfg: &SenderConfig) -> DepthReport {
+    let (w, h) = disparity.dims();
+    let roi = cfg.roi.unwrap_or_else(|| default_roi(w, h));
+    let distance = region_distance(disparity, roi, calib).ok().flatten();
+    let levels = depth_levels(disparity, &cfg.levels_spec);
+    let focal_baseline = metric(calib).ok();
+    let metric = |d: f32| {
+        focal_baseline
+            .and_then(|(f, b)| depth_of(d, f, b, calib.doffs))
+            .map_or(f32::NAN, |z| z as f32)
+    };
+    DepthReport {
+        target_distance_m: distance.map_or(f32::NAN, |d| d as f32),
+        target_region: [roi.x, roi.y, roi.w, roi.h].map(|v| v.min(u16::MAX as usize) as u16),
+        levels: levels
+            .levels
+            .iter()
+            .map(|l| ReportLevel {
+                disparity: l.disparity,
+                distance_m: metric(l.disparity),
+                share: l.share as f32,
+            })
+            .collect(),
+        histogram: levels.histogram,
+    }
+}
+
+/// A depth report as the message of pair `pair_id`, captured at
+/// `captured_us`.
+pub fn report_message(report: &DepthReport, pair_id: u32, captured_us: u64) -> Vec<u8> {
+    container::encode(&Message::DepthReport(report.clone()), pair_id, captured_us)
+}
+
+/// Segments, matches, encodes and reports pair `frame_id`, captured at
+/// `captured_us` (the messages' time stamp).
 pub fn prepare(
     left: &RgbImage,
     right: &RgbImage,
     calib: &Calibration,
     cfg: &SenderConfig,
-    frame_id: u32,
+    (frame_id, captured_us): (u32, u64),
 ) -> anyhow::Result<Prepared> {
     anyhow::ensure!(
         left.dims() == right.dims(),
@@ -210,9 +296,7 @@ pub fn prepare(
         psnr_rgb(left, &sent.0)?.overall,
         psnr_rgb(right, &sent.1)?.overall,
     );
-    let t = Instant::now();
-    let (disparity, planes) = match_pair((left, right), sl.image.labels(), cfg)?;
-    let match_ms = t.elapsed().as_secs_f64() * 1e3;
+    let depth = measure_depth((left, right), Some(sl.image.labels()), calib, cfg)?;
     let t = Instant::now();
     let frame = StereoFrame {
         kind: SegmentationKind::from_name(cfg.method.name()).unwrap_or(SegmentationKind::None),
@@ -222,46 +306,23 @@ pub fn prepare(
         calibration: Some(*calib),
         left: View::Indexed(sl.image),
         right: View::Indexed(sr.image),
-        planes,
+        planes: depth.planes,
     };
-    let timestamp = stereolink_codec::control::unix_us();
-    let frame_bytes =
-        container::encode(&Message::StereoFrame(Box::new(frame)), frame_id, timestamp);
+    let frame_bytes = container::encode(
+        &Message::StereoFrame(Box::new(frame)),
+        frame_id,
+        captured_us,
+    );
     let enc_ms = t.elapsed().as_secs_f64() * 1e3;
-    let (w, h) = left.dims();
-    let roi = cfg.roi.unwrap_or_else(|| default_roi(w, h));
-    let distance = region_distance(&disparity, roi, calib).ok().flatten();
-    let levels = depth_levels(&disparity, &cfg.levels_spec);
-    let focal_baseline = metric(calib).ok();
-    let metric = |d: f32| {
-        focal_baseline
-            .and_then(|(f, b)| depth_of(d, f, b, calib.doffs))
-            .map_or(f32::NAN, |z| z as f32)
-    };
-    let report = DepthReport {
-        target_distance_m: distance.map_or(f32::NAN, |d| d as f32),
-        target_region: [roi.x, roi.y, roi.w, roi.h].map(|v| v.min(u16::MAX as usize) as u16),
-        levels: levels
-            .levels
-            .iter()
-            .map(|l| ReportLevel {
-                disparity: l.disparity,
-                distance_m: metric(l.disparity),
-                share: l.share as f32,
-            })
-            .collect(),
-        histogram: levels.histogram,
-    };
-    let report_bytes =
-        container::encode(&Message::DepthReport(report.clone()), frame_id, timestamp);
+    let report_bytes = report_message(&depth.report, frame_id, captured_us);
     Ok(Prepared {
         frame_bytes,
         report_bytes,
         sent,
-        disparity,
-        report,
+        disparity: depth.disparity,
+        report: depth.report,
         psnr_db,
-        times_ms: (seg_ms, enc_ms, match_ms),
+        times_ms: (seg_ms, enc_ms, depth.match_ms),
     })
 }
 

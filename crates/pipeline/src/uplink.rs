@@ -2,8 +2,11 @@
 //! pair never stops the link: frames go on the bulk lane one at a time, and
 //! each depth report on the urgent lane, ahead of the fragments of the frame
 //! still in flight. The robot's reports then wait for no 30 kB frame, and
-//! the link stays busy while the next pair is segmented and matched. With a
-//! second link (the paper's two radio pairs, `send --report-link`) the
+//! the link stays busy while the next pair is segmented and matched. A
+//! report waiting for the urgent lane is replaced by a newer one (the
+//! newest wins: the robot acts on the latest distance, and a stale one
+//! would only delay it); the replaced one ends [`Ended::Superseded`]. With
+//! a second link (the paper's two radio pairs, `send --report-link`) the
 //! reports go over that one instead.
 //!
 //! The thread also takes what the peer sends, busy or idle: Control
@@ -43,10 +46,21 @@ pub struct Outcome {
     pub kind: Kind,
     /// The frame's id (a reply's: the id of the command it answers).
     pub frame_id: u32,
-    /// Delivered (with what the send cost), or why not.
-    pub result: Result<SendStats, LinkError>,
+    /// Delivered (with what the send cost), replaced, or why it failed.
+    pub ended: Ended,
     /// The link's statistics when it ended.
     pub link: LinkStats,
+}
+
+/// How a message left the link thread.
+#[derive(Debug)]
+pub enum Ended {
+    /// The peer acknowledged it, at this cost.
+    Delivered(SendStats),
+    /// A newer report took its place before it was sent: never sent.
+    Superseded,
+    /// The link gave up on it.
+    Failed(LinkError),
 }
 
 struct Job {
@@ -65,6 +79,9 @@ pub struct Uplink {
     frames_in_flight: usize,
     /// Outcomes taken while waiting, not yet handed out.
     taken: VecDeque<Outcome>,
+    /// The largest message one radio packet carries, once the thread
+    /// has opened its endpoints.
+    room: Receiver<usize>,
 }
 
 /// How long the link thread answers the peer's late retransmissions after
@@ -85,8 +102,10 @@ impl Uplink {
         let (jobs, job_rx) = mpsc::sync_channel::<Job>(8);
         let (done_tx, outcomes) = mpsc::channel();
         let (incoming_tx, incoming) = mpsc::channel();
+        let (room_tx, room) = mpsc::sync_channel(1);
         let thread = std::thread::spawn(move || {
             let (frames, reports) = make()?;
+            let _ = room_tx.send(reports.as_ref().unwrap_or(&frames).one_packet_message());
             run(frames, reports, job_rx, (done_tx, incoming_tx))
         });
         Uplink {
@@ -96,6 +115,20 @@ impl Uplink {
             thread: Some(thread),
             frames_in_flight: 0,
             taken: VecDeque::new(),
+            room,
+        }
+    }
+
+    /// The largest report that crosses the link in one radio packet, with
+    /// the secure layer's overhead ([`Endpoint::one_packet_message`] of
+    /// the reports' link); waits for the link thread to open its links.
+    pub fn report_room(&mut self) -> anyhow::Result<usize> {
+        match self.room.recv() {
+            Ok(room) => Ok(room),
+            Err(_) => {
+                self.finish()?;
+                anyhow::bail!("the link thread stopped")
+            }
         }
     }
 
@@ -116,7 +149,8 @@ impl Uplink {
         anyhow::bail!("the link thread stopped")
     }
 
-    /// Sends a depth report at once, on the urgent lane.
+    /// Sends a depth report at once, on the urgent lane (replacing one
+    /// still waiting for it).
     pub fn report(&mut self, frame_id: u32, bytes: Vec<u8>) -> anyhow::Result<()> {
         self.hand_over(Kind::Report, frame_id, bytes)
     }
@@ -144,6 +178,14 @@ impl Uplink {
         }
         self.frames_in_flight += 1;
         self.hand_over(Kind::Frame, frame_id, bytes)
+    }
+
+    /// Whether a frame handed over has not ended yet (without waiting).
+    pub fn frame_in_flight(&mut self) -> bool {
+        while let Ok(o) = self.outcomes.try_recv() {
+            self.take(o);
+        }
+        self.frames_in_flight > 0
     }
 
     fn take(&mut self, o: Outcome) {
@@ -204,7 +246,23 @@ fn run(
             break;
         }
         match jobs.try_recv() {
-            Ok(job) => queued[lane_of(job.kind) as usize].push_back(job),
+            Ok(job) => {
+                let queue = &mut queued[lane_of(job.kind) as usize];
+                if job.kind == Kind::Report {
+                    // The newest report wins over one still waiting.
+                    if let Some(i) = queue.iter().position(|j| j.kind == Kind::Report) {
+                        if let Some(old) = queue.remove(i) {
+                            let _ = done.send(Outcome {
+                                kind: old.kind,
+                                frame_id: old.frame_id,
+                                ended: Ended::Superseded,
+                                link: eps[urgent_ep].link_stats(),
+                            });
+                        }
+                    }
+                }
+                queue.push_back(job);
+            }
             Err(TryRecvError::Disconnected) => open = false,
             Err(TryRecvError::Empty) => {}
         }
@@ -235,10 +293,14 @@ fn run(
             for (lane, result) in ep.poll_sends(wait).context("link")? {
                 if let Some((kind, frame_id)) = current[lane as usize].take() {
                     let link = ep.link_stats();
+                    let ended = match result {
+                        Ok(stats) => Ended::Delivered(stats),
+                        Err(e) => Ended::Failed(e),
+                    };
                     let _ = done.send(Outcome {
                         kind,
                         frame_id,
-                        result,
+                        ended,
                         link,
                     });
                 }

@@ -341,27 +341,31 @@ fn demo_on_a_small_synthetic_scene() {
     );
 }
 
-/// `send --watch` sends the pairs a camera writes into a folder, in name
-/// order, skipping one that cannot be read; the receiver shows both frames.
+/// `send --watch` sends the newest pair a camera wrote into a folder,
+/// skipping (and counting) the older ones and one that cannot be read; a
+/// pair written later is the next frame. The receiver shows both frames.
 #[test]
-fn send_watches_a_camera_folder() {
+fn send_watches_a_camera_folder_newest_first() {
     let dir = tempfile::tempdir().unwrap();
     let scene = dir.path().join("scene");
     synth(&scene);
     let camera = dir.path().join("camera");
     std::fs::create_dir(&camera).unwrap();
-    for i in 1..=2 {
-        for side in ["left", "right"] {
+    let write_pair = |i: u32| {
+        // The right view first: a pair is complete once its left view is there.
+        for side in ["right", "left"] {
             std::fs::copy(
                 scene.join(format!("{side}.png")),
                 camera.join(format!("{side}_{i}.png")),
             )
             .unwrap();
         }
-    }
-    // First in name order, and not images: skipped with a message.
-    std::fs::write(camera.join("left_0.png"), b"not a png").unwrap();
-    std::fs::write(camera.join("right_0.png"), b"nor this").unwrap();
+    };
+    write_pair(1);
+    write_pair(2);
+    // The newest, and not images: skipped with a message.
+    std::fs::write(camera.join("left_3.png"), b"not a png").unwrap();
+    std::fs::write(camera.join("right_3.png"), b"nor this").unwrap();
     let shots = dir.path().join("screens");
     let (a, b) = (free_port(), free_port());
     let display = format!("png:{}", shots.display());
@@ -372,11 +376,14 @@ fn send_watches_a_camera_folder() {
     );
     std::thread::sleep(Duration::from_millis(200));
     let tx = spawn(&strings(&[
+        "--json",
         "send",
         "--link",
         &format!("udp:127.0.0.1:{a}?peer=127.0.0.1:{b}"),
         "--watch",
         camera.to_str().unwrap(),
+        "--poll-ms",
+        "50",
         "--frames",
         "2",
         "--max-disp",
@@ -384,6 +391,13 @@ fn send_watches_a_camera_folder() {
         "--method",
         "kmeans",
     ]));
+    // Once the first frame is on the screen, the camera writes a new pair.
+    let start = std::time::Instant::now();
+    while !shots.join("screen-00001.png").is_file() {
+        assert!(start.elapsed() < Duration::from_secs(60), "no first frame");
+        std::thread::sleep(Duration::from_millis(20));
+    }
+    write_pair(4);
     let out = tx.wait_with_output().unwrap();
     let (sent, errors) = (
         String::from_utf8_lossy(&out.stdout),
@@ -391,14 +405,30 @@ fn send_watches_a_camera_folder() {
     );
     assert!(out.status.success(), "send failed: {sent}{errors}");
     assert!(
-        errors.contains("skipping") && errors.contains("left_0.png"),
+        errors.contains("skipping") && errors.contains("left_3.png"),
         "{errors}"
     );
-    assert!(
-        sent.contains("frame 1:") && sent.contains("frame 2:"),
-        "{sent}"
+    let sent: serde_json::Value = serde_json::from_str(&sent).unwrap();
+    let frames: Vec<_> = sent["frames"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|f| {
+            (
+                f["frame_id"].as_u64().unwrap(),
+                f["skipped"].as_u64().unwrap(),
+            )
+        })
+        .collect();
+    // Pair 2 first (1 passed over, 3 unreadable), then pair 4.
+    assert_eq!(frames, [(1, 2), (2, 0)], "{sent}");
+    let status = &sent["status"];
+    assert_eq!(
+        (status["pairs"].as_u64(), status["skipped"].as_u64()),
+        (Some(2), Some(2)),
+        "{status}"
     );
-    assert!(!sent.contains("frame 3:"), "{sent}");
+    assert!(status["reports"].as_u64().unwrap() >= 1, "{status}");
     finish(rx, "receive");
     assert!(shots.join("screen-00002.png").is_file());
 }

@@ -5,10 +5,12 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use serde::Serialize;
 use stereolink_codec::container;
+use stereolink_codec::control::unix_us;
 use stereolink_display::open_sink;
 use stereolink_link::endpoint::{Endpoint, LinkError};
 use stereolink_link::secure::{Rejections, SecureConfig};
 use stereolink_link::spec;
+use stereolink_pipeline::rates::{since_stamp, Figures, Rates};
 use stereolink_pipeline::receiver::{BoardReceiver, DisparitySource, Event};
 use stereolink_robot::open_axis;
 use stereolink_robot::policy::MotionPolicy;
@@ -122,16 +124,21 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     if let Some(r) = &args.robot {
         board.axis = Some(open_axis(r).with_context(|| format!("cannot open axis {r}"))?);
     }
-    let mut frames = 0;
-    let mut halves = std::collections::BTreeSet::new();
+    let mut frames = FrameCount::default();
     let mut events = Vec::new();
-    let mut tally = Tally::default();
-    let (timeout, mut heard) = (Duration::from_secs(args.timeout_s), Instant::now());
     let started = Instant::now();
+    let (mut total, mut second) = (Rates::new(started), Rates::new(started));
+    let mut next_second = started + Duration::from_secs(1);
+    let (timeout, mut heard) = (Duration::from_secs(args.timeout_s), Instant::now());
     // The loop in a closure, so that whatever ends it, the axis is dealt
     // with and the summary printed below.
     let mut receive = || -> anyhow::Result<End> {
-        while args.frames == 0 || frames < args.frames {
+        while args.frames == 0 || frames.counted < args.frames {
+            if Instant::now() >= next_second {
+                let now = Instant::now();
+                eprintln!("received: {}", second.take(now));
+                next_second = now + Duration::from_secs(1);
+            }
             // The watchdog is checked whether or not anything arrives: a link
             // that falls silent must stop the axis too. Short waits, so that it
             // and the screen follow the axis while the link is silent.
@@ -146,9 +153,17 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
                 Err(e) => return Err(e).context("receiving"),
             };
             heard = Instant::now();
-            let sent_us = container::decode_header(&msg).ok().map(|h| h.timestamp_us);
+            let stamp_us = container::decode_header(&msg).map_or(0, |h| h.timestamp_us);
             let event = board.handle(&msg);
-            tally.count(&event, sent_us, msg.len());
+            for rates in [&mut total, &mut second] {
+                match &event {
+                    Event::Frame { .. } => rates.frame(msg.len()),
+                    Event::Report { .. } => {
+                        rates.report(msg.len(), since_stamp(stamp_us, unix_us()));
+                    }
+                    _ => {}
+                }
+            }
             // Shown and acted on: the sender may count it delivered now, before
             // this process says so (a process killed after saying it showed a
             // frame has acknowledged it, and its next life is not sent it again).
@@ -207,18 +222,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
                     Event::Rejected(why) => eprintln!("{why}"),
                 }
             }
-            if let Event::Frame { frame_id, .. } | Event::Report { frame_id, .. } = &event {
-                // A frame counts once both its views and its report arrived
-                // (the report usually first: it overtakes the frame).
-                if !halves.remove(frame_id) {
-                    halves.insert(*frame_id);
-                    if halves.len() > 16 {
-                        halves.pop_first();
-                    }
-                } else {
-                    frames += 1;
-                }
-            }
+            frames.count(&event);
             board.status.security = security_line(&eps);
             // What the links measure: the radio's signal where its frames
             // carry it, and the retransmitted segments received, as a count and
@@ -266,7 +270,19 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     if let Err(e) = board.follow_axis() {
         eprintln!("display: {e}");
     }
-    let summary = tally.summary(started.elapsed(), &ended, &axis);
+    let summary = Summary {
+        link: total.figures(Instant::now()),
+        ended: match &ended {
+            Ok(End::Frames) => "frames".into(),
+            Ok(End::Quiet) => "quiet".into(),
+            Err(e) => format!("error: {e:#}"),
+        },
+        axis_mm: axis
+            .position_mm
+            .as_ref()
+            .and_then(|p| p.as_ref().ok().copied()),
+        axis_stopped: axis.stopped,
+    };
     if !out.json {
         println!("{summary}");
         for (ep, label) in eps.iter().zip(["link", "report link"]) {
@@ -377,84 +393,48 @@ fn settle_axis(board: &mut BoardReceiver, finish: bool) -> AxisEnd {
     }
 }
 
-/// What the receiver counts for its summary.
+/// Frames complete on the board: a frame counts once its views and a
+/// depth report of its pair or a later one arrived (the reports overtake the
+/// frames, and a newer pair's report may have taken its own's place).
 #[derive(Default)]
-struct Tally {
-    reports: u64,
-    frames: u64,
-    bytes: u64,
-    /// Sender's time stamp to the report's move, ms, per report.
-    latency_ms: Vec<f64>,
+struct FrameCount {
+    counted: u32,
+    /// The newest report's pair.
+    last_report: Option<u32>,
+    /// Frames whose report has not come yet.
+    waiting: std::collections::BTreeSet<u32>,
 }
 
-impl Tally {
-    fn count(&mut self, event: &Event, sent_us: Option<u64>, bytes: usize) {
-        self.bytes += bytes as u64;
-        match event {
-            Event::Frame { .. } => self.frames += 1,
-            Event::Report { .. } => {
-                self.reports += 1;
-                // A zero time stamp is a sender without a clock.
-                if let Some(sent) = sent_us.filter(|&t| t > 0) {
-                    let now = stereolink_codec::control::unix_us();
-                    self.latency_ms.push(now.saturating_sub(sent) as f64 / 1e3);
+impl FrameCount {
+    fn count(&mut self, event: &Event) {
+        match *event {
+            Event::Report { frame_id, .. } => {
+                self.last_report = self.last_report.max(Some(frame_id));
+                let later = self.waiting.split_off(&(frame_id + 1));
+                self.counted += self.waiting.len() as u32;
+                self.waiting = later;
+            }
+            Event::Frame { frame_id, .. } if self.last_report >= Some(frame_id) => {
+                self.counted += 1;
+            }
+            Event::Frame { frame_id, .. } => {
+                self.waiting.insert(frame_id);
+                if self.waiting.len() > 16 {
+                    self.waiting.pop_first();
                 }
             }
             _ => {}
         }
     }
-
-    fn summary(&self, elapsed: Duration, ended: &anyhow::Result<End>, axis: &AxisEnd) -> Summary {
-        let seconds = elapsed.as_secs_f64().max(1e-9);
-        let mut sorted = self.latency_ms.clone();
-        sorted.sort_by(f64::total_cmp);
-        let quantile = |q: f64| sorted[((sorted.len() - 1) as f64 * q).round() as usize];
-        Summary {
-            reports: self.reports,
-            report_rate_hz: self.reports as f64 / seconds,
-            report_latency_ms: (!sorted.is_empty()).then(|| Latency {
-                p50: quantile(0.5),
-                p99: quantile(0.99),
-            }),
-            frames: self.frames,
-            frame_rate_hz: self.frames as f64 / seconds,
-            bytes: self.bytes,
-            seconds,
-            ended: match ended {
-                Ok(End::Frames) => "frames".into(),
-                Ok(End::Quiet) => "quiet".into(),
-                Err(e) => format!("error: {e:#}"),
-            },
-            axis_mm: axis
-                .position_mm
-                .as_ref()
-                .and_then(|p| p.as_ref().ok().copied()),
-            axis_stopped: axis.stopped,
-        }
-    }
-}
-
-/// Report latency percentiles, ms.
-#[derive(Serialize)]
-struct Latency {
-    p50: f64,
-    p99: f64,
 }
 
 /// The receiver's summary, printed on every way out.
 #[derive(Serialize)]
 struct Summary {
-    /// Depth reports applied.
-    reports: u64,
-    report_rate_hz: f64,
-    /// From the sender's time stamp (its capture) to the report's move;
-    /// the two clocks must agree (same host, or NTP).
-    report_latency_ms: Option<Latency>,
-    frames: u64,
-    frame_rate_hz: f64,
-    /// Message bytes received.
-    bytes: u64,
-    seconds: f64,
+    /// Depth reports applied (their latency: from the sender's time stamp,
+    /// its capture, to the report's move) and frames shown.
+    #[serde(flatten)]
+    link: Figures,
     /// `frames`, `quiet` (nothing for --timeout-s) or `error: …`.
     ended: String,
     axis_mm: Option<f64>,
@@ -464,24 +444,6 @@ struct Summary {
 
 impl std::fmt::Display for Summary {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(
-            f,
-            "summary: {} reports ({:.1}/s), {} frames ({:.2}/s), {} B in {:.1} s, ended: {}",
-            self.reports,
-            self.report_rate_hz,
-            self.frames,
-            self.frame_rate_hz,
-            self.bytes,
-            self.seconds,
-            self.ended
-        )?;
-        if let Some(l) = &self.report_latency_ms {
-            write!(
-                f,
-                "; report latency p50 {:.0} ms, p99 {:.0} ms",
-                l.p50, l.p99
-            )?;
-        }
-        Ok(())
+        write!(f, "summary: {}, ended: {}", self.link, self.ended)
     }
 }

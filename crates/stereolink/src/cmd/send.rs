@@ -16,7 +16,8 @@ use stereolink_link::endpoint::{Endpoint, Progress, ProgressReport};
 use stereolink_link::secure::SecureConfig;
 use stereolink_link::spec;
 use stereolink_link::transport::Transport;
-use stereolink_pipeline::live::{Pairs, SendLoop, Sent};
+use stereolink_pipeline::live::{SendLoop, Sent, Status, Update};
+use stereolink_pipeline::pairs::Pairs;
 use stereolink_pipeline::sender::SenderConfig;
 use stereolink_pipeline::uplink::Uplink;
 use stereolink_stereo::depth::{LevelSpec, Roi};
@@ -50,10 +51,15 @@ Examples:
       --source-left 'videotestsrc is-live=true pattern=ball' \\
       --source-right 'videotestsrc is-live=true pattern=ball' --frames 100
 
-Live, pairs are sent at the rate the link carries: while one is prepared and
-sent the cameras run on, the newest pair wins and the pairs skipped are
-counted. Each frame prints a timing line (capture wait, segment, match,
-encode, send). A camera that stops (no frame for --frame-timeout-s, or the end
+Every pair taken is matched, and its depth report (cut to one radio packet)
+goes at once, ahead of any frame in flight: the robot gets depth at the
+camera's rate. Live (--watch, cameras), a pair becomes a frame only when the
+link has finished the frame before; the newest pair always wins and the pairs
+skipped are counted. Each frame prints a timing line (capture wait, segment,
+match, encode, send), and once a second a status line on stderr says what the
+link carried (pairs in and skipped, reports/s and their capture-to-delivery
+latency, frames/s, bytes, kb/s and retransmissions); --json prints every frame
+and the run's status at the end. A camera that stops (no frame for --frame-timeout-s, or the end
 of its stream) stops the sender with an error naming it; the board's watchdog
 then stops the axis.
 
@@ -86,15 +92,16 @@ pub struct Args {
         conflicts_with_all = ["watch", "left_camera"]
     )]
     pub right: Option<PathBuf>,
-    /// A camera folder: send each new pair written into it (`left*.png` with
-    /// the `right*.png` of the same name, in name order; a rewritten pair is
-    /// sent again) until --frames pairs are sent or the program is stopped.
+    /// A camera folder: send the pairs written into it (`left*.png` with
+    /// the `right*.png` of the same name; a rewritten pair is new again),
+    /// the newest in name order first, until --frames frames are sent or the
+    /// program is stopped.
     #[arg(long, value_name = "DIR", conflicts_with = "left_camera")]
     pub watch: Option<PathBuf>,
     /// With --watch: how often the folder is read, in milliseconds.
     #[arg(long, default_value_t = 200, requires = "watch")]
     pub poll_ms: u64,
-    /// With --watch or cameras: stop after this many pairs.
+    /// With --watch or cameras: stop after this many frames.
     #[arg(long, conflicts_with = "left")]
     pub frames: Option<u32>,
     #[command(flatten)]
@@ -227,15 +234,26 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         _ => anyhow::bail!("give --left and --right, --watch DIR, or the cameras"),
     };
     let json = out.json;
-    let sent = sender.run(pairs, args.frames, |s| {
-        if !json {
-            print(s)
-        }
+    let summary = sender.run(pairs, args.frames, |p| match p {
+        Update::Frame(s) if !json => print(s),
+        Update::Second(s) => eprintln!("{}", status_line(s)),
+        Update::Frame(_) => {}
     })?;
-    if out.json {
-        out.emit(&sent, String::new)?;
-    }
-    Ok(())
+    out.emit(&summary, || format!("{}\n", status_line(&summary.status)))
+}
+
+/// A status line: pairs in and skipped, what was delivered, the link.
+fn status_line(s: &Status) -> String {
+    format!(
+        "pairs: {} in, {} skipped; delivered: {} ({} reports superseded); link: {:.1} kb/s, {} retransmissions; {}",
+        s.pairs,
+        s.skipped,
+        s.delivered,
+        s.superseded,
+        s.goodput_bps / 1e3,
+        s.retransmissions,
+        s.link
+    )
 }
 
 /// How long a message waits with nothing heard back before the sender says
@@ -279,14 +297,14 @@ fn progress_bar() -> ProgressReport {
 /// The lines of one frame sent.
 fn print(s: &Sent) {
     println!(
-        "frame {}: {} B sent in {:.2} s ({:.1} kb/s, {} retransmissions); its {} B depth report delivered in {:.2} s, distance {:.3} m",
+        "frame {}: {} B sent in {:.2} s ({:.1} kb/s, {} retransmissions); its {} B depth report {}, distance {:.3} m",
         s.frame_id,
         s.frame_bytes,
         s.seconds,
         s.goodput_bps / 1e3,
         s.retransmissions,
         s.report_bytes,
-        s.report_seconds,
+        s.report_seconds.map_or("replaced by a newer one".into(), |t| format!("delivered in {t:.2} s")),
         s.distance_m
     );
     println!(

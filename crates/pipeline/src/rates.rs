@@ -1,0 +1,173 @@
+//! What a live link carried, counted as it goes: depth reports with their
+//! capture-to-arrival latency, frames and bytes. The sender and the
+//! receiver both print these once a second and in their summaries
+//! (`send`, `receive`, `bench live`), so the two ends and the benchmark
+//! speak of the same figures in the same words.
+
+use std::time::{Duration, Instant};
+
+use serde::Serialize;
+
+/// Counts since a start: the whole run, or the last second.
+#[derive(Clone, Debug)]
+pub struct Rates {
+    since: Instant,
+    reports: u64,
+    frames: u64,
+    bytes: u64,
+    latency_ms: Vec<f64>,
+}
+
+/// Latency percentiles, ms.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Latency {
+    /// Median.
+    pub p50: f64,
+    /// 99th percentile.
+    pub p99: f64,
+}
+
+impl Latency {
+    /// The percentiles of `samples` (nearest rank); `None` when empty.
+    pub fn of(samples: &[f64]) -> Option<Latency> {
+        let mut sorted = samples.to_vec();
+        sorted.sort_by(f64::total_cmp);
+        let quantile = |q: f64| sorted[((sorted.len() - 1) as f64 * q).round() as usize];
+        (!sorted.is_empty()).then(|| Latency {
+            p50: quantile(0.5),
+            p99: quantile(0.99),
+        })
+    }
+}
+
+/// The figures of a span.
+#[derive(Clone, Debug, Serialize)]
+pub struct Figures {
+    /// Depth reports.
+    pub reports: u64,
+    /// Depth reports a second.
+    pub report_rate_hz: f64,
+    /// From a report's capture time stamp to its arrival (at the receiver:
+    /// its move; at the sender: its acknowledgement); the two ends' clocks
+    /// must agree (same host, or NTP).
+    pub report_latency_ms: Option<Latency>,
+    /// Frames.
+    pub frames: u64,
+    /// Frames a second.
+    pub frame_rate_hz: f64,
+    /// Message bytes, reports and frames.
+    pub bytes: u64,
+    /// The span, seconds.
+    pub seconds: f64,
+}
+
+impl Rates {
+    /// Nothing counted yet, from `since`.
+    pub fn new(since: Instant) -> Rates {
+        Rates {
+            since,
+            reports: 0,
+            frames: 0,
+            bytes: 0,
+            latency_ms: Vec::new(),
+        }
+    }
+
+    /// A report of `bytes`, captured `latency` before it arrived (unknown
+    /// for a sender without a clock).
+    pub fn report(&mut self, bytes: usize, latency: Option<Duration>) {
+        self.reports += 1;
+        self.bytes += bytes as u64;
+        self.latency_ms
+            .extend(latency.map(|l| l.as_secs_f64() * 1e3));
+    }
+
+    /// A frame of `bytes`.
+    pub fn frame(&mut self, bytes: usize) {
+        self.frames += 1;
+        self.bytes += bytes as u64;
+    }
+
+    /// The figures from the start until `now`.
+    pub fn figures(&self, now: Instant) -> Figures {
+        let seconds = now.saturating_duration_since(self.since).as_secs_f64();
+        let per_second = |n: u64| n as f64 / seconds.max(1e-9);
+        Figures {
+            reports: self.reports,
+            report_rate_hz: per_second(self.reports),
+            report_latency_ms: Latency::of(&self.latency_ms),
+            frames: self.frames,
+            frame_rate_hz: per_second(self.frames),
+            bytes: self.bytes,
+            seconds,
+        }
+    }
+
+    /// The figures until `now`, and a fresh start from `now`: the last
+    /// second's status line.
+    pub fn take(&mut self, now: Instant) -> Figures {
+        let figures = self.figures(now);
+        *self = Rates::new(now);
+        figures
+    }
+}
+
+/// Microseconds from a time stamp (µs since the Unix epoch) until `now_us`;
+/// `None` for a zero stamp (a sender without a clock) or one in the future
+/// by more than a second (clocks that disagree).
+pub fn since_stamp(stamp_us: u64, now_us: u64) -> Option<Duration> {
+    if stamp_us == 0 || stamp_us > now_us + 1_000_000 {
+        return None;
+    }
+    Some(Duration::from_micros(now_us.saturating_sub(stamp_us)))
+}
+
+impl std::fmt::Display for Figures {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{} reports ({:.1}/s", self.reports, self.report_rate_hz)?;
+        if let Some(l) = &self.report_latency_ms {
+            write!(f, ", latency p50 {:.0} ms, p99 {:.0} ms", l.p50, l.p99)?;
+        }
+        write!(
+            f,
+            "), {} frames ({:.2}/s), {} B in {:.1} s",
+            self.frames, self.frame_rate_hz, self.bytes, self.seconds
+        )
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn rates_and_percentiles_over_a_span() {
+        let t0 = Instant::now();
+        let mut r = Rates::new(t0);
+        for ms in 1..=100 {
+            r.report(50, Some(Duration::from_millis(ms)));
+        }
+        r.report(50, None);
+        r.frame(4000);
+        let f = r.figures(t0 + Duration::from_secs(2));
+        assert_eq!((f.reports, f.frames, f.bytes), (101, 1, 101 * 50 + 4000));
+        assert_eq!(f.report_rate_hz, 50.5);
+        assert_eq!(f.frame_rate_hz, 0.5);
+        let l = f.report_latency_ms.unwrap();
+        assert_eq!((l.p50.round(), l.p99.round()), (51.0, 99.0));
+        let second = r.take(t0 + Duration::from_secs(2));
+        assert_eq!(second.reports, 101);
+        assert_eq!(r.figures(t0 + Duration::from_secs(3)).reports, 0);
+    }
+
+    #[test]
+    fn stamps_from_no_clock_or_the_future_give_no_latency() {
+        assert_eq!(since_stamp(0, 5_000_000), None);
+        assert_eq!(since_stamp(7_000_000, 5_000_000), None);
+        assert_eq!(
+            since_stamp(4_000_000, 5_000_000),
+            Some(Duration::from_secs(1))
+        );
+        assert_eq!(since_stamp(5_500_000, 5_000_000), Some(Duration::ZERO));
+    }
+}
