@@ -405,6 +405,16 @@ impl Endpoint {
         }
     }
 
+    /// Gives up the message in flight on `lane` without waiting for its
+    /// acknowledgement: it is not reported, delivered or failed, and the
+    /// lane takes a new message at once (the newest depth report replacing
+    /// an older one the peer may or may not have).
+    pub fn abandon(&mut self, lane: Lane) {
+        self.senders[lane.index()].abandon();
+        self.started[lane.index()] = None;
+        self.sealed_for[lane.index()] = None;
+    }
+
     /// Whether `lane` has no message in flight.
     pub fn is_idle(&self, lane: Lane) -> bool {
         self.started[lane.index()].is_none()
@@ -766,6 +776,44 @@ mod tests {
         assert_eq!(order, vec![Lane::Urgent, Lane::Bulk]);
         assert!(outcomes.iter().all(|(_, r)| r.is_ok()));
         assert_eq!(rx.join().unwrap(), vec![report, frame]);
+    }
+
+    /// A report abandoned in flight ends neither delivered nor failed; the
+    /// lane takes the newer one at once, and it is delivered and reported.
+    /// The receiver gets the newer one, whatever became of the older.
+    #[test]
+    fn an_abandoned_report_is_never_reported_and_the_newer_one_goes() {
+        let cfg = SimConfig {
+            radio: crate::radio::Firmware::Zigbee,
+            mtu: 84,
+            ..SimConfig::default()
+        };
+        let (a, b) = pair(cfg, 1.0);
+        let rx = std::thread::spawn(move || {
+            let mut e = Endpoint::new(Box::new(b)).unwrap();
+            let mut got = Vec::new();
+            while got.last() != Some(&vec![2u8; 40]) {
+                got.push(e.recv_message(Duration::from_secs(20)).unwrap());
+            }
+            e.linger(Duration::from_millis(300)).unwrap();
+            got
+        });
+        let mut e = Endpoint::new(Box::new(a)).unwrap();
+        e.submit(Lane::Urgent, &[1; 40]).unwrap();
+        e.abandon(Lane::Urgent);
+        assert!(e.is_idle(Lane::Urgent));
+        e.submit(Lane::Urgent, &[2; 40]).unwrap();
+        let mut outcomes = Vec::new();
+        while outcomes.is_empty() {
+            outcomes.extend(e.poll_sends(TICK).unwrap());
+        }
+        e.linger(Duration::from_millis(300)).unwrap();
+        outcomes.extend(e.poll_sends(Duration::ZERO).unwrap());
+        assert_eq!(outcomes.len(), 1, "{outcomes:?}");
+        assert!(matches!(&outcomes[0], (Lane::Urgent, Ok(s)) if s.bytes == 40));
+        let got = rx.join().unwrap();
+        assert_eq!(got.last(), Some(&vec![2u8; 40]));
+        assert!(got.len() <= 2 && got.iter().all(|m| m[0] != 0));
     }
 
     /// A receiving process that dies holding a message it was handed (its

@@ -37,10 +37,18 @@ pub struct PacingConfig {
     pub status_timeout: Micros,
 }
 
+impl PacingConfig {
+    /// Requests at the radio at once by default: one on the air and the
+    /// next in its buffer, ready to go. More only queue ahead of an urgent
+    /// packet; fewer leave the air idle while the next request crosses the
+    /// UART.
+    pub const DEFAULT_LIMIT: usize = 2;
+}
+
 impl Default for PacingConfig {
     fn default() -> Self {
         PacingConfig {
-            limit: 2,
+            limit: Self::DEFAULT_LIMIT,
             retries: 2,
             status_timeout: 3_000_000,
         }

@@ -69,6 +69,12 @@ pub struct SimConfig {
     /// The radio's serial receive buffer, bytes: the host waits (CTS) while
     /// a packet does not fit.
     pub buffer: usize,
+    /// Transmit requests the host keeps at the radio at once, paced by
+    /// their transmit status as a serial link in API mode does
+    /// ([`crate::pacing`]): one on the air and the next waiting, so that an
+    /// urgent packet queues behind one packet, not a full buffer. 0: the
+    /// host writes whenever CTS lets it.
+    pub paced: usize,
 }
 
 impl Default for SimConfig {
@@ -89,6 +95,7 @@ impl Default for SimConfig {
             encrypted: false,
             role: Role::RouterToRouter,
             buffer: RADIO_BUFFER,
+            paced: crate::pacing::PacingConfig::DEFAULT_LIMIT,
         }
     }
 }
@@ -187,6 +194,9 @@ struct Channel {
     /// Per side, the packets in the radio's buffer: when each goes on the
     /// air (and so leaves the buffer), and its size on the UART.
     held: [VecDeque<(f64, usize)>; 2],
+    /// Per side, when the packets the host handed the radio end on the
+    /// air (their transmit status), for `paced`.
+    unanswered: [VecDeque<f64>; 2],
     sequence: u64,
 }
 
@@ -199,6 +209,7 @@ impl Channel {
             uart_rx: [0.0; 2],
             air: 0.0,
             held: Default::default(),
+            unanswered: Default::default(),
             sequence: 0,
         }
     }
@@ -212,12 +223,16 @@ impl Channel {
         // CTS: the host starts the request once the radio's buffer has room.
         let size = packet.len() + o.uart_tx;
         let mut start = now.max(self.uart_tx[from]);
-        let held = &mut self.held[from];
+        let (held, unanswered) = (&mut self.held[from], &mut self.unanswered[from]);
         loop {
             held.retain(|&(on_air, _)| on_air > start);
+            unanswered.retain(|&status| status > start);
             let bytes: usize = held.iter().map(|&(_, n)| n).sum();
-            match held.front() {
-                Some(&(on_air, _)) if bytes + size > cfg.buffer => start = on_air,
+            match (held.front(), unanswered.front()) {
+                (_, Some(&status)) if cfg.paced > 0 && unanswered.len() >= cfg.paced => {
+                    start = status
+                }
+                (Some(&(on_air, _)), _) if bytes + size > cfg.buffer => start = on_air,
                 _ => break,
             }
         }
@@ -234,6 +249,7 @@ impl Channel {
             }
         }
         self.air = t;
+        self.unanswered[from].push_back(t);
         if !delivered {
             return (Vec::new(), uart_done);
         }

@@ -15,7 +15,8 @@
 //!   ZigBee firmware (its frames and overheads, and `mtu` 84 by default) and
 //!   `radio=digimesh` DigiMesh, both at Digi's measured throughput for
 //!   `hops=1`, `encrypted=0` and `role=rr|re|er` ([`crate::throughput`]);
-//!   `buffer=256` is the radio's serial buffer in bytes;
+//!   `buffer=256` is the radio's serial buffer in bytes, and `paced=2` the
+//!   transmit requests the host keeps at the radio (0: as CTS allows);
 //! * `fallback:PRIMARY,SECONDARY?silence_ms=2000` (the query after the last
 //!   spec applies to the fallback).
 
@@ -243,6 +244,7 @@ impl std::str::FromStr for LinkSpec {
                         "encrypted" => c.encrypted = num::<u8>(k, v)? != 0,
                         "role" => c.role = v.parse()?,
                         "buffer" => c.buffer = num(k, v)?,
+                        "paced" => c.paced = num(k, v)?,
                         "speedup" => speedup = num(k, v)?,
                         _ => return Err(format!("sim: unknown option {k}")),
                     }

@@ -22,6 +22,7 @@
 
 pub mod demo;
 pub mod live;
+pub mod live_bench;
 pub mod pairs;
 pub mod planes;
 pub mod planetable;

@@ -74,7 +74,9 @@ pub struct Status {
     pub pairs: u64,
     /// Pairs passed over for a newer one.
     pub skipped: u64,
-    /// Reports replaced by a newer one before the link took them.
+    /// Reports overtaken by a newer one before they were acknowledged
+    /// (waiting, or in flight: the peer may have had it, but it is not
+    /// counted delivered).
     pub superseded: u64,
     /// Reports and frames the peer acknowledged; a report's latency runs
     /// from its pair's capture to that acknowledgement.

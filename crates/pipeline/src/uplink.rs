@@ -3,9 +3,12 @@
 //! each depth report on the urgent lane, ahead of the fragments of the frame
 //! still in flight. The robot's reports then wait for no 30 kB frame, and
 //! the link stays busy while the next pair is segmented and matched. A
-//! report waiting for the urgent lane is replaced by a newer one (the
-//! newest wins: the robot acts on the latest distance, and a stale one
-//! would only delay it); the replaced one ends [`Ended::Superseded`]. With
+//! newer report replaces one waiting for the urgent lane or still in
+//! flight, unacknowledged (the newest wins: the robot acts on the latest
+//! distance, a stale one would only delay it, and on a slow radio a
+//! report's round trip is longer than the camera's period); the replaced
+//! one ends [`Ended::Superseded`], never counted delivered, though the peer
+//! may have had it. With
 //! a second link (the paper's two radio pairs, `send --report-link`) the
 //! reports go over that one instead.
 //!
@@ -87,7 +90,7 @@ pub struct Uplink {
 /// How long the link thread answers the peer's late retransmissions after
 /// the last message.
 const LINGER: Duration = Duration::from_millis(300);
-const TICK: Duration = Duration::from_millis(20);
+const TICK: Duration = Duration::from_millis(5);
 /// How long the idle link thread waits for the peer before it looks at
 /// its queue again (a report handed over waits at most this long).
 const IDLE_WAIT: Duration = Duration::from_millis(5);
@@ -247,21 +250,29 @@ fn run(
         }
         match jobs.try_recv() {
             Ok(job) => {
-                let queue = &mut queued[lane_of(job.kind) as usize];
+                let i = lane_of(job.kind) as usize;
                 if job.kind == Kind::Report {
-                    // The newest report wins over one still waiting.
-                    if let Some(i) = queue.iter().position(|j| j.kind == Kind::Report) {
-                        if let Some(old) = queue.remove(i) {
-                            let _ = done.send(Outcome {
-                                kind: old.kind,
-                                frame_id: old.frame_id,
-                                ended: Ended::Superseded,
-                                link: eps[urgent_ep].link_stats(),
-                            });
-                        }
+                    // The newest report wins over one still waiting, and
+                    // over one in flight: its acknowledgement is not waited for.
+                    let mut superseded = Vec::new();
+                    if let Some(k) = queued[i].iter().position(|j| j.kind == Kind::Report) {
+                        superseded.extend(queued[i].remove(k).map(|j| j.frame_id));
+                    }
+                    if let Some((Kind::Report, id)) = current[i] {
+                        eps[urgent_ep].abandon(Lane::Urgent);
+                        current[i] = None;
+                        superseded.push(id);
+                    }
+                    for frame_id in superseded {
+                        let _ = done.send(Outcome {
+                            kind: Kind::Report,
+                            frame_id,
+                            ended: Ended::Superseded,
+                            link: eps[urgent_ep].link_stats(),
+                        });
                     }
                 }
-                queue.push_back(job);
+                queued[i].push_back(job);
             }
             Err(TryRecvError::Disconnected) => open = false,
             Err(TryRecvError::Empty) => {}

@@ -432,3 +432,64 @@ fn send_watches_a_camera_folder_newest_first() {
     finish(rx, "receive");
     assert!(shots.join("screen-00002.png").is_file());
 }
+
+/// `bench live` plays a sequence at 10 pairs/s over the calibrated ZigBee
+/// model: every pair is matched and its report reaches the board in order
+/// (none refused as stale), frames go as the link allows, and both ends'
+/// figures are in the JSON. The margins are wide: CI's two cores also run
+/// other tests.
+#[test]
+fn bench_live_delivers_a_report_per_pair_while_frames_stream() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("scene");
+    synth(&scene);
+    let seq = dir.path().join("seq");
+    std::fs::create_dir(&seq).unwrap();
+    for i in 1..=20 {
+        for side in ["left", "right"] {
+            std::fs::copy(
+                scene.join(format!("{side}.png")),
+                seq.join(format!("{side}_{i:04}.png")),
+            )
+            .unwrap();
+        }
+    }
+    let calib = scene.join("calib.txt");
+    let out = finish(
+        spawn(&strings(&[
+            "--json",
+            "bench",
+            "live",
+            "--sequence",
+            seq.to_str().unwrap(),
+            "--rate",
+            "10",
+            "--link",
+            "sim:?radio=zigbee",
+            "--calib",
+            calib.to_str().unwrap(),
+            "--max-disp",
+            "23",
+            "--method",
+            "kmeans",
+        ])),
+        "bench live",
+    );
+    let r: serde_json::Value = serde_json::from_str(&out).unwrap();
+    let (sender, receiver) = (&r["sender"], &r["receiver"]);
+    let pairs = sender["pairs"].as_u64().unwrap();
+    assert_eq!(pairs + sender["skipped"].as_u64().unwrap(), 20, "{r}");
+    // Each pair taken gave a report; most reach the board, none stale.
+    assert!(
+        receiver["reports"].as_u64().unwrap() * 4 >= pairs * 3,
+        "{r}"
+    );
+    assert_eq!(r["refused"], 0, "{r}");
+    assert!(receiver["frames"].as_u64().unwrap() >= 1, "{r}");
+    let latency = &receiver["report_latency_ms"];
+    assert!(
+        latency["p50"].as_f64().unwrap() <= latency["p99"].as_f64().unwrap(),
+        "{r}"
+    );
+    assert!(latency["p99"].as_f64().unwrap() < 2000.0, "{r}");
+}

@@ -136,6 +136,16 @@ impl Sender {
         Ok(self.msg_id)
     }
 
+    /// Gives up the message in flight, unacknowledged, so that a newer one
+    /// can start at once (a depth report overtaken by the next pair's). Its
+    /// late ACKs are ignored: they name an id that is no longer current.
+    pub fn abandon(&mut self) {
+        if self.state == SendState::Sending {
+            self.queue.clear();
+            self.state = SendState::Idle;
+        }
+    }
+
     /// The current state.
     pub fn state(&self) -> SendState {
         self.state

@@ -1,6 +1,7 @@
 //! `stereolink bench`: time one stage alone, images already in memory, after
 //! a warm-up; prints the median so a script can compare it with another tool
-//! measured in the same run.
+//! measured in the same run. `bench live` instead runs the whole live chain
+//! on a recorded sequence.
 
 use clap::Subcommand;
 
@@ -18,6 +19,10 @@ pub enum Target {
     Rectify(super::rectify::BenchArgs),
     /// Verify and decrypt a sealed frame, as the board does (JSON key `median_ms`).
     Open(super::secure_bench::BenchArgs),
+    /// Play a recorded sequence through the sender, the simulated radio and
+    /// the board in real time (JSON keys `sender`, `receiver`: reports and
+    /// frames a second, report latency p50/p99, bytes).
+    Live(super::live_bench::Args),
 }
 
 /// Runs the chosen benchmark.
@@ -28,5 +33,6 @@ pub fn run(target: Target, out: &super::Output) -> anyhow::Result<()> {
         Target::Codec(args) => super::codec::run_bench(args, out),
         Target::Rectify(args) => super::rectify::run_bench(args, out),
         Target::Open(args) => super::secure_bench::run_bench(args, out),
+        Target::Live(args) => super::live_bench::run(args, out),
     }
 }

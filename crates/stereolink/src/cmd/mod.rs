@@ -18,6 +18,7 @@ pub mod info;
 pub mod keygen;
 pub mod link_latency;
 pub mod link_test;
+pub mod live_bench;
 pub mod matching;
 pub mod radio;
 pub mod receive;

@@ -160,6 +160,26 @@ impl Args {
     }
 }
 
+/// What the sender does with each pair, from the segmentation and matcher
+/// flags (shared by `send` and `bench live`).
+pub fn sender_config(
+    (segment, matcher): (&SegmentArgs, &MatcherArgs),
+    max_disp: usize,
+    roi: Option<Roi>,
+    plane_table: TableCoding,
+) -> anyhow::Result<SenderConfig> {
+    Ok(SenderConfig {
+        method: segment.method()?,
+        levels: segment.levels,
+        seed: segment.seed,
+        carry_margin: segment.carry_margin()?,
+        matcher: matcher.depth_spec(0, max_disp)?,
+        roi,
+        levels_spec: LevelSpec::default(),
+        plane_table,
+    })
+}
+
 /// Prepares and sends the pair, or each pair of the watched folder.
 pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     let spec = super::link_spec(&args.link)?;
@@ -167,16 +187,12 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     if let Some(w) = sensor.range_warning() {
         eprintln!("warning: {w}");
     }
-    let cfg = SenderConfig {
-        method: args.segment.method()?,
-        levels: args.segment.levels,
-        seed: args.segment.seed,
-        carry_margin: args.segment.carry_margin()?,
-        matcher: args.matcher.depth_spec(0, args.max_disp)?,
-        roi: args.roi,
-        levels_spec: LevelSpec::default(),
-        plane_table: args.plane_table(),
-    };
+    let cfg = sender_config(
+        (&args.segment, &args.matcher),
+        args.max_disp,
+        args.roi,
+        args.plane_table(),
+    )?;
     let transport = spec::open(&spec).with_context(|| format!("cannot open link {}", args.link))?;
     let report_transport = match &args.report_link {
         Some(text) => Some(
@@ -243,9 +259,9 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
 }
 
 /// A status line: pairs in and skipped, what was delivered, the link.
-fn status_line(s: &Status) -> String {
+pub fn status_line(s: &Status) -> String {
     format!(
-        "pairs: {} in, {} skipped; delivered: {} ({} reports superseded); link: {:.1} kb/s, {} retransmissions; {}",
+        "pairs: {} in, {} skipped; acknowledged: {} ({} more reports overtaken before their acknowledgement); link: {:.1} kb/s, {} retransmissions; {}",
         s.pairs,
         s.skipped,
         s.delivered,
