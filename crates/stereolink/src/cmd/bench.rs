@@ -22,7 +22,7 @@ pub enum Target {
     /// Play a recorded sequence through the sender, the simulated radio and
     /// the board in real time (JSON keys `sender`, `receiver`: reports and
     /// frames a second, report latency p50/p99, bytes).
-    Live(super::live_bench::Args),
+    Live(Box<super::live_bench::Args>),
 }
 
 /// Runs the chosen benchmark.
@@ -33,6 +33,6 @@ pub fn run(target: Target, out: &super::Output) -> anyhow::Result<()> {
         Target::Codec(args) => super::codec::run_bench(args, out),
         Target::Rectify(args) => super::rectify::run_bench(args, out),
         Target::Open(args) => super::secure_bench::run_bench(args, out),
-        Target::Live(args) => super::live_bench::run(args, out),
+        Target::Live(args) => super::live_bench::run(*args, out),
     }
 }
