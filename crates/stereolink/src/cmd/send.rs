@@ -320,7 +320,7 @@ fn print(s: &Sent) {
         s.goodput_bps / 1e3,
         s.retransmissions,
         s.report_bytes,
-        s.report_seconds.map_or("replaced by a newer one".into(), |t| format!("delivered in {t:.2} s")),
+        s.report_seconds.map_or("overtaken by a newer one before its acknowledgement".into(), |t| format!("delivered in {t:.2} s")),
         s.distance_m
     );
     println!(
