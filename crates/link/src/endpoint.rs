@@ -268,6 +268,12 @@ impl Endpoint {
         self.transport.stats()
     }
 
+    /// The air time one full packet takes, where the transport knows its
+    /// radio's pace.
+    pub fn packet_time(&self) -> Option<Duration> {
+        self.transport.packet_time()
+    }
+
     /// The transport's description.
     pub fn describe(&self) -> String {
         self.transport.describe()

@@ -248,10 +248,10 @@ impl SendLoop {
             let frame =
                 wanted == Applied::FrameNow || !pairs.paced() || !self.uplink.frame_in_flight();
             if frame {
-                self.send_frame(&next, pair_id, room)?;
+                self.send_frame(&next, pair_id, (room, pairs.paced()))?;
                 frames_sent += 1;
             } else {
-                self.send_report(&next, pair_id, room)?;
+                self.send_report(&next, pair_id, (room, true))?;
             }
             for c in [&mut self.total, &mut self.second] {
                 c.pairs += 1;
@@ -288,35 +288,46 @@ impl SendLoop {
         Ok((views, start.elapsed().as_secs_f64() * 1e3))
     }
 
-    /// Hands a depth report to the link, cut down to one radio packet.
+    /// Hands a depth report to the link, cut down to one radio packet; a
+    /// live pair's (`newest_wins`) gives way to a newer pair's.
     fn hand_report(
         &mut self,
         report: &DepthReport,
         (pair_id, captured_us): (u32, u64),
-        room: usize,
+        (room, newest_wins): (usize, bool),
     ) -> anyhow::Result<usize> {
         let fitted = report.fitted(room).with_context(|| {
             format!("a depth report does not fit the link's {room}-byte packet")
         })?;
         let bytes = report_message(&fitted, pair_id, captured_us);
         let len = bytes.len();
-        self.uplink.report(pair_id, bytes)?;
+        self.uplink.report(pair_id, bytes, newest_wins)?;
         self.handed.insert(pair_id, (unix_us(), captured_us));
         Ok(len)
     }
 
     /// Matches a pair and sends its depth report alone.
-    fn send_report(&mut self, next: &Next, pair_id: u32, room: usize) -> anyhow::Result<()> {
+    fn send_report(
+        &mut self,
+        next: &Next,
+        pair_id: u32,
+        report_as: (usize, bool),
+    ) -> anyhow::Result<()> {
         let (calib, cfg) = (self.calib, self.cfg.clone());
         let (views, _) = self.views(next, pair_id)?;
         let depth = measure_depth(views, None, &calib, &cfg)?;
-        self.hand_report(&depth.report, (pair_id, next.captured_us), room)?;
+        self.hand_report(&depth.report, (pair_id, next.captured_us), report_as)?;
         Ok(())
     }
 
     /// Prepares a pair and sends its depth report and its frame (waiting
     /// here until the frame before has ended).
-    fn send_frame(&mut self, next: &Next, pair_id: u32, room: usize) -> anyhow::Result<()> {
+    fn send_frame(
+        &mut self,
+        next: &Next,
+        pair_id: u32,
+        report_as: (usize, bool),
+    ) -> anyhow::Result<()> {
         let (calib, cfg) = (self.calib, self.cfg.clone());
         let ((left, right), rectify_ms) = self.views(next, pair_id)?;
         let p = prepare(left, right, &calib, &cfg, (pair_id, next.captured_us))?;
@@ -328,7 +339,7 @@ impl SendLoop {
             stereolink_image::pfm::write(dir.join("sent-disparity.pfm"), &p.disparity)?;
         }
         // The report first: it goes ahead of the frame still in flight.
-        let report_bytes = self.hand_report(&p.report, (pair_id, next.captured_us), room)?;
+        let report_bytes = self.hand_report(&p.report, (pair_id, next.captured_us), report_as)?;
         let frame_bytes = p.frame_bytes.len();
         self.uplink.frame(pair_id, p.frame_bytes)?;
         let (segment_ms, encode_ms, match_ms) = p.times_ms;

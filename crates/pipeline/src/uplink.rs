@@ -3,12 +3,15 @@
 //! each depth report on the urgent lane, ahead of the fragments of the frame
 //! still in flight. The robot's reports then wait for no 30 kB frame, and
 //! the link stays busy while the next pair is segmented and matched. A
-//! newer report replaces one waiting for the urgent lane or still in
-//! flight, unacknowledged (the newest wins: the robot acts on the latest
-//! distance, a stale one would only delay it, and on a slow radio a
-//! report's round trip is longer than the camera's period); the replaced
-//! one ends [`Ended::Superseded`], never counted delivered, though the peer
-//! may have had it. With
+//! newer report replaces one waiting for the urgent lane, and overtakes
+//! one in flight once that one has had the time to leave the radio (a few
+//! packet times), without waiting for its acknowledgement: the robot acts
+//! on the latest distance, and on a slow radio a report's round trip is
+//! longer than the camera's period. The radio then never holds more than
+//! one report, so on a link too slow for every report the newest goes as
+//! fast as the air allows instead of queueing. A replaced report ends
+//! [`Ended::Superseded`], never counted delivered, though the peer may
+//! have had it. With
 //! a second link (the paper's two radio pairs, `send --report-link`) the
 //! reports go over that one instead.
 //!
@@ -21,11 +24,12 @@
 use std::collections::VecDeque;
 use std::sync::mpsc::{self, Receiver, SyncSender, TryRecvError};
 use std::thread::JoinHandle;
-use std::time::Duration;
+use std::time::{Duration, Instant};
 
 use anyhow::Context;
 use stereolink_codec::control::{Control, ControlError, Reply};
 use stereolink_link::endpoint::{Endpoint, Lane, LinkError, SendStats};
+use stereolink_link::pacing::PacingConfig;
 use stereolink_link::transport::LinkStats;
 
 /// What a message carries.
@@ -70,6 +74,8 @@ struct Job {
     kind: Kind,
     frame_id: u32,
     bytes: Vec<u8>,
+    /// A newer report may take this report's place.
+    replaceable: bool,
 }
 
 /// The link thread and its queues.
@@ -135,15 +141,8 @@ impl Uplink {
         }
     }
 
-    fn hand_over(&mut self, kind: Kind, frame_id: u32, bytes: Vec<u8>) -> anyhow::Result<()> {
-        let sent = self.jobs.as_ref().is_some_and(|j| {
-            j.send(Job {
-                kind,
-                frame_id,
-                bytes,
-            })
-            .is_ok()
-        });
+    fn hand_over(&mut self, job: Job) -> anyhow::Result<()> {
+        let sent = self.jobs.as_ref().is_some_and(|j| j.send(job).is_ok());
         if sent {
             return Ok(());
         }
@@ -152,15 +151,31 @@ impl Uplink {
         anyhow::bail!("the link thread stopped")
     }
 
-    /// Sends a depth report at once, on the urgent lane (replacing one
-    /// still waiting for it).
-    pub fn report(&mut self, frame_id: u32, bytes: Vec<u8>) -> anyhow::Result<()> {
-        self.hand_over(Kind::Report, frame_id, bytes)
+    /// Sends a depth report at once, on the urgent lane. A `replaceable`
+    /// one gives way to a newer replaceable one (see the module doc); the
+    /// others each go in turn.
+    pub fn report(
+        &mut self,
+        frame_id: u32,
+        bytes: Vec<u8>,
+        replaceable: bool,
+    ) -> anyhow::Result<()> {
+        self.hand_over(Job {
+            kind: Kind::Report,
+            frame_id,
+            bytes,
+            replaceable,
+        })
     }
 
     /// Sends a reply to a command, on the urgent lane.
     pub fn reply(&mut self, reply: &Reply) -> anyhow::Result<()> {
-        self.hand_over(Kind::Reply, reply.id, reply.message())
+        self.hand_over(Job {
+            kind: Kind::Reply,
+            frame_id: reply.id,
+            bytes: reply.message(),
+            replaceable: false,
+        })
     }
 
     /// What the peer sent since the last call, in order.
@@ -180,7 +195,12 @@ impl Uplink {
             self.take(o);
         }
         self.frames_in_flight += 1;
-        self.hand_over(Kind::Frame, frame_id, bytes)
+        self.hand_over(Job {
+            kind: Kind::Frame,
+            frame_id,
+            bytes,
+            replaceable: false,
+        })
     }
 
     /// Whether a frame handed over has not ended yet (without waiting).
@@ -241,41 +261,58 @@ fn run(
     };
     let (bulk_ep, urgent_ep) = (ep_of(Lane::Bulk), ep_of(Lane::Urgent));
     let mut queued: [VecDeque<Job>; 2] = Default::default();
-    let mut current: [Option<(Kind, u32)>; 2] = [None, None];
+    let mut current: [Option<(Kind, u32, bool)>; 2] = [None, None];
     let mut open = true;
+    // One packet time for each transmit request the radio may hold ahead
+    // of a report, and one for the report itself.
+    let overtake_after = eps[urgent_ep].packet_time().map_or(Duration::ZERO, |t| {
+        t * (PacingConfig::DEFAULT_LIMIT as u32 + 1)
+    });
+    let mut report_sent = Instant::now();
     loop {
         let idle = current.iter().all(Option::is_none) && queued.iter().all(VecDeque::is_empty);
         if idle && !open {
             break;
         }
-        match jobs.try_recv() {
-            Ok(job) => {
-                let i = lane_of(job.kind) as usize;
-                if job.kind == Kind::Report {
-                    // The newest report wins over one still waiting, and
-                    // over one in flight: its acknowledgement is not waited for.
-                    let mut superseded = Vec::new();
-                    if let Some(k) = queued[i].iter().position(|j| j.kind == Kind::Report) {
-                        superseded.extend(queued[i].remove(k).map(|j| j.frame_id));
+        // Every job handed over since the last round (the link may have
+        // been busy a few packet times): the send loop never waits on it.
+        loop {
+            match jobs.try_recv() {
+                Ok(job) => {
+                    let i = lane_of(job.kind) as usize;
+                    if job.replaceable {
+                        // The newest report wins over one still waiting.
+                        if let Some(k) = queued[i].iter().position(|j| j.replaceable) {
+                            if let Some(old) = queued[i].remove(k) {
+                                superseded(&done, old.frame_id, &eps[urgent_ep]);
+                            }
+                        }
                     }
-                    if let Some((Kind::Report, id)) = current[i] {
-                        eps[urgent_ep].abandon(Lane::Urgent);
-                        current[i] = None;
-                        superseded.push(id);
-                    }
-                    for frame_id in superseded {
-                        let _ = done.send(Outcome {
-                            kind: Kind::Report,
-                            frame_id,
-                            ended: Ended::Superseded,
-                            link: eps[urgent_ep].link_stats(),
-                        });
-                    }
+                    queued[i].push_back(job);
                 }
-                queued[i].push_back(job);
+                Err(TryRecvError::Disconnected) => {
+                    open = false;
+                    break;
+                }
+                Err(TryRecvError::Empty) => break,
             }
-            Err(TryRecvError::Disconnected) => open = false,
-            Err(TryRecvError::Empty) => {}
+        }
+        // A report waiting behind one in flight overtakes it once that one
+        // has had the time to leave the radio: its acknowledgement is not
+        // waited for, and the radio never holds more than one report.
+        let u = Lane::Urgent as usize;
+        if let (
+            Some((_, id, true)),
+            Some(Job {
+                replaceable: true, ..
+            }),
+        ) = (current[u], queued[u].front())
+        {
+            if report_sent.elapsed() >= overtake_after {
+                eps[urgent_ep].abandon(Lane::Urgent);
+                current[u] = None;
+                superseded(&done, id, &eps[urgent_ep]);
+            }
         }
         for (lane, e) in [(Lane::Urgent, urgent_ep), (Lane::Bulk, bulk_ep)] {
             let i = lane as usize;
@@ -284,7 +321,10 @@ fn run(
                     eps[e]
                         .submit(lane, &job.bytes)
                         .with_context(|| format!("sending {:?} {}", job.kind, job.frame_id))?;
-                    current[i] = Some((job.kind, job.frame_id));
+                    current[i] = Some((job.kind, job.frame_id, job.replaceable));
+                    if job.replaceable {
+                        report_sent = Instant::now();
+                    }
                 }
             }
         }
@@ -302,7 +342,7 @@ fn run(
         let wait = TICK / eps.len() as u32;
         for ep in eps.iter_mut() {
             for (lane, result) in ep.poll_sends(wait).context("link")? {
-                if let Some((kind, frame_id)) = current[lane as usize].take() {
+                if let Some((kind, frame_id, _)) = current[lane as usize].take() {
                     let link = ep.link_stats();
                     let ended = match result {
                         Ok(stats) => Ended::Delivered(stats),
@@ -323,6 +363,16 @@ fn run(
         ep.linger(LINGER / 2).context("link")?;
     }
     Ok(())
+}
+
+/// Says that the report of pair `frame_id` was overtaken by a newer one.
+fn superseded(done: &mpsc::Sender<Outcome>, frame_id: u32, ep: &Endpoint) {
+    let _ = done.send(Outcome {
+        kind: Kind::Report,
+        frame_id,
+        ended: Ended::Superseded,
+        link: ep.link_stats(),
+    });
 }
 
 /// Hands up every message the peer completed, waiting up to `wait` for
