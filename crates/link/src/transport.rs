@@ -44,6 +44,12 @@ pub trait Transport: Send {
     fn packet_time(&self) -> Option<Duration> {
         None
     }
+    /// How many packets the transport carries side by side (a bond's radio
+    /// pairs, [`crate::bond`]): the ARQ keeps that many times its window in
+    /// flight ([`crate::arq::Config::with_paths`]).
+    fn paths(&self) -> usize {
+        1
+    }
     /// What the transport has to say since it was last asked (each kind of
     /// trouble once).
     fn take_notices(&mut self) -> Vec<Notice> {
@@ -114,6 +120,8 @@ pub enum Notice {
     ForeignRequests,
     /// A fallback link moved its traffic from one link to the other.
     Switched { from: String, to: String },
+    /// A bond dropped one of its links ([`crate::bond`]).
+    MemberDown { member: String, reason: String },
 }
 
 impl fmt::Display for Notice {
@@ -147,6 +155,10 @@ impl fmt::Display for Notice {
                  with no radio between; use api=0 on both ends, or put the radios between them",
             ),
             Notice::Switched { from, to } => write!(f, "switching from {from} to {to}"),
+            Notice::MemberDown { member, reason } => write!(
+                f,
+                "the bond dropped {member}: {reason}; what it held is sent again over the others"
+            ),
         }
     }
 }
