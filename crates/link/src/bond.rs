@@ -379,10 +379,6 @@ impl Transport for Bond {
         self.members.iter().filter_map(|m| m.packet_time).max()
     }
 
-    fn paths(&self) -> usize {
-        self.members.len()
-    }
-
     fn describe(&self) -> String {
         let names: Vec<&str> = self.members.iter().map(|m| m.name.as_str()).collect();
         format!("bond:{}", names.join(","))
@@ -626,7 +622,6 @@ mod tests {
     fn stripes_packets_across_members_and_keeps_their_order() {
         let (mut a, mut b, counts) = bonds(&[usize::MAX, usize::MAX, usize::MAX], false);
         assert_eq!(a.mtu(), 100 - HEADER);
-        assert_eq!(a.paths(), 3);
         let n = 300usize;
         for i in 0..n {
             a.send(&(i as u16).to_le_bytes()).unwrap();

@@ -208,14 +208,12 @@ impl Endpoint {
 
     /// An endpoint with explicit protocol parameters and a fresh session.
     /// Where the transport knows its radio's pace, the first retransmission
-    /// timeout is seeded from it ([`Config::with_packet_time`]); over several
-    /// radio pairs the window grows with them ([`Config::with_paths`]).
+    /// timeout is seeded from it ([`Config::with_packet_time`]).
     pub fn with_config(transport: Box<dyn Transport>, cfg: Config) -> std::io::Result<Self> {
         let cfg = match transport.packet_time() {
             Some(t) => cfg.with_packet_time(t.as_micros() as Micros),
             None => cfg,
-        }
-        .with_paths(transport.paths());
+        };
         let session = fresh_session()?;
         Ok(Endpoint {
             transport,

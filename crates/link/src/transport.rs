@@ -44,12 +44,6 @@ pub trait Transport: Send {
     fn packet_time(&self) -> Option<Duration> {
         None
     }
-    /// How many packets the transport carries side by side (a bond's radio
-    /// pairs, [`crate::bond`]): the ARQ keeps that many times its window in
-    /// flight ([`crate::arq::Config::with_paths`]).
-    fn paths(&self) -> usize {
-        1
-    }
     /// What the transport has to say since it was last asked (each kind of
     /// trouble once).
     fn take_notices(&mut self) -> Vec<Notice> {

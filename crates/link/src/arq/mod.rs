@@ -152,16 +152,6 @@ impl Config {
         self
     }
 
-    /// The same parameters for a link of `paths` radio pairs side by side
-    /// (a bond): each carries its own packets at once, so the round trip
-    /// stays that of one pair while the rate is `paths` times one pair's,
-    /// and the fragments in flight that keep the link busy (the
-    /// bandwidth-delay product) grow with them. The window grows by as much.
-    pub fn with_paths(mut self, paths: usize) -> Self {
-        self.window = self.window.saturating_mul(paths.max(1));
-        self
-    }
-
     /// Fragment bytes per DATA segment.
     pub fn fragment_size(&self) -> usize {
         self.mtu.saturating_sub(DATA_OVERHEAD).max(1)
