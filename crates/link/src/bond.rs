@@ -38,8 +38,8 @@ pub const HEADER: usize = 2;
 /// with a member that dies.
 const DEPTH: usize = 2;
 
-/// How long an idle member waits for a packet from its peer before it looks
-/// at its queue again.
+/// How long an idle member waits for a packet to send before it looks for
+/// one from its peer again.
 const POLL: Duration = Duration::from_millis(1);
 
 /// Packets received and not yet taken, across the members; beyond that
@@ -248,10 +248,16 @@ impl Drop for Bond {
 /// receives, and passes on its notices and statistics, until it fails or
 /// the bond drops it.
 fn run_member(i: usize, mut t: Box<dyn Transport>, sync: &Sync, inbox: &SyncSender<Arrival>) {
-    let mut stats_at = Instant::now();
+    let (mut stats_at, mut busy) = (Instant::now(), true);
     loop {
         let packet = {
-            let shared = &mut *lock(sync);
+            let mut shared = lock(sync);
+            if !busy && shared.slots[i].queue.is_empty() {
+                // Idle: woken by a packet to send, or after POLL to listen.
+                shared = (sync.1.wait_timeout(shared, POLL))
+                    .unwrap_or_else(|p| p.into_inner())
+                    .0;
+            }
             let slot = &mut shared.slots[i];
             if slot.down.is_some() {
                 return;
@@ -268,14 +274,10 @@ fn run_member(i: usize, mut t: Box<dyn Transport>, sync: &Sync, inbox: &SyncSend
                 failure = Some(format!("it failed to send: {e}"));
             }
         }
-        let wait = if packet.is_some() {
-            Duration::ZERO
-        } else {
-            POLL
-        };
-        match t.recv(wait) {
+        busy = packet.is_some();
+        match t.recv(Duration::ZERO) {
             Ok(Some(p)) => match inbox.try_send((i, p, Instant::now())) {
-                Ok(()) | Err(TrySendError::Full(_)) => {}
+                Ok(()) | Err(TrySendError::Full(_)) => busy = true,
                 Err(TrySendError::Disconnected(_)) => return,
             },
             Ok(None) => {}
@@ -327,6 +329,7 @@ impl Transport for Bond {
                 slot.bytes += framed.len();
                 slot.queue.push_back(framed);
                 self.members[i].used = self.sent;
+                self.sync.1.notify_all();
                 return Ok(());
             }
             if shared.slots.iter().all(|s| s.down.is_some()) {
