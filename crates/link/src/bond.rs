@@ -36,7 +36,7 @@ pub const HEADER: usize = 2;
 /// Packets queued for one member beyond the one it is sending: enough that
 /// a member never waits for the next packet, few enough that little is lost
 /// with a member that dies.
-const DEPTH: usize = 2;
+const DEPTH: usize = 1;
 
 /// How long an idle member waits for a packet to send before it looks for
 /// one from its peer again.
@@ -53,8 +53,9 @@ const MIN_SILENCE: Duration = Duration::from_millis(500);
 const SILENT_PACKETS: u32 = 40;
 
 /// Packets the others must carry, per member, while one is silent before
-/// that one is dropped: silence alone is an idle link, not a dead one.
-const OTHERS_PER_MEMBER: u64 = 16;
+/// that one is dropped: silence alone is an idle link, not a dead one, and
+/// the far end gives each live member its turn well within that many.
+const OTHERS_PER_MEMBER: u64 = 4;
 
 /// What a member's thread and the bond share about it.
 #[derive(Default)]

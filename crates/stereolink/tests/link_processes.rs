@@ -117,7 +117,11 @@ fn a_bond_survives_a_pair_that_goes_away_mid_stream() {
     let (sent, got) = (json(finish(tx, "sender")), json(finish(rx, "receiver")));
     for (end, s, port) in [("sender", &sent, a1), ("receiver", &got, b1)] {
         assert_eq!(s["delivered"], 20, "{end}: {s}");
-        assert_eq!((&s["failed"], &s["corrupted"]), (&0.into(), &0.into()), "{end}: {s}");
+        assert_eq!(
+            (&s["failed"], &s["corrupted"]),
+            (&0.into(), &0.into()),
+            "{end}: {s}"
+        );
         let first = format!("udp:127.0.0.1:{port}");
         assert_eq!(s["links_dropped"], serde_json::json!([first]), "{end}: {s}");
     }
