@@ -157,7 +157,8 @@ impl Bond {
     /// Two bonds joined by one simulated radio pair per configuration (see
     /// [`sim::pair`]), running `speedup` times faster than the radios.
     pub fn sim_pair(configs: &[SimConfig], speedup: f64) -> (Bond, Bond) {
-        let (a, b): (Vec<Box<dyn Transport>>, Vec<Box<dyn Transport>>) = configs
+        type Ends = Vec<Box<dyn Transport>>;
+        let (a, b): (Ends, Ends) = configs
             .iter()
             .map(|&c| {
                 let (a, b) = sim::pair(c, speedup);
@@ -165,15 +166,6 @@ impl Bond {
             })
             .unzip();
         (Bond::new(a), Bond::new(b))
-    }
-
-    /// The members still up, by name.
-    pub fn members_up(&self) -> Vec<String> {
-        let shared = lock(&self.sync);
-        let up = shared.slots.iter().zip(&self.members);
-        up.filter(|(s, _)| s.down.is_none())
-            .map(|(_, m)| m.name.clone())
-            .collect()
     }
 
     /// Takes in a packet that member `i` received at `at`.

@@ -32,9 +32,13 @@ pub enum Role {
 #[derive(Clone, Debug, clap::Args)]
 pub struct Args {
     /// Link: serial:/dev/ttyUSB0?baud=115200&api=2, udp:BIND?peer=ADDR, sim:?loss=0.1&seed=3, fallback:A,B;
-    /// several make a bond (several sim: links: that many simulated radio
-    /// pairs, pair i with seed+i, run in real time and timed in radio time).
-    #[arg(long, default_value = "sim:?loss=0.1&seed=1", long_help = super::LINK_HELP)]
+    /// several make a bond.
+    ///
+    /// Several sim: links are that many simulated radio pairs (pair i with
+    /// the spec's seed + i) bonded at both ends in this process, run in real
+    /// time and timed in radio time. Several real links bond as in `send
+    /// --help`; both ends give the same number of --link.
+    #[arg(long, default_value = "sim:?loss=0.1&seed=1")]
     pub link: Vec<String>,
     /// Messages to send.
     #[arg(long, default_value_t = 5)]

@@ -68,7 +68,7 @@ pub fn links_name(texts: &[String]) -> String {
 
 /// The long help of `--link` where it may be repeated.
 pub const LINK_HELP: &str = "Link: serial:/dev/ttyUSB0?baud=115200&api=2, \
-udp:BIND?peer=ADDR, fallback:A,B (and, in link-test, sim:?radio=zigbee).
+udp:BIND?peer=ADDR, fallback:A,B.
 
 Give --link several times to bond several radio pairs into one link: packets \
 are striped across them, the least loaded pair first, each pair paced by its \
