@@ -1,24 +1,16 @@
-//! A bond: several transports (radio pairs) used as one, for more air.
+//! A bond: several radio pairs used as one link, for more air.
 //!
-//! One radio pair carries what its radio carries (35 kb/s on ZigBee); the
-//! paper's future work names the remedy: "the time taken for transmitting an
-//! image can be reduced by implementing a mesh or star topologies using a set
-//! of ZIGBEE modules". The bond stripes packets across its members: each
-//! member runs in a thread of its own with its own pacing (its UART, its
-//! transmit statuses), and a packet goes to the member with the fewest bytes
-//! queued, so a faster or less loaded pair takes more. Each packet carries a
-//! two-byte bond sequence number, so the far end hands packets up in the
-//! order they were sent (a packet missing from the order is passed over as
-//! soon as every member heard lately has carried a later one, or after a
-//! hold of a few packet times): the ARQ above takes reordering for loss.
-//!
-//! A member that fails (its send or receive errors, its radio gives no
-//! transmit status) or falls silent (nothing heard from it for a bounded
-//! time while the others carried many packets) is dropped with a
-//! [`Notice::MemberDown`]. What it held is lost, and the ARQ above resends
-//! it over the others, as it resends any lost fragment: the bond never
-//! acknowledges anything itself. With every member down, the bond fails
-//! with an error naming them. Both ends must bond the same number of pairs.
+//! One pair carries what its radio carries (35 kb/s on ZigBee); the paper's
+//! future work: "the time taken for transmitting an image can be reduced by
+//! implementing a mesh or star topologies using a set of ZIGBEE modules".
+//! Each member transport runs in a thread of its own with its own pacing,
+//! and a packet goes to the member with the fewest bytes queued. A two-byte
+//! sequence number lets the far end hand packets up in the order sent, as
+//! the ARQ above takes reordering for loss. A member that fails, or falls
+//! silent while the others carry traffic, is dropped with a
+//! [`Notice::MemberDown`], and the ARQ resends what it held (the bond
+//! acknowledges nothing itself); with every member down the bond fails
+//! naming them. Both ends bond the same number of pairs.
 
 use std::collections::VecDeque;
 use std::io;
@@ -73,12 +65,13 @@ struct Shared {
     slots: Vec<Slot>,
 }
 
-type Sync = Arc<(Mutex<Shared>, Condvar)>;
+/// The members' slots and the condition a change of them is signalled on.
+type Handle = Arc<(Mutex<Shared>, Condvar)>;
 
 /// A packet, the member that received it and when.
 type Arrival = (usize, Vec<u8>, Instant);
 
-fn lock(sync: &Sync) -> MutexGuard<'_, Shared> {
+fn lock(sync: &Handle) -> MutexGuard<'_, Shared> {
     sync.0.lock().unwrap_or_else(|p| p.into_inner())
 }
 
@@ -99,7 +92,7 @@ struct Member {
 /// Several transports used as one (see the module doc).
 pub struct Bond {
     members: Vec<Member>,
-    sync: Sync,
+    sync: Handle,
     inbox: Receiver<Arrival>,
     order: Reorder,
     next_seq: u16,
@@ -129,7 +122,7 @@ impl Bond {
             })
             .collect();
         let slowest = info.iter().filter_map(|m| m.packet_time).max();
-        let sync: Sync = Arc::new((
+        let sync: Handle = Arc::new((
             Mutex::new(Shared {
                 slots: members.iter().map(|_| Slot::default()).collect(),
             }),
@@ -240,7 +233,7 @@ impl Drop for Bond {
 /// A member's thread: sends what the bond queues for it, hands up what it
 /// receives, and passes on its notices and statistics, until it fails or
 /// the bond drops it.
-fn run_member(i: usize, mut t: Box<dyn Transport>, sync: &Sync, inbox: &SyncSender<Arrival>) {
+fn run_member(i: usize, mut t: Box<dyn Transport>, sync: &Handle, inbox: &SyncSender<Arrival>) {
     let (mut stats_at, mut busy) = (Instant::now(), true);
     loop {
         let packet = {
@@ -367,7 +360,12 @@ impl Transport for Bond {
     }
 
     fn mtu(&self) -> usize {
-        self.members.iter().map(|m| m.mtu).min().unwrap_or(0) - HEADER
+        self.members
+            .iter()
+            .map(|m| m.mtu)
+            .min()
+            .unwrap_or(0)
+            .saturating_sub(HEADER)
     }
 
     /// The slowest member's: a fragment's round trip is that of its member.
