@@ -1,16 +1,18 @@
 //! Sender and receiver as two separate processes over UDP on loopback and
 //! over a pair of pseudo-terminals with a noisy emulated radio: every
 //! message must arrive byte-identical. A bond of two UDP pairs one of which
-//! goes away mid-stream: the rest goes over the other. And a sender with
+//! goes away mid-stream: the rest goes over the other; a bond of two paced
+//! ZigBee radio pairs: each carries its share at its own pace. And a sender with
 //! nobody to answer it: it must say what to check and fail, never hang in
 //! silence.
 
 mod common;
 
 use std::net::UdpSocket;
+use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
-use common::xbee::{Cable, Firmware, RadioLink};
+use common::xbee::{Cable, Firmware, RadioLink, Timing};
 use common::{finish, free_port, spawn, strings, synth};
 
 /// `send` of the scene's pair with a small disparity range and k-means,
@@ -124,6 +126,45 @@ fn a_bond_survives_a_pair_that_goes_away_mid_stream() {
         );
         let first = format!("udp:127.0.0.1:{port}");
         assert_eq!(s["links_dropped"], serde_json::json!([first]), "{end}: {s}");
+    }
+}
+
+/// `link-test` over a bond of two pairs of emulated ZigBee radios at their
+/// real rates: each pair is paced by its own transmit statuses, so neither
+/// radio's serial buffer overruns, both carry a share, and every message
+/// arrives intact.
+#[test]
+fn a_bond_of_two_paced_zigbee_pairs_carries_on_both() {
+    let radios = [(); 2].map(|_| RadioLink::timed(Firmware::Zigbee, Timing::zigbee()));
+    let spec =
+        |port: &str, dest: u64| format!("serial:{port}?baud=115200&api=2&dest=0x{dest:016X}");
+    let run = |role: &str, links: Vec<String>| {
+        let mut args = strings(&["--json", "link-test", "--role", role]);
+        args.extend(strings(&["--count", "2", "--size", "8000"]));
+        for l in links {
+            args.extend(["--link".to_string(), l]);
+        }
+        spawn(&args)
+    };
+    let ends = |side: usize| -> Vec<String> {
+        let to = radios.iter().map(|r| r.configs[1 - side].serial);
+        let ports = radios.iter().map(|r| if side == 0 { &r.a } else { &r.b });
+        ports.zip(to).map(|(p, d)| spec(p, d)).collect()
+    };
+    let rx = run("receive", ends(1));
+    let tx = run("send", ends(0));
+    let json = |text: String| -> serde_json::Value { serde_json::from_str(&text).unwrap() };
+    let (sent, got) = (json(finish(tx, "sender")), json(finish(rx, "receiver")));
+    assert_eq!(
+        (&sent["delivered"], &got["delivered"]),
+        (&2.into(), &2.into())
+    );
+    assert_eq!(got["corrupted"], 0, "{got}");
+    for r in &radios {
+        let delivered = r.counters[0].delivered.load(Ordering::Relaxed);
+        assert!(delivered > 40, "a pair carried only {delivered} packets");
+        let overrun = |i: usize| r.counters[i].overrun.load(Ordering::Relaxed);
+        assert_eq!((overrun(0), overrun(1)), (0, 0));
     }
 }
 
