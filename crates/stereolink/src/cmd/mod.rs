@@ -74,8 +74,7 @@ Give --link several times to bond several radio pairs into one link: packets \
 are striped across them, the least loaded pair first, each pair paced by its \
 own radio. A pair that fails or falls silent is dropped (said on stderr) and \
 what it held is sent again over the others; with every pair down the command \
-fails naming them. Both ends give the same number of --link, each end's \
-pairs in the same order.";
+fails naming them. Both ends give a --link for each pair (in any order).";
 
 /// How commands print results.
 #[derive(Clone, Copy, Debug, Default)]
