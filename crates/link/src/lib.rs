@@ -36,6 +36,8 @@ pub mod slip;
 pub mod xbee;
 
 #[cfg(feature = "std")]
+pub mod bond;
+#[cfg(feature = "std")]
 pub mod endpoint;
 #[cfg(feature = "std")]
 pub mod radio;

@@ -77,11 +77,25 @@ pub struct PacingCounters {
 }
 
 impl PacingCounters {
-    fn count_failure(&mut self, code: u8) {
+    fn count_failures(&mut self, code: u8, k: u64) {
         match self.failures.iter_mut().find(|(c, _)| *c == code) {
-            Some((_, n)) => *n += 1,
-            None => self.failures.push((code, 1)),
+            Some((_, n)) => *n += k,
+            None => self.failures.push((code, k)),
         }
+    }
+
+    /// Adds `other`'s counts to these (the radios of a bond).
+    pub fn add(&mut self, other: &PacingCounters) {
+        self.requests += other.requests;
+        self.delivered += other.delivered;
+        for &(code, n) in &other.failures {
+            self.count_failures(code, n);
+        }
+        self.resent += other.resent;
+        self.gave_up += other.gave_up;
+        self.status_lost += other.status_lost;
+        self.stray_status += other.stray_status;
+        self.resets += other.resets;
     }
 }
 
@@ -193,7 +207,7 @@ impl Pacing {
             self.outstanding.remove(at);
             return StatusAction::Settled;
         }
-        self.counters.count_failure(status);
+        self.counters.count_failures(status, 1);
         let Some(mut request) = self.outstanding.remove(at) else {
             return StatusAction::Stray;
         };

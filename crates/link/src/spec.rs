@@ -19,11 +19,15 @@
 //!   transmit requests the host keeps at the radio (0: as CTS allows);
 //! * `fallback:PRIMARY,SECONDARY?silence_ms=2000` (the query after the last
 //!   spec applies to the fallback).
+//!
+//! Several specs given together make a bond of them ([`open_all`],
+//! [`crate::bond`]).
 
 use std::net::SocketAddr;
 use std::time::Duration;
 
 use crate::arq::MIN_MTU;
+use crate::bond::Bond;
 use crate::radio::{self, Address, Firmware, RadioInfo};
 use crate::sim::SimConfig;
 use crate::throughput::{RadioPath, Role};
@@ -367,6 +371,22 @@ pub fn open(spec: &LinkSpec) -> std::io::Result<Box<dyn Transport>> {
     })
 }
 
+/// Opens one transport, or with several specs a [`Bond`] of them (see
+/// [`open`]; `sim:` specs bond with [`Bond::sim_pair`]).
+pub fn open_all(specs: &[LinkSpec]) -> std::io::Result<Box<dyn Transport>> {
+    match specs {
+        [] => Err(std::io::Error::new(
+            std::io::ErrorKind::InvalidInput,
+            "no link given",
+        )),
+        [one] => open(one),
+        several => {
+            let members = several.iter().map(open).collect::<Result<_, _>>()?;
+            Ok(Box::new(Bond::new(members)))
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -470,5 +490,26 @@ mod tests {
         let spec: LinkSpec = "serial:/dev/does-not-exist".parse().unwrap();
         let err = open(&spec).err().unwrap().to_string();
         assert!(err.contains("/dev/does-not-exist"), "{err}");
+    }
+
+    #[test]
+    fn several_specs_open_as_a_bond() {
+        let udp = |mtu| -> LinkSpec { format!("udp:127.0.0.1:0?mtu={mtu}").parse().unwrap() };
+        let one = open_all(&[udp(90)]).unwrap();
+        assert!(one.describe().starts_with("udp:"), "{}", one.describe());
+        let two = open_all(&[udp(90), udp(100)]).unwrap();
+        assert!(
+            two.describe().starts_with("bond:udp:"),
+            "{}",
+            two.describe()
+        );
+        assert_eq!(two.mtu(), 90 - crate::bond::HEADER);
+        assert!(open_all(&[]).is_err());
+        let bad = open_all(&[udp(90), "serial:/dev/does-not-exist".parse().unwrap()]);
+        assert!(bad
+            .err()
+            .unwrap()
+            .to_string()
+            .contains("/dev/does-not-exist"));
     }
 }

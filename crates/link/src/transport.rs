@@ -114,6 +114,8 @@ pub enum Notice {
     ForeignRequests,
     /// A fallback link moved its traffic from one link to the other.
     Switched { from: String, to: String },
+    /// A bond dropped one of its links ([`crate::bond`]).
+    MemberDown { member: String, reason: String },
 }
 
 impl fmt::Display for Notice {
@@ -147,6 +149,10 @@ impl fmt::Display for Notice {
                  with no radio between; use api=0 on both ends, or put the radios between them",
             ),
             Notice::Switched { from, to } => write!(f, "switching from {from} to {to}"),
+            Notice::MemberDown { member, reason } => write!(
+                f,
+                "the bond dropped {member}: {reason}; what it held is sent again over the others"
+            ),
         }
     }
 }

@@ -1,13 +1,18 @@
 //! Sender and receiver as two separate processes over UDP on loopback and
 //! over a pair of pseudo-terminals with a noisy emulated radio: every
-//! message must arrive byte-identical. And a sender with nobody to answer
-//! it: it must say what to check and fail, never hang in silence.
+//! message must arrive byte-identical. A bond of two UDP pairs one of which
+//! goes away mid-stream: the rest goes over the other; a bond of two paced
+//! ZigBee radio pairs: each carries its share at its own pace. And a sender with
+//! nobody to answer it: it must say what to check and fail, never hang in
+//! silence.
 
 mod common;
 
+use std::net::UdpSocket;
+use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
-use common::xbee::{Cable, Firmware, RadioLink};
+use common::xbee::{Cable, Firmware, RadioLink, Timing};
 use common::{finish, free_port, spawn, strings, synth};
 
 /// `send` of the scene's pair with a small disparity range and k-means,
@@ -65,6 +70,102 @@ fn udp_between_two_processes() {
         got.contains("3/3 messages") && got.contains("0 corrupted"),
         "{got}"
     );
+}
+
+/// A UDP relay between `a` and `b` on loopback that carries `budget`
+/// datagrams from `a`, then goes away (the radio pair between them died):
+/// nothing more crosses it either way. It stops by itself.
+fn relay_that_dies(a: u16, b: u16, budget: usize) -> u16 {
+    let socket = UdpSocket::bind("127.0.0.1:0").unwrap();
+    let port = socket.local_addr().unwrap().port();
+    socket
+        .set_read_timeout(Some(Duration::from_millis(100)))
+        .unwrap();
+    std::thread::spawn(move || {
+        let (start, mut left) = (Instant::now(), budget);
+        let mut buf = [0u8; 2048];
+        while left > 0 && start.elapsed() < Duration::from_secs(60) {
+            let Ok((n, from)) = socket.recv_from(&mut buf) else {
+                continue;
+            };
+            let to = if from.port() == a { b } else { a };
+            left -= usize::from(from.port() == a);
+            let _ = socket.send_to(&buf[..n], ("127.0.0.1", to));
+        }
+    });
+    port
+}
+
+/// `link-test` over a bond of two UDP pairs, the first through a relay
+/// that dies after 300 datagrams: every message arrives intact over the
+/// second, and both ends say they dropped the first.
+#[test]
+fn a_bond_survives_a_pair_that_goes_away_mid_stream() {
+    let [a1, a2, b1, b2] = [(); 4].map(|_| free_port());
+    let relay = relay_that_dies(a1, b1, 300);
+    let udp = |port: u16, peer: u16| format!("udp:127.0.0.1:{port}?peer=127.0.0.1:{peer}");
+    let run = |role: &str, links: [String; 2]| {
+        let mut args = strings(&["--json", "link-test", "--role", role]);
+        args.extend(strings(&["--count", "20", "--size", "20000"]));
+        for l in links {
+            args.extend(["--link".to_string(), l]);
+        }
+        spawn(&args)
+    };
+    let rx = run("receive", [udp(b1, relay), udp(b2, a2)]);
+    std::thread::sleep(Duration::from_millis(200));
+    let tx = run("send", [udp(a1, relay), udp(a2, b2)]);
+    let json = |text: String| -> serde_json::Value { serde_json::from_str(&text).unwrap() };
+    let (sent, got) = (json(finish(tx, "sender")), json(finish(rx, "receiver")));
+    for (end, s, port) in [("sender", &sent, a1), ("receiver", &got, b1)] {
+        assert_eq!(s["delivered"], 20, "{end}: {s}");
+        assert_eq!(
+            (&s["failed"], &s["corrupted"]),
+            (&0.into(), &0.into()),
+            "{end}: {s}"
+        );
+        let first = format!("udp:127.0.0.1:{port}");
+        assert_eq!(s["links_dropped"], serde_json::json!([first]), "{end}: {s}");
+    }
+}
+
+/// `link-test` over a bond of two pairs of emulated ZigBee radios at their
+/// real rates: each pair is paced by its own transmit statuses, so neither
+/// radio's serial buffer overruns, both carry a share, and every message
+/// arrives intact.
+#[test]
+fn a_bond_of_two_paced_zigbee_pairs_carries_on_both() {
+    let radios = [(); 2].map(|_| RadioLink::timed(Firmware::Zigbee, Timing::zigbee()));
+    let spec =
+        |port: &str, dest: u64| format!("serial:{port}?baud=115200&api=2&dest=0x{dest:016X}");
+    let run = |role: &str, links: Vec<String>| {
+        let mut args = strings(&["--json", "link-test", "--role", role]);
+        args.extend(strings(&["--count", "2", "--size", "8000"]));
+        for l in links {
+            args.extend(["--link".to_string(), l]);
+        }
+        spawn(&args)
+    };
+    let ends = |side: usize| -> Vec<String> {
+        let to = radios.iter().map(|r| r.configs[1 - side].serial);
+        let ports = radios.iter().map(|r| if side == 0 { &r.a } else { &r.b });
+        ports.zip(to).map(|(p, d)| spec(p, d)).collect()
+    };
+    let rx = run("receive", ends(1));
+    let tx = run("send", ends(0));
+    let json = |text: String| -> serde_json::Value { serde_json::from_str(&text).unwrap() };
+    let (sent, got) = (json(finish(tx, "sender")), json(finish(rx, "receiver")));
+    assert_eq!(
+        (&sent["delivered"], &got["delivered"]),
+        (&2.into(), &2.into())
+    );
+    assert_eq!(got["corrupted"], 0, "{got}");
+    for r in &radios {
+        let delivered = r.counters[0].delivered.load(Ordering::Relaxed);
+        assert!(delivered > 40, "a pair carried only {delivered} packets");
+        let overrun = |i: usize| r.counters[i].overrun.load(Ordering::Relaxed);
+        assert_eq!((overrun(0), overrun(1)), (0, 0));
+    }
 }
 
 /// One delivered byte in 3001 is flipped by the emulated radios.

@@ -1,19 +1,23 @@
 //! `stereolink link-test`: send test messages over a link and report goodput,
 //! loss and retransmissions. On a `sim:` link it runs the ARQ over the
 //! simulated 802.15.4 channel in simulated time (and `--sweep` prints the loss
-//! sweep); on real links one process runs `--role send` and the other
-//! `--role receive`.
+//! sweep); over several `sim:` links, a bond of simulated radio pairs, both
+//! ends run in this process in real time; on real links one process runs
+//! `--role send` and the other `--role receive`.
 
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use rand::{Rng, SeedableRng};
 use rand_chacha::ChaCha8Rng;
 use serde::Serialize;
 use stereolink_link::arq::{Config, DATA_OVERHEAD};
+use stereolink_link::bond::Bond;
 use stereolink_link::endpoint::Endpoint;
 use stereolink_link::secure::sim::sealed_transfer;
 use stereolink_link::sim::{self, SimConfig};
 use stereolink_link::spec::{self, LinkSpec};
+use stereolink_link::transport::Notice;
 
 /// Which side this process plays on a real link.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
@@ -25,11 +29,17 @@ pub enum Role {
 }
 
 /// Arguments of `stereolink link-test`.
-#[derive(Debug, clap::Args)]
+#[derive(Clone, Debug, clap::Args)]
 pub struct Args {
-    /// Link: serial:/dev/ttyUSB0?baud=115200&api=2, udp:BIND?peer=ADDR, sim:?loss=0.1&seed=3, fallback:A,B.
+    /// Link: serial:/dev/ttyUSB0?baud=115200&api=2, udp:BIND?peer=ADDR, sim:?loss=0.1&seed=3, fallback:A,B;
+    /// several make a bond.
+    ///
+    /// Several sim: links are that many simulated radio pairs (pair i with
+    /// the spec's seed + i) bonded at both ends in this process, run in real
+    /// time and timed in radio time. Several real links bond as in `send
+    /// --help`; both ends give the same number of --link.
     #[arg(long, default_value = "sim:?loss=0.1&seed=1")]
-    pub link: String,
+    pub link: Vec<String>,
     /// Messages to send.
     #[arg(long, default_value_t = 5)]
     pub count: usize,
@@ -40,13 +50,8 @@ pub struct Args {
     #[arg(long, default_value_t = 7)]
     pub seed: u64,
     /// On a sim link: print the loss sweep (0, 1, 5, 10, 20, 30 %) instead.
-    #[arg(long, conflicts_with = "report_latency")]
-    pub sweep: bool,
-    /// On a sim link, in real time: send one frame of --size bytes and,
-    /// while it is in flight, a depth report every 400 ms; print how long
-    /// the reports took to arrive.
     #[arg(long)]
-    pub report_latency: bool,
+    pub sweep: bool,
     /// With --sweep: also seal the message with the secure layer (Noise KK,
     /// after a simulated handshake) and print the goodput with and without
     /// keys, averaged over --count seeds, and the handshake's time.
@@ -78,12 +83,14 @@ struct Summary {
     goodput_bps: f64,
     bound_bps: Option<f64>,
     seconds: f64,
+    /// Links a bond dropped on the way.
+    links_dropped: Vec<String>,
 }
 
 impl Summary {
     fn new(args: &Args, bound_bps: Option<f64>) -> Self {
         Summary {
-            link: args.link.clone(),
+            link: super::links_name(&args.link),
             messages: args.count,
             bytes_per_message: args.size,
             delivered: 0,
@@ -93,6 +100,7 @@ impl Summary {
             goodput_bps: 0.0,
             bound_bps,
             seconds: 0.0,
+            links_dropped: Vec::new(),
         }
     }
 }
@@ -110,16 +118,65 @@ struct SweepRow {
 
 /// Runs the test.
 pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
-    let spec = super::link_spec(&args.link)?;
-    match spec {
-        LinkSpec::Sim { config, .. } if args.sweep && args.keys => sweep_sealed(config, &args, out),
-        LinkSpec::Sim { config, .. } if args.sweep => sweep(config, &args, out),
-        LinkSpec::Sim { config, .. } if args.report_latency => {
-            super::link_latency::run(config, &args.link, args.size, out)
-        }
-        LinkSpec::Sim { config, .. } => simulate(config, &args, out),
-        other => real(&other, &args, out),
+    let specs = (args.link.iter())
+        .map(|l| super::link_spec(l))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    let sims: Vec<(SimConfig, f64)> = (specs.iter())
+        .filter_map(|s| match s {
+            LinkSpec::Sim { config, speedup } => Some((*config, *speedup)),
+            _ => None,
+        })
+        .collect();
+    match (&specs[..], &sims[..]) {
+        ([_], [(config, _)]) if args.sweep && args.keys => sweep_sealed(*config, &args, out),
+        ([_], [(config, _)]) if args.sweep => sweep(*config, &args, out),
+        ([_], [(config, _)]) => simulate(*config, &args, out),
+        (_, []) => real(&specs, &args, out),
+        _ if args.sweep => anyhow::bail!("--sweep takes one --link"),
+        _ if sims.len() == specs.len() => bonded(&sims, &args, out),
+        _ => anyhow::bail!("a bond's links are all sim: (both ends here) or none (one end here)"),
     }
+}
+
+/// Several `sim:` links: one simulated radio pair each, bonded at both
+/// ends, in real time sped up by the specs' `speedup`; goodput in radio
+/// time (real time × speedup), against the sum of the pairs' bounds.
+fn bonded(sims: &[(SimConfig, f64)], args: &Args, out: &super::Output) -> anyhow::Result<()> {
+    let speedup = sims[0].1;
+    anyhow::ensure!(
+        sims.iter().all(|&(_, s)| s == speedup),
+        "the sim: links of a bond run at one speedup"
+    );
+    let configs: Vec<SimConfig> = (sims.iter().enumerate())
+        .map(|(i, (c, _))| SimConfig {
+            seed: c.seed.wrapping_add(i as u64),
+            ..*c
+        })
+        .collect();
+    let (a, b) = Bond::sim_pair(&configs, speedup);
+    let rx_args = args.clone();
+    let receiver = std::thread::spawn(move || -> anyhow::Result<Summary> {
+        let mut ep = Endpoint::new(Box::new(b))?;
+        let mut s = Summary::new(&rx_args, None);
+        receive_messages(&mut ep, &rx_args, &mut s);
+        ep.linger(Duration::from_millis(300))?;
+        Ok(s)
+    });
+    let mut s = Summary::new(args, Some(configs.iter().map(SimConfig::bound_bps).sum()));
+    let (mut ep, dropped) = endpoint(Box::new(a), &args.link)?;
+    let start = Instant::now();
+    send_messages(&mut ep, args, &mut s);
+    s.seconds = start.elapsed().as_secs_f64() * speedup;
+    let r = (receiver.join()).map_err(|_| anyhow::anyhow!("the receiving end panicked"))??;
+    anyhow::ensure!(
+        s.delivered <= r.delivered + r.corrupted,
+        "the sender counted {} messages delivered, the receiver got {}",
+        s.delivered,
+        r.delivered + r.corrupted
+    );
+    (s.delivered, s.corrupted) = (r.delivered, r.corrupted);
+    s.links_dropped = dropped.lock().expect("notices").clone();
+    finish(s, Role::Send, out)
 }
 
 fn simulate(config: SimConfig, args: &Args, out: &super::Output) -> anyhow::Result<()> {
@@ -301,47 +358,85 @@ fn sweep_sealed(config: SimConfig, args: &Args, out: &super::Output) -> anyhow::
     })
 }
 
-fn real(spec: &LinkSpec, args: &Args, out: &super::Output) -> anyhow::Result<()> {
+fn real(specs: &[LinkSpec], args: &Args, out: &super::Output) -> anyhow::Result<()> {
     let role = args.role.ok_or_else(|| {
         anyhow::anyhow!("a real link needs --role send or --role receive (one process each)")
     })?;
-    let transport = spec::open(spec)?;
-    let mut ep = Endpoint::new(transport)?;
-    let start = Instant::now();
     let mut s = Summary::new(args, None);
-    for i in 0..args.count {
-        let msg = test_message(args.seed, i, args.size);
-        match role {
-            Role::Send => match ep.send_message(&msg) {
-                Ok(st) => {
-                    s.delivered += 1;
-                    s.retransmissions += st.retransmissions;
-                }
-                Err(e) => {
-                    eprintln!("message {i}: {e}");
-                    s.failed += 1;
-                }
-            },
-            Role::Receive => match ep.recv_message(Duration::from_secs(args.timeout_s)) {
-                Ok(m) if m == msg => s.delivered += 1,
-                Ok(_) => s.corrupted += 1,
-                Err(e) => {
-                    eprintln!("message {i}: {e}");
-                    s.failed += 1;
-                }
-            },
-        }
+    let (mut ep, dropped) = endpoint(spec::open_all(specs)?, &args.link)?;
+    let start = Instant::now();
+    match role {
+        Role::Send => send_messages(&mut ep, args, &mut s),
+        Role::Receive => receive_messages(&mut ep, args, &mut s),
     }
     s.seconds = start.elapsed().as_secs_f64();
-    s.goodput_bps = (s.delivered * args.size) as f64 * 8.0 / s.seconds.max(1e-9);
     if role == Role::Receive {
         // Keep answering retransmissions in case our last ACK was lost.
         ep.linger(Duration::from_millis(500))?;
     }
+    s.links_dropped = dropped.lock().expect("notices").clone();
+    finish(s, role, out)
+}
+
+/// The links a bond dropped, as its endpoint's notices said.
+type Dropped = Arc<Mutex<Vec<String>>>;
+
+/// An endpoint over `transport` that says its notices on stderr and lists
+/// the links a bond dropped.
+fn endpoint(
+    transport: Box<dyn stereolink_link::transport::Transport>,
+    links: &[String],
+) -> anyhow::Result<(Endpoint, Dropped)> {
+    let mut ep = Endpoint::new(transport)?;
+    let name = super::links_name(links);
+    let dropped = Dropped::default();
+    let list = dropped.clone();
+    ep.on_notice(Box::new(move |notice| {
+        eprintln!("link {name}: {notice}");
+        if let Notice::MemberDown { member, .. } = notice {
+            list.lock().expect("notices").push(member);
+        }
+    }));
+    Ok((ep, dropped))
+}
+
+/// Sends the `--count` test messages, counting them in `s`.
+fn send_messages(ep: &mut Endpoint, args: &Args, s: &mut Summary) {
+    for i in 0..args.count {
+        match ep.send_message(&test_message(args.seed, i, args.size)) {
+            Ok(st) => {
+                s.delivered += 1;
+                s.retransmissions += st.retransmissions;
+            }
+            Err(e) => {
+                eprintln!("message {i}: {e}");
+                s.failed += 1;
+            }
+        }
+    }
+}
+
+/// Receives and checks the `--count` test messages, counting them in `s`.
+fn receive_messages(ep: &mut Endpoint, args: &Args, s: &mut Summary) {
+    for i in 0..args.count {
+        match ep.recv_message(Duration::from_secs(args.timeout_s)) {
+            Ok(m) if m == test_message(args.seed, i, args.size) => s.delivered += 1,
+            Ok(_) => s.corrupted += 1,
+            Err(e) => {
+                eprintln!("message {i}: {e}");
+                s.failed += 1;
+            }
+        }
+    }
+}
+
+/// Prints the summary (goodput over its time) and fails if a message did.
+fn finish(mut s: Summary, role: Role, out: &super::Output) -> anyhow::Result<()> {
+    s.goodput_bps = (s.delivered * s.bytes_per_message) as f64 * 8.0 / s.seconds.max(1e-9);
     print_summary(&s, out)?;
     anyhow::ensure!(
         s.failed == 0 && s.corrupted == 0,
-        "{} failed, {} corrupted",
+        "{} failed, {} corrupted ({role:?})",
         s.failed,
         s.corrupted
     );

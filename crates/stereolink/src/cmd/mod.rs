@@ -16,7 +16,6 @@ pub mod eval;
 pub mod gateway;
 pub mod info;
 pub mod keygen;
-pub mod link_latency;
 pub mod link_test;
 pub mod live_bench;
 pub mod matching;
@@ -48,6 +47,34 @@ pub fn progress(len: u64, what: &str) -> indicatif::ProgressBar {
 pub fn link_spec(text: &str) -> anyhow::Result<stereolink_link::spec::LinkSpec> {
     text.parse().map_err(|e: String| anyhow::anyhow!("{e}"))
 }
+
+/// Opens the links given with `--link`: one, or a bond of several.
+pub fn open_links(
+    texts: &[String],
+) -> anyhow::Result<Box<dyn stereolink_link::transport::Transport>> {
+    use anyhow::Context;
+    let specs = texts
+        .iter()
+        .map(|t| link_spec(t))
+        .collect::<anyhow::Result<Vec<_>>>()?;
+    stereolink_link::spec::open_all(&specs)
+        .with_context(|| format!("cannot open link {}", links_name(texts)))
+}
+
+/// How the links given with `--link` are named in messages.
+pub fn links_name(texts: &[String]) -> String {
+    texts.join(" + ")
+}
+
+/// The long help of `--link` where it may be repeated.
+pub const LINK_HELP: &str = "Link: serial:/dev/ttyUSB0?baud=115200&api=2, \
+udp:BIND?peer=ADDR, fallback:A,B.
+
+Give --link several times to bond several radio pairs into one link: packets \
+are striped across them, the least loaded pair first, each pair paced by its \
+own radio. A pair that fails or falls silent is dropped (said on stderr) and \
+what it held is sent again over the others; with every pair down the command \
+fails naming them. Both ends give a --link for each pair (in any order).";
 
 /// How commands print results.
 #[derive(Clone, Copy, Debug, Default)]

@@ -9,7 +9,6 @@ use stereolink_codec::control::unix_us;
 use stereolink_display::open_sink;
 use stereolink_link::endpoint::{Endpoint, LinkError};
 use stereolink_link::secure::{Rejections, SecureConfig};
-use stereolink_link::spec;
 use stereolink_pipeline::rates::{since_stamp, Figures, Rates};
 use stereolink_pipeline::receiver::{BoardReceiver, DisparitySource, Event};
 use stereolink_robot::open_axis;
@@ -28,9 +27,10 @@ paired peer) stops the axis at once and holds it: later depth reports no
 longer move it until the receiver restarts. Other commands are refused
 (segmentation is the sender's).")]
 pub struct Args {
-    /// Link: serial:/dev/ttyUSB0?baud=115200&api=2, udp:BIND?peer=ADDR, fallback:A,B.
-    #[arg(long)]
-    pub link: String,
+    /// Link: serial:/dev/ttyUSB0?baud=115200&api=2, udp:BIND?peer=ADDR, fallback:A,B;
+    /// several make a bond.
+    #[arg(long, required = true, long_help = super::LINK_HELP)]
+    pub link: Vec<String>,
     /// A second link on which the depth reports arrive (`send
     /// --report-link`); messages are taken from both.
     #[arg(long, value_name = "SPEC")]
@@ -97,14 +97,13 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     );
     let keys = args.keys.load(args.robot.is_some())?;
     let mut eps = Vec::new();
-    for link in std::iter::once(&args.link).chain(&args.report_link) {
-        let spec = super::link_spec(link)?;
-        let mut ep =
-            Endpoint::new(spec::open(&spec).with_context(|| format!("cannot open link {link}"))?)?;
+    let links = std::iter::once(args.link.clone()).chain(args.report_link.clone().map(|r| vec![r]));
+    for link in links {
+        let mut ep = Endpoint::new(super::open_links(&link)?)?;
         if let Some(keys) = keys.clone() {
             ep = ep.with_keys(keys, SecureConfig::default());
         }
-        let name = link.clone();
+        let name = super::links_name(&link);
         ep.on_notice(Box::new(move |notice| eprintln!("link {name}: {notice}")));
         eps.push(ep);
     }

@@ -70,9 +70,10 @@ once with the current settings (live cameras: the next pair, which goes at
 once anyway), and an axis stop is refused (a sender drives no axis). Each is
 logged on stderr.")]
 pub struct Args {
-    /// Link: serial:/dev/ttyUSB0?baud=115200&api=2, udp:BIND?peer=ADDR, fallback:A,B.
-    #[arg(long)]
-    pub link: String,
+    /// Link: serial:/dev/ttyUSB0?baud=115200&api=2, udp:BIND?peer=ADDR, fallback:A,B;
+    /// several make a bond.
+    #[arg(long, required = true, long_help = super::LINK_HELP)]
+    pub link: Vec<String>,
     /// A second link for the depth reports (the paper's second radio pair),
     /// so that a report never shares the air with a frame; without it,
     /// reports go ahead of the frame's fragments on --link.
@@ -182,7 +183,6 @@ pub fn sender_config(
 
 /// Prepares and sends the pair, or each pair of the watched folder.
 pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
-    let spec = super::link_spec(&args.link)?;
     let sensor = args.calib.sensor(args.max_disp + 1)?;
     if let Some(w) = sensor.range_warning() {
         eprintln!("warning: {w}");
@@ -193,7 +193,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         args.roi,
         args.plane_table(),
     )?;
-    let transport = spec::open(&spec).with_context(|| format!("cannot open link {}", args.link))?;
+    let transport = super::open_links(&args.link)?;
     let report_transport = match &args.report_link {
         Some(text) => Some(
             spec::open(&super::link_spec(text)?)
@@ -220,7 +220,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         ep.on_notice(Box::new(move |notice| eprintln!("link {link}: {notice}")));
         anyhow::Ok(ep)
     };
-    let (link, report_link) = (args.link.clone(), args.report_link.clone());
+    let (link, report_link) = (super::links_name(&args.link), args.report_link.clone());
     let uplink = Uplink::start(move || {
         let mut frames = endpoint(transport, link)?;
         if std::io::stderr().is_terminal() {
