@@ -211,6 +211,16 @@ impl View {
         }
     }
 
+    /// How the view is coded: `segmented`, `rgb` (lossless), or the lossy
+    /// codec's name.
+    pub fn coding_name(&self) -> &'static str {
+        match self {
+            View::Indexed(_) => lossy::ViewCoding::Segmented.name(),
+            View::Rgb(_) => "rgb",
+            View::Lossy(v) => v.codec().name(),
+        }
+    }
+
     /// `(width, height)`.
     pub fn dims(&self) -> (usize, usize) {
         match self {

@@ -12,12 +12,14 @@
 //! third in each direction), where a robot camera points at what it
 //! approaches; `--roi x,y,w,h` chooses another.
 
+use std::collections::BTreeMap;
 use std::time::Instant;
 
 use anyhow::Context;
 use stereolink_codec::control::Command;
 use stereolink_codec::{
     container, labels,
+    lossy::ViewCoding,
     planetable::{PlaneTable, TableCoding},
     DepthReport, Message, ReportLevel, SegmentationKind, StereoFrame, View,
 };
@@ -28,6 +30,7 @@ use stereolink_stereo::depth::{depth_levels, depth_of, metric, region_distance, 
 use stereolink_stereo::planes::match_planes;
 use stereolink_stereo::{Algorithm, MatchSpec, Matcher};
 
+use crate::coding::{encode_fitted, lossy_views, CodingSpec};
 use crate::planetable;
 
 /// What the sender does with a pair.
@@ -49,6 +52,8 @@ pub struct SenderConfig {
     pub levels_spec: LevelSpec,
     /// How the plane table is coded (with the plane matcher).
     pub plane_table: TableCoding,
+    /// How the views are coded, and the frame's budget.
+    pub coding: CodingSpec,
 }
 
 /// What a command asks of the send loop once the configuration took it.
@@ -92,15 +97,18 @@ pub struct Prepared {
     pub frame_bytes: Vec<u8>,
     /// The encoded DepthReport message.
     pub report_bytes: Vec<u8>,
-    /// The segmented views as sent.
+    /// The views as sent (segmented, or decoded from their lossy coding).
     pub sent: (RgbImage, RgbImage),
+    /// The coding's setting the frame was made at (levels or quality).
+    pub setting: u8,
     /// The sender's disparity map.
     pub disparity: DisparityMap,
     /// The depth report.
     pub report: DepthReport,
-    /// PSNR of the segmented left and right views against the originals.
+    /// PSNR of the left and right views as sent against the originals.
     pub psnr_db: (f64, f64),
-    /// Segmentation, encoding and matching times (ms).
+    /// Segmentation, encoding and matching times (ms), summed over the
+    /// settings tried when fitting a budget.
     pub times_ms: (f64, f64, f64),
 }
 
@@ -158,18 +166,15 @@ pub fn segment_pair(
     Ok((sl, sr))
 }
 
-/// The sender's disparity on the original pair. The plane matcher fits its
-/// planes to the transmitted left labels; its map is then the one its
-/// plane table rebuilds, the very map a receiver rebuilds from the frame.
-fn match_pair(
+/// The plane matcher's disparity on the original pair: it fits its planes
+/// to the transmitted left labels; its map is then the one its plane table
+/// rebuilds, the very map a receiver rebuilds from the frame.
+fn match_planes_pair(
     (left, right): (&RgbImage, &RgbImage),
     left_labels: &LabelMap,
     cfg: &SenderConfig,
-) -> anyhow::Result<(DisparityMap, Option<PlaneTable>)> {
+) -> anyhow::Result<(DisparityMap, PlaneTable)> {
     let spec = &cfg.matcher;
-    if spec.algorithm != Algorithm::Planes {
-        return Ok((Matcher::new().compute(left, right, spec)?, None));
-    }
     // The table carries a plane per segment of the labels cut by the
     // tiles, as the receiver finds them: no further cut of bent segments,
     // and no per-pixel boundary step, which would be thrown away.
@@ -180,10 +185,11 @@ fn match_pair(
     let table = planetable::table_of(&matched, &spec, cfg.plane_table)?;
     let mut disparity = DisparityMap::default();
     planetable::rebuild_into(left_labels, &table, &mut disparity)?;
-    Ok((disparity, Some(table)))
+    Ok((disparity, table))
 }
 
-/// Segments, matches, encodes and reports.
+/// Codes the views (segmented or lossy, fitted to the budget), matches,
+/// encodes and reports.
 pub fn prepare(
     left: &RgbImage,
     right: &RgbImage,
@@ -197,37 +203,82 @@ pub fn prepare(
         left.dims(),
         right.dims()
     );
-    let t = Instant::now();
-    let (sl, sr) = segment_pair(
-        (left, right),
-        &cfg.method,
-        (cfg.levels, cfg.seed),
-        cfg.carry_margin,
-    )?;
-    let seg_ms = t.elapsed().as_secs_f64() * 1e3;
-    let sent = (sl.to_rgb(), sr.to_rgb());
+    let planes = cfg.matcher.algorithm == Algorithm::Planes;
+    let timestamp = stereolink_codec::control::unix_us();
+    let ids = (frame_id, timestamp, labels::Mode::default());
+    let settings = cfg.coding.settings(cfg.levels);
+    let (mut seg_ms, mut match_ms) = (0.0, 0.0);
+    let t_all = Instant::now();
+    // The plane matcher's map comes with each segmentation tried; any
+    // other matcher's does not depend on it and is computed once.
+    let mut plane_maps = BTreeMap::new();
+    let coded = match cfg.coding.coding {
+        ViewCoding::Lossy(codec) => {
+            anyhow::ensure!(
+                !planes,
+                "the plane matcher's table needs segmented views (--view-coding segmented)"
+            );
+            encode_fitted(settings, cfg.coding.budget, ids, |q| {
+                let (l, r) = lossy_views((left, right), codec, q)?;
+                Ok(StereoFrame {
+                    kind: SegmentationKind::None,
+                    levels: 0,
+                    params: format!("{} q={q}", codec.name()),
+                    thresholds: None,
+                    calibration: Some(*calib),
+                    left: l,
+                    right: r,
+                    planes: None,
+                })
+            })?
+        }
+        ViewCoding::Segmented => encode_fitted(settings, cfg.coding.budget, ids, |levels| {
+            let t = Instant::now();
+            let (sl, sr) = segment_pair(
+                (left, right),
+                &cfg.method,
+                (levels as usize, cfg.seed),
+                cfg.carry_margin,
+            )?;
+            seg_ms += t.elapsed().as_secs_f64() * 1e3;
+            let t = Instant::now();
+            let table = if planes {
+                let (map, table) = match_planes_pair((left, right), sl.image.labels(), cfg)?;
+                plane_maps.insert(levels, map);
+                Some(table)
+            } else {
+                None
+            };
+            match_ms += t.elapsed().as_secs_f64() * 1e3;
+            Ok(StereoFrame {
+                kind: SegmentationKind::from_name(cfg.method.name())
+                    .unwrap_or(SegmentationKind::None),
+                levels,
+                params: format!("seed={}", cfg.seed),
+                thresholds: sl.channels.as_ref().map(|c| c.thresholds.clone()),
+                calibration: Some(*calib),
+                left: View::Indexed(sl.image),
+                right: View::Indexed(sr.image),
+                planes: table,
+            })
+        })?,
+    };
+    let enc_ms = t_all.elapsed().as_secs_f64() * 1e3 - seg_ms - match_ms;
+    let disparity = match plane_maps.remove(&coded.setting) {
+        Some(d) => d,
+        None => {
+            let t = Instant::now();
+            let d = Matcher::new().compute(left, right, &cfg.matcher)?;
+            match_ms += t.elapsed().as_secs_f64() * 1e3;
+            d
+        }
+    };
+    let sent = (coded.frame.left.to_rgb(), coded.frame.right.to_rgb());
     let psnr_db = (
         psnr_rgb(left, &sent.0)?.overall,
         psnr_rgb(right, &sent.1)?.overall,
     );
-    let t = Instant::now();
-    let (disparity, planes) = match_pair((left, right), sl.image.labels(), cfg)?;
-    let match_ms = t.elapsed().as_secs_f64() * 1e3;
-    let t = Instant::now();
-    let frame = StereoFrame {
-        kind: SegmentationKind::from_name(cfg.method.name()).unwrap_or(SegmentationKind::None),
-        levels: cfg.levels.min(255) as u8,
-        params: format!("seed={}", cfg.seed),
-        thresholds: sl.channels.as_ref().map(|c| c.thresholds.clone()),
-        calibration: Some(*calib),
-        left: View::Indexed(sl.image),
-        right: View::Indexed(sr.image),
-        planes,
-    };
-    let timestamp = stereolink_codec::control::unix_us();
-    let frame_bytes =
-        container::encode(&Message::StereoFrame(Box::new(frame)), frame_id, timestamp);
-    let enc_ms = t.elapsed().as_secs_f64() * 1e3;
+    let frame_bytes = coded.bytes;
     let (w, h) = left.dims();
     let roi = cfg.roi.unwrap_or_else(|| default_roi(w, h));
     let distance = region_distance(&disparity, roi, calib).ok().flatten();
@@ -258,6 +309,7 @@ pub fn prepare(
         frame_bytes,
         report_bytes,
         sent,
+        setting: coded.setting,
         disparity,
         report,
         psnr_db,
@@ -280,6 +332,7 @@ mod tests {
             roi: None,
             levels_spec: LevelSpec::default(),
             plane_table: TableCoding::default(),
+            coding: CodingSpec::default(),
         };
         assert_eq!(cfg.apply(&Command::SetLevels(5)), Ok(Applied::FromNextPair));
         assert_eq!(cfg.levels, 5);

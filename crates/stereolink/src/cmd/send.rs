@@ -22,6 +22,7 @@ use stereolink_pipeline::uplink::Uplink;
 use stereolink_stereo::depth::{LevelSpec, Roi};
 
 use super::calib::CalibArgs;
+use super::codec::CodingArgs;
 use super::camera::CameraArgs;
 use super::keygen::KeyArgs;
 use super::matching::MatcherArgs;
@@ -107,7 +108,7 @@ pub struct Args {
     /// Target region x,y,w,h (default: the central ninth of the image).
     #[arg(long)]
     pub roi: Option<Roi>,
-    /// Also write the segmented views as sent (sent-left.png, sent-right.png)
+    /// Also write the views as sent (sent-left.png, sent-right.png)
     /// and the sender's disparity map (sent-disparity.pfm) here.
     #[arg(long)]
     pub save: Option<PathBuf>,
@@ -118,6 +119,8 @@ pub struct Args {
     /// Send the pair this many times (frame ids 1, 2, ...).
     #[arg(long, default_value_t = 1, conflicts_with_all = ["watch", "left_camera"])]
     pub repeat: u32,
+    #[command(flatten)]
+    pub coding: CodingArgs,
     #[command(flatten)]
     pub segment: SegmentArgs,
     #[command(flatten)]
@@ -169,6 +172,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         roi: args.roi,
         levels_spec: LevelSpec::default(),
         plane_table: args.plane_table(),
+        coding: args.coding.spec(),
     };
     let transport = spec::open(&spec).with_context(|| format!("cannot open link {}", args.link))?;
     let report_transport = match &args.report_link {
