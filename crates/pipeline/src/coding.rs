@@ -57,6 +57,7 @@ impl CodingSpec {
 }
 
 /// A frame as sent: its bytes, the frame, and the setting it was made at.
+#[derive(Debug)]
 pub struct Coded {
     /// The encoded StereoFrame message.
     pub bytes: Vec<u8>,

@@ -139,6 +139,11 @@ impl ViewRef<'_> {
         Some((LossyCodec::from_u8(codec)?, bits))
     }
 
+    /// The view's lossy codec, if it is lossy.
+    pub fn lossy_codec(&self) -> Option<LossyCodec> {
+        self.lossy().map(|(codec, _)| codec)
+    }
+
     /// Number of palette colours (0 for an unsegmented view).
     pub fn colours(&self) -> usize {
         self.palette.len() / 3
