@@ -40,8 +40,14 @@ pub enum LossyCodec {
 }
 
 impl LossyCodec {
-    /// The encoder's quality range, lowest (smallest) first.
-    pub const QUALITY: RangeInclusive<u8> = 1..=100;
+    /// The encoder's qualities, lowest (smallest frame) first: JPEG's
+    /// from 1, libwebp's from 0 (its 0 is far smaller than its 1).
+    pub fn qualities(self) -> RangeInclusive<u8> {
+        match self {
+            Self::Jpeg => 1..=100,
+            Self::Webp => 0..=100,
+        }
+    }
 
     /// The codec's name (`jpeg`, `webp`).
     pub fn name(self) -> &'static str {
@@ -140,10 +146,10 @@ impl LossyView {
 }
 
 /// Codes `image` with `codec` at `quality` (clamped to
-/// [`LossyCodec::QUALITY`]), and keeps what it decodes to.
+/// [`LossyCodec::qualities`]), and keeps what it decodes to.
 #[cfg(feature = "encode")]
 pub fn encode(image: &RgbImage, codec: LossyCodec, quality: u8) -> Result<LossyView, CodecError> {
-    let q = quality.clamp(*LossyCodec::QUALITY.start(), *LossyCodec::QUALITY.end());
+    let q = quality.clamp(*codec.qualities().start(), *codec.qualities().end());
     let (w, h) = image.dims();
     let side = |v: usize| {
         u16::try_from(v).map_err(|_| CodecError::Invalid(format!("a view side of {v} px")))

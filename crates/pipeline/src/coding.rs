@@ -21,7 +21,8 @@ use stereolink_image::RgbImage;
 pub struct CodingSpec {
     /// Segmented (the paper's mode) or lossy views.
     pub coding: ViewCoding,
-    /// A lossy coding's quality when there is no budget (1-100).
+    /// A lossy coding's quality when there is no budget (0-100; JPEG's
+    /// lowest is 1).
     pub quality: u8,
     /// The most bytes a frame (the whole message) may take.
     pub budget: Option<usize>,
@@ -51,7 +52,7 @@ impl CodingSpec {
         match (self.budget, self.coding) {
             (None, _) => top..=top,
             (Some(_), ViewCoding::Segmented) => top.min(2)..=top,
-            (Some(_), ViewCoding::Lossy(_)) => LossyCodec::QUALITY,
+            (Some(_), ViewCoding::Lossy(codec)) => codec.qualities(),
         }
     }
 }
@@ -151,7 +152,7 @@ mod tests {
         let ids = (1, 0, labels::Mode::Fast);
         let mut last = (0, 0.0);
         for budget in [3_000, 6_000, 12_000] {
-            let c = encode_fitted(LossyCodec::QUALITY, Some(budget), ids, make).unwrap();
+            let c = encode_fitted(LossyCodec::Jpeg.qualities(), Some(budget), ids, make).unwrap();
             assert!(c.bytes.len() <= budget, "{} B over {budget}", c.bytes.len());
             // One quality step more no longer fits (or is the top).
             let next = encode_fitted(c.setting + 1..=c.setting + 1, None, ids, make);
@@ -161,7 +162,7 @@ mod tests {
             last = (c.setting, psnr);
         }
         let smallest = encode_fitted(1..=1, None, ids, make).unwrap().bytes.len();
-        let e = encode_fitted(LossyCodec::QUALITY, Some(smallest - 1), ids, make).unwrap_err();
+        let e = encode_fitted(LossyCodec::Jpeg.qualities(), Some(smallest - 1), ids, make).unwrap_err();
         assert_eq!(
             e.downcast_ref::<CodecError>(),
             Some(&CodecError::BudgetTooSmall {

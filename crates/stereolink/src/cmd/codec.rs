@@ -48,8 +48,9 @@ pub struct CodingArgs {
     /// decode; for a PC receiver. docs/benchmarks.md compares them.
     #[arg(long, default_value = "segmented", value_name = "CODING")]
     pub view_coding: ViewCoding,
-    /// Quality of a lossy coding without --bytes: 1 (smallest) to 100.
-    #[arg(long, default_value_t = 75, value_parser = clap::value_parser!(u8).range(1..=100))]
+    /// Quality of a lossy coding without --bytes: 0 (smallest; JPEG's
+    /// lowest is 1) to 100.
+    #[arg(long, default_value_t = 75, value_parser = clap::value_parser!(u8).range(0..=100))]
     pub quality: u8,
     /// Fit the frame (the whole message) in N bytes with the best pair PSNR
     /// the coding gives: the highest quality (jpeg, webp), or the most
