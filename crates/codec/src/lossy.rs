@@ -207,7 +207,8 @@ fn abbreviated(jpeg: &[u8]) -> Option<Vec<u8>> {
             out.extend_from_slice(rest);
             return Some(out);
         }
-        let (segment, next) = rest.split_at_checked(2 + usize::from(u16::from_be_bytes([hi, lo])))?;
+        let (segment, next) =
+            rest.split_at_checked(2 + usize::from(u16::from_be_bytes([hi, lo])))?;
         if marker != APP0 && marker != DHT {
             out.extend_from_slice(segment);
         }
@@ -217,11 +218,7 @@ fn abbreviated(jpeg: &[u8]) -> Option<Vec<u8>> {
 
 /// Without the `encode` feature (the board's build): always an error.
 #[cfg(not(feature = "encode"))]
-pub fn encode(
-    _image: &RgbImage,
-    codec: LossyCodec,
-    _quality: u8,
-) -> Result<LossyView, CodecError> {
+pub fn encode(_image: &RgbImage, codec: LossyCodec, _quality: u8) -> Result<LossyView, CodecError> {
     Err(CodecError::Invalid(format!(
         "this build has no {} encoder (it is the sender's: feature `encode`)",
         codec.name()
@@ -334,7 +331,11 @@ mod tests {
                 let r = decode_into(codec, &v.bytes()[..cut], img.dims(), &mut out);
                 // A JPEG cut in its entropy-coded data may still decode (the
                 // decoder pads what is missing): an error or a whole view.
-                assert!(r.is_err() || out.dims() == img.dims(), "{} cut {cut}", codec.name());
+                assert!(
+                    r.is_err() || out.dims() == img.dims(),
+                    "{} cut {cut}",
+                    codec.name()
+                );
             }
             let r = decode_into(codec, v.bytes(), (97, 64), &mut out);
             assert!(matches!(r, Err(CodecError::Invalid(m)) if m.contains("96x64")));

@@ -158,11 +158,16 @@ mod tests {
             let next = encode_fitted(c.setting + 1..=c.setting + 1, None, ids, make);
             assert!(c.setting == 100 || next.unwrap().bytes.len() > budget);
             let psnr = psnr_pair(pair, (&c.frame.left.to_rgb(), &c.frame.right.to_rgb())).unwrap();
-            assert!(c.setting > last.0 && psnr > last.1, "{budget}: q{} {psnr} dB", c.setting);
+            assert!(
+                c.setting > last.0 && psnr > last.1,
+                "{budget}: q{} {psnr} dB",
+                c.setting
+            );
             last = (c.setting, psnr);
         }
         let smallest = encode_fitted(1..=1, None, ids, make).unwrap().bytes.len();
-        let e = encode_fitted(LossyCodec::Jpeg.qualities(), Some(smallest - 1), ids, make).unwrap_err();
+        let e =
+            encode_fitted(LossyCodec::Jpeg.qualities(), Some(smallest - 1), ids, make).unwrap_err();
         assert_eq!(
             e.downcast_ref::<CodecError>(),
             Some(&CodecError::BudgetTooSmall {

@@ -346,7 +346,10 @@ impl BoardReceiver {
         self.status.frame_id = frame_id;
         self.status.message.clear();
         // A lossy pair is named by its codec, a segmented one by its method.
-        let what = frame.left.lossy_codec().map_or(frame.kind.name(), |c| c.name());
+        let what = frame
+            .left
+            .lossy_codec()
+            .map_or(frame.kind.name(), |c| c.name());
         let _ = write!(self.status.message, "{what} PAIR {w}X{h}");
         if let Some(axis) = self.axis.as_mut() {
             self.status.axis_mm = axis.position().ok();
@@ -489,12 +492,21 @@ mod tests {
     #[test]
     fn lossy_pairs_are_shown() {
         for (codec, bytes) in [
-            ("jpeg", &include_bytes!("../examples/lossy/cones-320x240-jpeg.slnk")[..]),
-            ("webp", &include_bytes!("../examples/lossy/cones-320x240-webp.slnk")[..]),
+            (
+                "jpeg",
+                &include_bytes!("../examples/lossy/cones-320x240-jpeg.slnk")[..],
+            ),
+            (
+                "webp",
+                &include_bytes!("../examples/lossy/cones-320x240-webp.slnk")[..],
+            ),
         ] {
             let mut board = BoardReceiver::new(31, 9, std::time::Duration::from_secs(10));
             let blank = board.screen().clone();
-            assert!(matches!(board.handle(bytes), Event::Frame { .. }), "{codec}");
+            assert!(
+                matches!(board.handle(bytes), Event::Frame { .. }),
+                "{codec}"
+            );
             assert_eq!(board.status.message, format!("{codec} PAIR 320X240"));
             let Ok((_, Message::StereoFrame(f))) = container::decode(bytes, &Limits::default())
             else {
@@ -505,7 +517,11 @@ mod tests {
             assert_ne!(board.screen(), &blank);
             let d = board.disparity();
             let valid = d.as_slice().iter().filter(|v| v.is_finite()).count();
-            assert!(valid > d.len() / 2, "{codec}: {valid} of {} matched", d.len());
+            assert!(
+                valid > d.len() / 2,
+                "{codec}: {valid} of {} matched",
+                d.len()
+            );
         }
     }
 

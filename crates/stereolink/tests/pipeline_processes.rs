@@ -418,12 +418,31 @@ fn a_lossy_pair_within_a_budget_over_udp() {
     let rx = spawn_udp_receiver(
         a,
         b,
-        &["--frames", "1", "--timeout-s", "60", "--save", saved_arg, "--display", &display],
+        &[
+            "--frames",
+            "1",
+            "--timeout-s",
+            "60",
+            "--save",
+            saved_arg,
+            "--display",
+            &display,
+        ],
     );
     std::thread::sleep(Duration::from_millis(200));
     let mut tx_args = vec!["--json".to_string()];
-    tx_args.extend(send_args(&format!("udp:127.0.0.1:{a}?peer=127.0.0.1:{b}"), &scene));
-    tx_args.extend(strings(&["--view-coding", "jpeg", "--bytes", "6000", "--save", saved_arg]));
+    tx_args.extend(send_args(
+        &format!("udp:127.0.0.1:{a}?peer=127.0.0.1:{b}"),
+        &scene,
+    ));
+    tx_args.extend(strings(&[
+        "--view-coding",
+        "jpeg",
+        "--bytes",
+        "6000",
+        "--save",
+        saved_arg,
+    ]));
     let sent: serde_json::Value = serde_json::from_str(&finish(spawn(&tx_args), "send")).unwrap();
     finish(rx, "receive");
     let frame = &sent[0];

@@ -51,7 +51,11 @@ fn lossy_pairs_decode_to_what_encode_measured_above_a_floor() {
     let dir = tempfile::tempdir().unwrap();
     let pair = pair(dir.path());
     for coding in ["jpeg", "webp"] {
-        let e = json(&encode(dir.path(), &pair, &["--view-coding", coding, "--quality", "90"]));
+        let e = json(&encode(
+            dir.path(),
+            &pair,
+            &["--view-coding", coding, "--quality", "90"],
+        ));
         assert_eq!(e["view_coding"], coding);
         assert_eq!(e["quality"], 90);
         let frame = dir.path().join("f.slnk");
@@ -98,13 +102,25 @@ fn budgets_are_met_and_one_below_the_smallest_frame_names_it() {
         for budget in [smallest, smallest + 1500, smallest + 6000] {
             let b = budget.to_string();
             let e = json(&with(&["--bytes", &b, "--levels", "12"]));
-            let (bytes, psnr) = (e["bytes"].as_u64().unwrap(), e["psnr_pair_db"].as_f64().unwrap());
-            assert!(bytes <= budget, "{coding}: {bytes} B in a budget of {budget}");
+            let (bytes, psnr) = (
+                e["bytes"].as_u64().unwrap(),
+                e["psnr_pair_db"].as_f64().unwrap(),
+            );
+            assert!(
+                bytes <= budget,
+                "{coding}: {bytes} B in a budget of {budget}"
+            );
             assert!(e[setting].is_u64(), "{coding}: {e}");
-            assert!(bytes >= last.0 && psnr >= last.1, "{coding} at {budget} B: {e}");
+            assert!(
+                bytes >= last.0 && psnr >= last.1,
+                "{coding} at {budget} B: {e}"
+            );
             last = (bytes, psnr);
         }
-        assert!(last.1 > json(&with(lowest))["psnr_pair_db"].as_f64().unwrap(), "{coding}");
+        assert!(
+            last.1 > json(&with(lowest))["psnr_pair_db"].as_f64().unwrap(),
+            "{coding}"
+        );
         let below = (smallest - 1).to_string();
         let out = with(&["--bytes", &below, "--levels", "12"]);
         assert_eq!(out.status.code(), Some(1), "{coding}");

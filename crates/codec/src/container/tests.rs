@@ -18,7 +18,9 @@ const WEBP_VIEW: &[u8] = include_bytes!("testdata/view24x16.webp");
 
 /// A frame of two lossy views: a JPEG left and a WebP right.
 fn lossy_frame() -> StereoFrame {
-    let view = |codec, bits: &[u8]| View::Lossy(LossyView::decode(codec, bits.to_vec(), (24, 16)).unwrap());
+    let view = |codec, bits: &[u8]| {
+        View::Lossy(LossyView::decode(codec, bits.to_vec(), (24, 16)).unwrap())
+    };
     StereoFrame {
         kind: SegmentationKind::None,
         levels: 0,
@@ -273,7 +275,14 @@ fn lossy_views_round_trip_through_both_decoders() {
     assert!(d.indexed_views().is_none() && d.left_labels(&parsed).is_none());
     // The views are the pictures, not black: the mean of a channel is
     // far from zero.
-    let mean = f.left.to_rgb().as_slice().iter().map(|p| p[0] as u32).sum::<u32>() / (24 * 16);
+    let mean = f
+        .left
+        .to_rgb()
+        .as_slice()
+        .iter()
+        .map(|p| p[0] as u32)
+        .sum::<u32>()
+        / (24 * 16);
     assert!(mean > 40, "mean red {mean}");
 }
 
@@ -300,7 +309,11 @@ fn forged_and_truncated_lossy_views_are_typed_errors() {
         (LossyCodec::Webp, WEBP_VIEW, 100),
     ] {
         let forged = StereoFrame {
-            left: View::Lossy(LossyView::decoded(codec, bits[..keep].to_vec(), RgbImage::new(24, 16, [0; 3]))),
+            left: View::Lossy(LossyView::decoded(
+                codec,
+                bits[..keep].to_vec(),
+                RgbImage::new(24, 16, [0; 3]),
+            )),
             ..lossy_frame()
         };
         let bytes = encode(&Message::StereoFrame(Box::new(forged)), 1, 1);
@@ -309,18 +322,28 @@ fn forged_and_truncated_lossy_views_are_typed_errors() {
             assert!(matches!(e, Err(CodecError::Invalid(_))), "{e:?}");
         } else {
             // zune-jpeg pads a scan cut short: an error or a whole view.
-            assert!(e.is_err() || e.is_ok_and(|(_, m)| matches!(m, Message::StereoFrame(f) if f.left.dims() == (24, 16))));
+            assert!(
+                e.is_err()
+                    || e.is_ok_and(
+                        |(_, m)| matches!(m, Message::StereoFrame(f) if f.left.dims() == (24, 16))
+                    )
+            );
         }
     }
     // A view of another size than the frame's.
     let other = StereoFrame {
-        right: View::Lossy(LossyView::decode(LossyCodec::Jpeg, JPEG_VIEW.to_vec(), (24, 16)).unwrap()),
+        right: View::Lossy(
+            LossyView::decode(LossyCodec::Jpeg, JPEG_VIEW.to_vec(), (24, 16)).unwrap(),
+        ),
         ..lossy_frame()
     };
     let mut bytes = encode(&Message::StereoFrame(Box::new(other)), 1, 1);
     bytes[HEADER_LEN] = 23; // the frame's width
     let e = decode(&resealed(bytes), &l).unwrap_err();
-    assert!(matches!(&e, CodecError::Invalid(m) if m.contains("JPEG view")), "{e}");
+    assert!(
+        matches!(&e, CodecError::Invalid(m) if m.contains("JPEG view")),
+        "{e}"
+    );
     // A lossy view with a palette (its count's low byte set).
     let mut p = encode(&Message::StereoFrame(Box::new(lossy_frame())), 1, 1);
     p[at - 9] = 1;

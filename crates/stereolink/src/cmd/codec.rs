@@ -163,7 +163,12 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     };
     let sent: (RgbImage, RgbImage) = (frame.left.to_rgb(), frame.right.to_rgb());
     let psnr = (!args.original)
-        .then(|| anyhow::Ok((psnr_rgb(&left, &sent.0)?.overall, psnr_rgb(&right, &sent.1)?.overall)))
+        .then(|| {
+            anyhow::Ok((
+                psnr_rgb(&left, &sent.0)?.overall,
+                psnr_rgb(&right, &sent.1)?.overall,
+            ))
+        })
         .transpose()?;
     let psnr_pair_db = (!args.original)
         .then(|| psnr_pair((&left, &right), (&sent.0, &sent.1)))

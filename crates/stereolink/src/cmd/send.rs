@@ -22,8 +22,8 @@ use stereolink_pipeline::uplink::Uplink;
 use stereolink_stereo::depth::{LevelSpec, Roi};
 
 use super::calib::CalibArgs;
-use super::codec::CodingArgs;
 use super::camera::CameraArgs;
+use super::codec::CodingArgs;
 use super::keygen::KeyArgs;
 use super::matching::MatcherArgs;
 use super::segment::SegmentArgs;
