@@ -3,20 +3,22 @@
 //!
 //! Why these codecs, by measurement (`docs/benchmarks.md`, "Lossy views"):
 //! at the radio's budgets (a few kB per 320x240 view) both beat the
-//! segmented pair by several dB of PSNR at equal bytes, WebP more than
-//! JPEG. What decides between them is the board: an ARM926 without FPU or
-//! SIMD must decode a pair within its instruction budget, and the pure-Rust
-//! JPEG decoder (`zune-jpeg`) does so with room to spare while the pure-Rust
-//! WebP decoder (`image-webp`) costs over twice as much per view and does
-//! not. So JPEG is the board's lossy coding, and WebP is offered for
-//! receivers with more headroom (a PC, or a board showing fewer frames).
-//! AV1 intra would code better still, but its decoders (dav1d, rav1d) need
-//! far more than the board has per pair.
+//! segmented pair by several dB of PSNR at equal bytes, and WebP beats JPEG
+//! by more than that again. The board decides the details: an ARM926
+//! without FPU or SIMD must decode a pair within its instruction budget
+//! with pure-Rust decoders. `zune-jpeg` does so with room to spare.
+//! `image-webp` does so only as this module codes WebP: VP8's simple loop
+//! filter (the encoder's choice) and chroma upsampled from the nearest
+//! sample (the decoder's, as `dwebp -nofancy`), each at a small cost in
+//! PSNR; with the normal filter and bilinear upsampling it does not. So WebP
+//! is the lossy coding to use, and JPEG the one that leaves the board the
+//! most time. AV1 intra (AVIF) codes better still, but was not tried on the
+//! board: its decoders do far more work per pixel than VP8's.
 //!
 //! Decoding is pure Rust and builds for armv5te. Encoding is the sender's:
-//! `jpeg-encoder` (baseline, 4:2:0) and libwebp through the
-//! `webp` crate (C), both behind the `encode` feature, which the board's
-//! build never turns on; without it [`encode`] is a typed error.
+//! `jpeg-encoder` (baseline, 4:2:0) and libwebp through the `webp` crate
+//! (C), both behind the `encode` feature, which the board's build never
+//! turns on; without it [`encode`] is a typed error.
 //!
 //! A coded view is checked before its pixels are: its size must be the
 //! frame's, so a forged bitstream never makes the decoder allocate more
@@ -33,9 +35,10 @@ use crate::CodecError;
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[repr(u8)]
 pub enum LossyCodec {
-    /// Baseline JPEG, 4:2:0: what the board decodes within its budget.
+    /// Baseline JPEG, 4:2:0: the cheapest to decode.
     Jpeg = 0,
-    /// Lossy WebP (VP8 intra): better per byte, slower to decode.
+    /// Lossy WebP (VP8 intra, simple loop filter): the most picture per
+    /// byte.
     Webp = 1,
 }
 
@@ -173,6 +176,9 @@ pub fn encode(image: &RgbImage, codec: LossyCodec, quality: u8) -> Result<LossyV
                 .map_err(|()| CodecError::Invalid("libwebp's configuration".into()))?;
             config.quality = f32::from(q);
             config.method = 6;
+            // VP8's simple loop filter: the normal one costs the board's
+            // decoder more than the pair's budget has left.
+            config.filter_type = 0;
             webp::Encoder::from_rgb(pixels, side(w)?.into(), side(h)?.into())
                 .encode_advanced(&config)
                 .map_err(|e| CodecError::Invalid(format!("WebP encoder: {e:?}")))?
@@ -255,7 +261,7 @@ pub fn decode_into(
             if (w, h) != (width, height) {
                 return Err(wrong_size(w, h));
             }
-            out.reset(width, height, [0; 3]);
+            fit(out, (width, height));
             d.decode_into(out.as_mut_slice().as_flattened_mut())
                 .map_err(|e| jpeg_error(&e))
         }
@@ -271,10 +277,22 @@ pub fn decode_into(
                     "a WebP view with alpha or animation".into(),
                 ));
             }
-            out.reset(width, height, [0; 3]);
+            // Chroma upsampled from the nearest sample (dwebp -nofancy):
+            // the bilinear filter would cost the board as much as the
+            // rest of a view's decoding.
+            d.set_lossy_upsampling(image_webp::UpsamplingMethod::Simple);
+            fit(out, (width, height));
             d.read_image(out.as_mut_slice().as_flattened_mut())
                 .map_err(|e| webp_error(&e))
         }
+    }
+}
+
+/// Sizes `out` to the view without clearing it when it has the size: the
+/// decoders write every pixel.
+fn fit(out: &mut RgbImage, (width, height): (usize, usize)) {
+    if out.dims() != (width, height) {
+        out.reset(width, height, [0; 3]);
     }
 }
 

@@ -42,10 +42,10 @@ pub struct Args {
 pub struct CodingArgs {
     /// How the views are coded. `segmented`: the paper's mode, each view
     /// segmented (--method, --levels) and its label map coded losslessly,
-    /// so the receiver shows the segmentation. `jpeg`: the original views,
-    /// lossy; the most picture per byte that the ARM926 board decodes in
-    /// time. `webp`: lossy, more picture per byte than JPEG but slower to
-    /// decode; for a PC receiver. docs/benchmarks.md compares them.
+    /// so the receiver shows the segmentation. `webp`: the original views,
+    /// lossy, with the most picture per byte; the ARM926 board decodes a
+    /// 320x240 pair in time. `jpeg`: lossy, less picture per byte than
+    /// WebP, but the cheapest to decode. docs/benchmarks.md compares them.
     #[arg(long, default_value = "segmented", value_name = "CODING")]
     pub view_coding: ViewCoding,
     /// Quality of a lossy coding without --bytes: 0 (smallest; JPEG's
