@@ -320,10 +320,10 @@ pub fn prepare(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use stereolink_image::synth::{synthesize, SynthSpec};
 
-    #[test]
-    fn commands_change_the_next_pairs_settings_and_a_stop_is_refused() {
-        let mut cfg = SenderConfig {
+    fn config() -> SenderConfig {
+        SenderConfig {
             method: Method::KMeans,
             levels: 3,
             seed: 1,
@@ -333,7 +333,58 @@ mod tests {
             levels_spec: LevelSpec::default(),
             plane_table: TableCoding::default(),
             coding: CodingSpec::default(),
+        }
+    }
+
+    /// A budget holds the segmented frame at the most classes that fit;
+    /// lossy views with the plane matcher (which needs labels) are refused.
+    #[test]
+    fn a_segmented_pair_is_fitted_to_its_budget() {
+        let s = synthesize(&SynthSpec {
+            width: 96,
+            height: 64,
+            max_disp: 16,
+            seed: 4,
+        })
+        .unwrap();
+        let calib = s.calib;
+        let mut cfg = SenderConfig {
+            levels: 8,
+            ..config()
         };
+        let at = |cfg: &SenderConfig| prepare(&s.left, &s.right, &calib, cfg, 1).unwrap();
+        let (two, eight) = (
+            at(&SenderConfig {
+                levels: 2,
+                ..cfg.clone()
+            }),
+            at(&cfg),
+        );
+        assert!(two.frame_bytes.len() < eight.frame_bytes.len());
+        let budget = (two.frame_bytes.len() + eight.frame_bytes.len()) / 2;
+        cfg.coding.budget = Some(budget);
+        let fitted = at(&cfg);
+        assert!(fitted.frame_bytes.len() <= budget);
+        assert!(
+            (2..8).contains(&fitted.setting),
+            "{} classes",
+            fitted.setting
+        );
+        cfg.coding.budget = Some(two.frame_bytes.len() - 1);
+        let e = prepare(&s.left, &s.right, &calib, &cfg, 1).err().unwrap();
+        assert!(e.to_string().contains("smallest frame"), "{e}");
+        cfg.coding = CodingSpec {
+            coding: ViewCoding::Lossy(stereolink_codec::lossy::LossyCodec::Webp),
+            ..CodingSpec::default()
+        };
+        cfg.matcher = MatchSpec::new(Algorithm::Planes, 0, 16).unwrap();
+        let e = prepare(&s.left, &s.right, &calib, &cfg, 1).err().unwrap();
+        assert!(e.to_string().contains("--view-coding segmented"), "{e}");
+    }
+
+    #[test]
+    fn commands_change_the_next_pairs_settings_and_a_stop_is_refused() {
+        let mut cfg = config();
         assert_eq!(cfg.apply(&Command::SetLevels(5)), Ok(Applied::FromNextPair));
         assert_eq!(cfg.levels, 5);
         let fodpso = Command::SetMethod("fodpso".into());
