@@ -1,5 +1,6 @@
-//! Compact lossless coding of segmented stereo frames, and the versioned
-//! frame container the sender and the receiver exchange.
+//! Compact lossless coding of segmented stereo frames, lossy coding of
+//! unsegmented ones, and the versioned frame container the sender and the
+//! receiver exchange.
 //!
 //! # Brief overview
 //!
@@ -8,6 +9,8 @@
 //!   the right view can be coded *conditioned on the left* (predicted
 //!   through per-block disparity shifts). [`channels`] models a label as
 //!   its colour channels' classes for the strong mode.
+//! * [`lossy`] codes unsegmented views with a stock codec (JPEG, WebP) for
+//!   the best picture per byte, and [`rate`] fits a frame in a byte budget.
 //! * [`rgb`] codes unsegmented RGB losslessly (MED predictor), so the
 //!   original pair can be sent for comparison.
 //! * [`container`] frames [`Message`]s ([`StereoFrame`], [`DepthReport`],
@@ -40,9 +43,11 @@ pub mod channels;
 pub mod container;
 pub mod control;
 pub mod labels;
+pub mod lossy;
 pub mod mixer;
 pub mod planetable;
 pub mod rangecoder;
+pub mod rate;
 pub mod rgb;
 
 use stereolink_image::{Calibration, IndexedImage, RgbImage};
@@ -83,6 +88,14 @@ pub enum CodecError {
         label: u32,
         /// Palette size.
         labels: usize,
+    },
+    /// No setting of the coding fits the frame in the byte budget.
+    #[error("a budget of {budget} B is below the smallest frame this coding makes, {minimum} B")]
+    BudgetTooSmall {
+        /// The budget (bytes).
+        budget: usize,
+        /// The smallest frame (bytes).
+        minimum: usize,
     },
     /// Any other inconsistency.
     #[error("invalid message: {0}")]
@@ -184,6 +197,8 @@ pub enum View {
     Indexed(IndexedImage),
     /// An unsegmented view, coded losslessly.
     Rgb(RgbImage),
+    /// An unsegmented view, coded lossily ([`lossy`]).
+    Lossy(lossy::LossyView),
 }
 
 impl View {
@@ -192,6 +207,17 @@ impl View {
         match self {
             View::Indexed(i) => i.to_rgb(),
             View::Rgb(r) => r.clone(),
+            View::Lossy(v) => v.image().clone(),
+        }
+    }
+
+    /// How the view is coded: `segmented`, `rgb` (lossless), or the lossy
+    /// codec's name.
+    pub fn coding_name(&self) -> &'static str {
+        match self {
+            View::Indexed(_) => lossy::ViewCoding::Segmented.name(),
+            View::Rgb(_) => "rgb",
+            View::Lossy(v) => v.codec().name(),
         }
     }
 
@@ -200,6 +226,7 @@ impl View {
         match self {
             View::Indexed(i) => i.labels().dims(),
             View::Rgb(r) => r.dims(),
+            View::Lossy(v) => v.image().dims(),
         }
     }
 }
@@ -219,7 +246,8 @@ pub struct StereoFrame {
     pub calibration: Option<Calibration>,
     /// Left (reference) view.
     pub left: View,
-    /// Right view (coded conditioned on the left when both are indexed).
+    /// Right view (coded conditioned on the left when both are indexed; a
+    /// lossy right view goes with a lossy left one).
     pub right: View,
     /// The sender's disparity as planes over the left view's segments.
     pub planes: Option<planetable::PlaneTable>,

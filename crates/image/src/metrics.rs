@@ -46,6 +46,17 @@ pub fn psnr_rgb(reference: &RgbImage, test: &RgbImage) -> Result<Psnr> {
     })
 }
 
+/// PSNR of a stereo pair: both views against their references, one mean
+/// squared error over all their samples (views of equal size).
+pub fn psnr_pair(
+    (left_ref, right_ref): (&RgbImage, &RgbImage),
+    (left, right): (&RgbImage, &RgbImage),
+) -> Result<f64> {
+    let (l, r) = (mse_rgb(left_ref, left)?, mse_rgb(right_ref, right)?);
+    left_ref.check_same_size(right_ref, "right view")?;
+    Ok(psnr_from_mse(l.iter().chain(&r).sum::<f64>() / 6.0))
+}
+
 /// Compression ratio: `original / compressed` (infinite for an empty output).
 pub fn compression_ratio(original_bytes: usize, compressed_bytes: usize) -> f64 {
     original_bytes as f64 / compressed_bytes as f64
@@ -96,6 +107,16 @@ pub fn bad_pixel_rate(
 mod tests {
     use super::*;
     use crate::Plane;
+
+    #[test]
+    fn pair_psnr_is_one_mse_over_both_views() {
+        let a = Plane::new(4, 2, [100u8, 100, 100]);
+        let b = Plane::new(4, 2, [110u8, 100, 100]);
+        // Left off by 10 in one channel, right exact: MSE 100 / 6.
+        let p = psnr_pair((&a, &a), (&b, &a)).unwrap();
+        assert!((p - psnr_from_mse(100.0 / 6.0)).abs() < 1e-9, "{p}");
+        assert!(psnr_pair((&a, &a), (&b, &Plane::new(3, 2, [0; 3]))).is_err());
+    }
 
     #[test]
     fn psnr_of_known_error() {

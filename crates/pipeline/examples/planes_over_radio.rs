@@ -59,6 +59,7 @@ fn main() -> anyhow::Result<()> {
             roi: None,
             levels_spec: LevelSpec::default(),
             plane_table: TableCoding::default(),
+            coding: stereolink_pipeline::coding::CodingSpec::default(),
         };
         let p = prepare(&scene.left, &scene.right, &scene.calib, &cfg, (1, 0))?;
         let board = |source| {

@@ -1,6 +1,6 @@
 //! The pipelines that join the stereolink crates, as library functions the
 //! CLI and the tests call: the sender ([`sender`]: segment, encode, match,
-//! depth report) and the board's receiver ([`receiver`]: decode, rebuild,
+//! depth report; [`coding`]: segmented or lossy views, fitted to a budget) and the board's receiver ([`receiver`]: decode, rebuild,
 //! match, render, drive the axis), the whole system in one process
 //! ([`demo`]), the pairs arriving in a camera folder ([`watch`]), and the
 //! calibration of a raw pair ([`sensor`]: rectification maps and depth from
@@ -20,6 +20,7 @@
 
 #![deny(missing_docs)]
 
+pub mod coding;
 pub mod demo;
 pub mod live;
 pub mod live_bench;

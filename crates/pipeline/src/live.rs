@@ -38,6 +38,12 @@ pub struct Sent {
     pub frame_bytes: usize,
     /// Bytes of the depth report message.
     pub report_bytes: usize,
+    /// How the views were coded (`segmented`, `jpeg`, `webp`).
+    pub view_coding: &'static str,
+    /// The coding's setting: the lossy quality, or the segmentation's classes.
+    pub setting: u8,
+    /// PSNR of the left and right views as sent.
+    pub psnr_db: (f64, f64),
     /// The reported distance to the target, metres.
     pub distance_m: f32,
     /// From handing the frame to the link until its last fragment was acknowledged.
@@ -347,6 +353,9 @@ impl SendLoop {
             frame_id: pair_id,
             frame_bytes,
             report_bytes,
+            view_coding: self.cfg.coding.coding.name(),
+            setting: p.setting,
+            psnr_db: p.psnr_db,
             distance_m: p.report.target_distance_m,
             seconds: 0.0,
             report_seconds: None,

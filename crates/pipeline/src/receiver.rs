@@ -345,13 +345,12 @@ impl BoardReceiver {
         self.shown = true;
         self.status.frame_id = frame_id;
         self.status.message.clear();
-        let _ = write!(
-            self.status.message,
-            "{} PAIR {}X{}",
-            frame.kind.name(),
-            w,
-            h
-        );
+        // A lossy pair is named by its codec, a segmented one by its method.
+        let what = frame
+            .left
+            .lossy_codec()
+            .map_or(frame.kind.name(), |c| c.name());
+        let _ = write!(self.status.message, "{what} PAIR {w}X{h}");
         if let Some(axis) = self.axis.as_mut() {
             self.status.axis_mm = axis.position().ok();
         }
@@ -486,6 +485,44 @@ mod tests {
             "the status line moved with the axis"
         );
         assert_ne!(board.screen(), &first);
+    }
+
+    /// A lossy pair (the board's budget example's frames) is decoded,
+    /// matched and shown, and the status line names its codec.
+    #[test]
+    fn lossy_pairs_are_shown() {
+        for (codec, bytes) in [
+            (
+                "jpeg",
+                &include_bytes!("../examples/lossy/cones-320x240-jpeg.slnk")[..],
+            ),
+            (
+                "webp",
+                &include_bytes!("../examples/lossy/cones-320x240-webp.slnk")[..],
+            ),
+        ] {
+            let mut board = BoardReceiver::new(31, 9, std::time::Duration::from_secs(10));
+            let blank = board.screen().clone();
+            assert!(
+                matches!(board.handle(bytes), Event::Frame { .. }),
+                "{codec}"
+            );
+            assert_eq!(board.status.message, format!("{codec} PAIR 320X240"));
+            let Ok((_, Message::StereoFrame(f))) = container::decode(bytes, &Limits::default())
+            else {
+                panic!("{codec}: not a frame")
+            };
+            let (l, r) = board.pair().unwrap();
+            assert_eq!((l, r), (&f.left.to_rgb(), &f.right.to_rgb()));
+            assert_ne!(board.screen(), &blank);
+            let d = board.disparity();
+            let valid = d.as_slice().iter().filter(|v| v.is_finite()).count();
+            assert!(
+                valid > d.len() / 2,
+                "{codec}: {valid} of {} matched",
+                d.len()
+            );
+        }
     }
 
     /// The watchdog stops a moving axis without any message arriving, once

@@ -12,12 +12,14 @@
 //! third in each direction), where a robot camera points at what it
 //! approaches; `--roi x,y,w,h` chooses another.
 
+use std::collections::BTreeMap;
 use std::time::Instant;
 
 use anyhow::Context;
 use stereolink_codec::control::Command;
 use stereolink_codec::{
     container, labels,
+    lossy::ViewCoding,
     planetable::{PlaneTable, TableCoding},
     DepthReport, Message, ReportLevel, SegmentationKind, StereoFrame, View,
 };
@@ -28,6 +30,7 @@ use stereolink_stereo::depth::{depth_levels, depth_of, metric, region_distance, 
 use stereolink_stereo::planes::match_planes;
 use stereolink_stereo::{Algorithm, MatchSpec, Matcher};
 
+use crate::coding::{encode_fitted, lossy_views, CodingSpec};
 use crate::planetable;
 
 /// What the sender does with a pair.
@@ -49,6 +52,8 @@ pub struct SenderConfig {
     pub levels_spec: LevelSpec,
     /// How the plane table is coded (with the plane matcher).
     pub plane_table: TableCoding,
+    /// How the views are coded, and the frame's budget.
+    pub coding: CodingSpec,
 }
 
 /// What a command asks of the send loop once the configuration took it.
@@ -92,15 +97,18 @@ pub struct Prepared {
     pub frame_bytes: Vec<u8>,
     /// The encoded DepthReport message.
     pub report_bytes: Vec<u8>,
-    /// The segmented views as sent.
+    /// The views as sent (segmented, or decoded from their lossy coding).
     pub sent: (RgbImage, RgbImage),
+    /// The coding's setting the frame was made at (levels or quality).
+    pub setting: u8,
     /// The sender's disparity map.
     pub disparity: DisparityMap,
     /// The depth report.
     pub report: DepthReport,
-    /// PSNR of the segmented left and right views against the originals.
+    /// PSNR of the left and right views as sent against the originals.
     pub psnr_db: (f64, f64),
-    /// Segmentation, encoding and matching times (ms).
+    /// Segmentation, encoding and matching times (ms), summed over the
+    /// settings tried when fitting a budget.
     pub times_ms: (f64, f64, f64),
 }
 
@@ -268,8 +276,9 @@ pub fn report_message(report: &DepthReport, pair_id: u32, captured_us: u64) -> V
     container::encode(&Message::DepthReport(report.clone()), pair_id, captured_us)
 }
 
-/// Segments, matches, encodes and reports pair `frame_id`, captured at
-/// `captured_us` (the messages' time stamp).
+/// Codes the views (segmented or lossy, fitted to the budget), matches,
+/// encodes and reports pair `frame_id`, captured at `captured_us` (the
+/// messages' time stamp).
 pub fn prepare(
     left: &RgbImage,
     right: &RgbImage,
@@ -283,56 +292,102 @@ pub fn prepare(
         left.dims(),
         right.dims()
     );
-    let t = Instant::now();
-    let (sl, sr) = segment_pair(
-        (left, right),
-        &cfg.method,
-        (cfg.levels, cfg.seed),
-        cfg.carry_margin,
-    )?;
-    let seg_ms = t.elapsed().as_secs_f64() * 1e3;
-    let sent = (sl.to_rgb(), sr.to_rgb());
+    let planes = cfg.matcher.algorithm == Algorithm::Planes;
+    let ids = (frame_id, captured_us, labels::Mode::default());
+    let settings = cfg.coding.settings(cfg.levels);
+    let (mut seg_ms, mut match_ms) = (0.0, 0.0);
+    let t_all = Instant::now();
+    // The plane matcher's map comes with each segmentation tried; any
+    // other matcher's does not depend on it and is computed once.
+    let mut plane_maps = BTreeMap::new();
+    let coded = match cfg.coding.coding {
+        ViewCoding::Lossy(codec) => {
+            anyhow::ensure!(
+                !planes,
+                "the plane matcher's table needs segmented views (--view-coding segmented)"
+            );
+            encode_fitted(settings, cfg.coding.budget, ids, |q| {
+                let (l, r) = lossy_views((left, right), codec, q)?;
+                Ok(StereoFrame {
+                    kind: SegmentationKind::None,
+                    levels: 0,
+                    params: format!("{} q={q}", codec.name()),
+                    thresholds: None,
+                    calibration: Some(*calib),
+                    left: l,
+                    right: r,
+                    planes: None,
+                })
+            })?
+        }
+        ViewCoding::Segmented => encode_fitted(settings, cfg.coding.budget, ids, |levels| {
+            let t = Instant::now();
+            let (sl, sr) = segment_pair(
+                (left, right),
+                &cfg.method,
+                (levels as usize, cfg.seed),
+                cfg.carry_margin,
+            )?;
+            seg_ms += t.elapsed().as_secs_f64() * 1e3;
+            let t = Instant::now();
+            let table = if planes {
+                let (map, table) = plane_depth((left, right), sl.image.labels(), cfg)?;
+                plane_maps.insert(levels, map);
+                Some(table)
+            } else {
+                None
+            };
+            match_ms += t.elapsed().as_secs_f64() * 1e3;
+            Ok(StereoFrame {
+                kind: SegmentationKind::from_name(cfg.method.name())
+                    .unwrap_or(SegmentationKind::None),
+                levels,
+                params: format!("seed={}", cfg.seed),
+                thresholds: sl.channels.as_ref().map(|c| c.thresholds.clone()),
+                calibration: Some(*calib),
+                left: View::Indexed(sl.image),
+                right: View::Indexed(sr.image),
+                planes: table,
+            })
+        })?,
+    };
+    let enc_ms = t_all.elapsed().as_secs_f64() * 1e3 - seg_ms - match_ms;
+    let disparity = match plane_maps.remove(&coded.setting) {
+        Some(d) => d,
+        None => {
+            let t = Instant::now();
+            let d = Matcher::new().compute(left, right, &cfg.matcher)?;
+            match_ms += t.elapsed().as_secs_f64() * 1e3;
+            d
+        }
+    };
+    let sent = (coded.frame.left.to_rgb(), coded.frame.right.to_rgb());
     let psnr_db = (
         psnr_rgb(left, &sent.0)?.overall,
         psnr_rgb(right, &sent.1)?.overall,
     );
-    let depth = measure_depth((left, right), Some(sl.image.labels()), calib, cfg)?;
-    let t = Instant::now();
-    let frame = StereoFrame {
-        kind: SegmentationKind::from_name(cfg.method.name()).unwrap_or(SegmentationKind::None),
-        levels: cfg.levels.min(255) as u8,
-        params: format!("seed={}", cfg.seed),
-        thresholds: sl.channels.as_ref().map(|c| c.thresholds.clone()),
-        calibration: Some(*calib),
-        left: View::Indexed(sl.image),
-        right: View::Indexed(sr.image),
-        planes: depth.planes,
-    };
-    let frame_bytes = container::encode(
-        &Message::StereoFrame(Box::new(frame)),
-        frame_id,
-        captured_us,
-    );
-    let enc_ms = t.elapsed().as_secs_f64() * 1e3;
-    let report_bytes = report_message(&depth.report, frame_id, captured_us);
+    let frame_bytes = coded.bytes;
+    let report = depth_report(&disparity, calib, cfg);
+    let report_bytes = report_message(&report, frame_id, captured_us);
     Ok(Prepared {
         frame_bytes,
         report_bytes,
         sent,
-        disparity: depth.disparity,
-        report: depth.report,
+        setting: coded.setting,
+        disparity,
+        report,
         psnr_db,
-        times_ms: (seg_ms, enc_ms, depth.match_ms),
+        times_ms: (seg_ms, enc_ms, match_ms),
     })
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use stereolink_image::synth::{synthesize, SynthSpec};
 
-    #[test]
-    fn commands_change_the_next_pairs_settings_and_a_stop_is_refused() {
-        let mut cfg = SenderConfig {
+    fn config() -> SenderConfig {
+        SenderConfig {
             method: Method::KMeans,
             levels: 3,
             seed: 1,
@@ -341,7 +396,63 @@ mod tests {
             roi: None,
             levels_spec: LevelSpec::default(),
             plane_table: TableCoding::default(),
+            coding: CodingSpec::default(),
+        }
+    }
+
+    /// A budget holds the segmented frame at the most classes that fit;
+    /// lossy views with the plane matcher (which needs labels) are refused.
+    #[test]
+    fn a_segmented_pair_is_fitted_to_its_budget() {
+        let s = synthesize(&SynthSpec {
+            width: 96,
+            height: 64,
+            max_disp: 16,
+            seed: 4,
+        })
+        .unwrap();
+        let calib = s.calib;
+        let mut cfg = SenderConfig {
+            levels: 8,
+            ..config()
         };
+        let at = |cfg: &SenderConfig| prepare(&s.left, &s.right, &calib, cfg, (1, 0)).unwrap();
+        let (two, eight) = (
+            at(&SenderConfig {
+                levels: 2,
+                ..cfg.clone()
+            }),
+            at(&cfg),
+        );
+        assert!(two.frame_bytes.len() < eight.frame_bytes.len());
+        let budget = (two.frame_bytes.len() + eight.frame_bytes.len()) / 2;
+        cfg.coding.budget = Some(budget);
+        let fitted = at(&cfg);
+        assert!(fitted.frame_bytes.len() <= budget);
+        assert!(
+            (2..8).contains(&fitted.setting),
+            "{} classes",
+            fitted.setting
+        );
+        cfg.coding.budget = Some(two.frame_bytes.len() - 1);
+        let e = prepare(&s.left, &s.right, &calib, &cfg, (1, 0))
+            .err()
+            .unwrap();
+        assert!(e.to_string().contains("smallest frame"), "{e}");
+        cfg.coding = CodingSpec {
+            coding: ViewCoding::Lossy(stereolink_codec::lossy::LossyCodec::Webp),
+            ..CodingSpec::default()
+        };
+        cfg.matcher = MatchSpec::new(Algorithm::Planes, 0, 16).unwrap();
+        let e = prepare(&s.left, &s.right, &calib, &cfg, (1, 0))
+            .err()
+            .unwrap();
+        assert!(e.to_string().contains("--view-coding segmented"), "{e}");
+    }
+
+    #[test]
+    fn commands_change_the_next_pairs_settings_and_a_stop_is_refused() {
+        let mut cfg = config();
         assert_eq!(cfg.apply(&Command::SetLevels(5)), Ok(Applied::FromNextPair));
         assert_eq!(cfg.levels, 5);
         let fodpso = Command::SetMethod("fodpso".into());

@@ -493,3 +493,57 @@ fn bench_live_delivers_a_report_per_pair_while_frames_stream() {
     );
     assert!(latency["p99"].as_f64().unwrap() < 2000.0, "{r}");
 }
+
+/// A lossy pair sent within a byte budget over UDP: the frame fits, and
+/// the board shows the very views the sender decoded from its own frame.
+#[test]
+fn a_lossy_pair_within_a_budget_over_udp() {
+    let (a, b) = (free_port(), free_port());
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("scene");
+    synth(&scene);
+    let saved = dir.path().join("saved");
+    let shots = dir.path().join("screens");
+    let saved_arg = saved.to_str().unwrap();
+    let display = format!("png:{}", shots.display());
+    let rx = spawn_udp_receiver(
+        a,
+        b,
+        &[
+            "--frames",
+            "1",
+            "--timeout-s",
+            "60",
+            "--save",
+            saved_arg,
+            "--display",
+            &display,
+        ],
+    );
+    std::thread::sleep(Duration::from_millis(200));
+    let mut tx_args = vec!["--json".to_string()];
+    tx_args.extend(send_args(
+        &format!("udp:127.0.0.1:{a}?peer=127.0.0.1:{b}"),
+        &scene,
+    ));
+    tx_args.extend(strings(&[
+        "--view-coding",
+        "jpeg",
+        "--bytes",
+        "6000",
+        "--save",
+        saved_arg,
+    ]));
+    let sent: serde_json::Value = serde_json::from_str(&finish(spawn(&tx_args), "send")).unwrap();
+    finish(rx, "receive");
+    let frame = &sent[0];
+    assert_eq!(frame["view_coding"], "jpeg", "{sent}");
+    let bytes = frame["frame_bytes"].as_u64().unwrap();
+    assert!(bytes <= 6000 && bytes > 3000, "{bytes} B");
+    for side in ["left", "right"] {
+        let a = io::read_rgb(saved.join(format!("sent-{side}.png"))).unwrap();
+        let b = io::read_rgb(saved.join(format!("received-{side}.png"))).unwrap();
+        assert_eq!(a, b, "{side} view differs");
+    }
+    assert!(shots.join("screen-00001.png").is_file());
+}

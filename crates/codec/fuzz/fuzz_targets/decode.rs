@@ -2,6 +2,10 @@
 //! a decoded message re-encodes to bytes that decode to the same message.
 //! (Built with `cfg(fuzzing)`, the decoder skips the body CRC so that the
 //! fuzzer reaches the body parsers.)
+//!
+//! Lossy views (JPEG, WebP bitstreams) are out of a blind fuzzer's reach;
+//! seed it with the two lossy frames of the board's budget example:
+//! `cargo fuzz run decode fuzz/corpus/decode ../pipeline/examples/lossy`.
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;

@@ -2,6 +2,10 @@
 //! receiver keeps it from frame to frame) decodes every stereo frame that
 //! parses. It never panics, and it agrees with the owned decoder: both fail,
 //! or both give the same views, whatever frames it decoded before.
+//!
+//! Lossy views (JPEG, WebP bitstreams) are out of a blind fuzzer's reach;
+//! seed it with the two lossy frames of the board's budget example:
+//! `cargo fuzz run frame_decoder fuzz/corpus/frame_decoder ../pipeline/examples/lossy`.
 #![no_main]
 
 use std::cell::RefCell;

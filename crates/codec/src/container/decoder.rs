@@ -6,6 +6,7 @@ use stereolink_image::segments::components;
 use stereolink_image::{IndexedImage, LabelMap, Rgb, RgbImage};
 
 use super::{coding, FrameRef, ViewRef};
+use crate::lossy::{self, LossyView};
 use crate::{labels, rgb, CodecError, StereoFrame, View};
 
 impl FrameRef<'_> {
@@ -14,6 +15,9 @@ impl FrameRef<'_> {
         let mut d = FrameDecoder::default();
         d.decode_labels(self)?;
         let view = |v: &ViewRef, labels: LabelMap, rgb: RgbImage| -> Result<View, CodecError> {
+            if let Some((codec, bits)) = v.lossy() {
+                return Ok(View::Lossy(LossyView::decoded(codec, bits.to_vec(), rgb)));
+            }
             Ok(match v.coding {
                 coding::RGB => View::Rgb(rgb),
                 _ => View::Indexed(
@@ -77,7 +81,7 @@ impl FrameDecoder {
     /// [`views`](Self::views).
     pub fn decode(&mut self, frame: &FrameRef) -> Result<(), CodecError> {
         self.expanded = false;
-        self.indexed = [frame.left, frame.right].map(|v| v.coding != coding::RGB);
+        self.indexed = [frame.left, frame.right].map(|v| coding::indexed(v.coding));
         self.decode_labels(frame)
     }
 
@@ -108,7 +112,7 @@ impl FrameDecoder {
     /// The left label map of the last frame decoded, if its left view is
     /// indexed (what a plane table's segments are the components of).
     pub fn left_labels(&self, frame: &FrameRef) -> Option<&LabelMap> {
-        (frame.left.coding != coding::RGB).then_some(&self.labels.0)
+        coding::indexed(frame.left.coding).then_some(&self.labels.0)
     }
 
     /// The label maps of the last frame decoded, each with its palette,
@@ -126,8 +130,8 @@ impl FrameDecoder {
         (&self.rgb.0, &self.rgb.1)
     }
 
-    /// Decodes each view: indexed views into the label maps, RGB views into
-    /// the RGB images.
+    /// Decodes each view: indexed views into the label maps, RGB and lossy
+    /// views into the RGB images.
     fn decode_labels(&mut self, frame: &FrameRef) -> Result<(), CodecError> {
         let (w, h) = (frame.width, frame.height);
         for (i, view) in [frame.left, frame.right].iter().enumerate() {
@@ -144,6 +148,10 @@ impl FrameDecoder {
                 coding::RGB => {
                     rgb.reset(w, h, [0; 3]);
                     self.rgb_decoder.decode_into(view.payload, rgb)?;
+                }
+                coding::LOSSY => {
+                    let (codec, bits) = view.lossy().ok_or(CodecError::Truncated("lossy view"))?;
+                    lossy::decode_into(codec, bits, (w, h), rgb)?;
                 }
                 coding::LABELS => {
                     // The decoder writes every label: a map of the size is

@@ -82,13 +82,13 @@ fn encode_frame(w: &mut Writer, f: &StereoFrame, mode: labels::Mode) {
     encode_view(w, &f.left, None, mode);
     let reference = match &f.left {
         View::Indexed(l) => Some(l),
-        View::Rgb(_) => None,
+        View::Rgb(_) | View::Lossy(_) => None,
     };
     encode_view(w, &f.right, reference, mode);
     if let Some(t) = &f.planes {
         let ids = match &f.left {
             View::Indexed(l) => Some(components(l.labels(), t.tile as usize).0),
-            View::Rgb(_) => None,
+            View::Rgb(_) | View::Lossy(_) => None,
         };
         t.encode(w, ids.as_ref());
     }
@@ -109,6 +109,12 @@ fn encode_view(w: &mut Writer, view: &View, reference: Option<&IndexedImage>, mo
             ),
         },
         View::Rgb(img) => (coding::RGB, &[], rgb::encode(img)),
+        View::Lossy(v) => {
+            let mut payload = Vec::with_capacity(1 + v.bytes().len());
+            payload.push(v.codec() as u8);
+            payload.extend_from_slice(v.bytes());
+            (coding::LOSSY, &[], payload)
+        }
     };
     w.u8(code);
     w.u32(palette.len() as u32);

@@ -51,6 +51,14 @@ mod coding {
     pub const LABELS: u8 = 0;
     pub const LABELS_CONDITIONED: u8 = 1;
     pub const RGB: u8 = 2;
+    /// A lossy view: the codec's byte ([`crate::lossy::LossyCodec`]),
+    /// then its bitstream.
+    pub const LOSSY: u8 = 3;
+
+    /// Whether a view so coded is a label map.
+    pub fn indexed(code: u8) -> bool {
+        matches!(code, LABELS | LABELS_CONDITIONED)
+    }
 }
 
 /// Stereo shift search range of the encoder (px); any value decodes.

@@ -6,6 +6,7 @@ use stereolink_image::{Calibration, Rgb};
 
 use super::bytes::check;
 use super::{coding, kind, Header, Reader, HEADER_LEN, MAGIC, VERSION};
+use crate::lossy::LossyCodec;
 use crate::planetable::{self, CodedPlaneTable};
 use crate::{CodecError, DepthReport, Limits, ReportLevel, SegmentationKind};
 
@@ -128,7 +129,22 @@ pub struct ViewRef<'a> {
 }
 
 impl ViewRef<'_> {
-    /// Number of palette colours (0 for an RGB view).
+    /// The lossy codec and its bitstream, for a lossy view (checked by
+    /// [`parse`]).
+    pub(super) fn lossy(&self) -> Option<(LossyCodec, &[u8])> {
+        if self.coding != coding::LOSSY {
+            return None;
+        }
+        let (&codec, bits) = self.payload.split_first()?;
+        Some((LossyCodec::from_u8(codec)?, bits))
+    }
+
+    /// The view's lossy codec, if it is lossy.
+    pub fn lossy_codec(&self) -> Option<LossyCodec> {
+        self.lossy().map(|(codec, _)| codec)
+    }
+
+    /// Number of palette colours (0 for an unsegmented view).
     pub fn colours(&self) -> usize {
         self.palette.len() / 3
     }
@@ -176,7 +192,7 @@ fn parse_frame<'a>(r: &mut Reader<'a>, limits: &Limits) -> Result<FrameRef<'a>, 
     };
     let left = parse_view(r, limits)?;
     let right = parse_view(r, limits)?;
-    if right.coding == coding::LABELS_CONDITIONED && left.coding == coding::RGB {
+    if right.coding == coding::LABELS_CONDITIONED && !coding::indexed(left.coding) {
         return Err(CodecError::Invalid(
             "conditioned view without an indexed left view".into(),
         ));
@@ -187,7 +203,7 @@ fn parse_frame<'a>(r: &mut Reader<'a>, limits: &Limits) -> Result<FrameRef<'a>, 
         ));
     }
     let planes = parse_sections(r, w * h)?;
-    if planes.is_some() && left.coding == coding::RGB {
+    if planes.is_some() && !coding::indexed(left.coding) {
         return Err(CodecError::Invalid(
             "a plane table without a left label map".into(),
         ));
@@ -238,6 +254,12 @@ fn parse_view<'a>(r: &mut Reader<'a>, limits: &Limits) -> Result<ViewRef<'a>, Co
     match code {
         coding::LABELS | coding::LABELS_CONDITIONED if n > 0 => {}
         coding::RGB => {}
+        coding::LOSSY if n == 0 => {
+            let codec = *payload.first().ok_or(CodecError::Truncated("lossy view"))?;
+            if LossyCodec::from_u8(codec).is_none() {
+                return Err(CodecError::Invalid(format!("lossy codec {codec}")));
+            }
+        }
         other => {
             return Err(CodecError::Invalid(format!(
                 "view coding {other} with a palette of {n}"

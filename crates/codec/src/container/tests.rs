@@ -1,13 +1,44 @@
 //! Round trips of every message, typed errors on corrupt and foreign
-//! bytes, plane table sections, the golden depth report, and corrupted
-//! bodies through both the owning decode and the reusing decoder.
+//! bytes, plane table sections, lossy views (stock bitstreams made by
+//! Pillow, so that the board, without encoders, runs these too), the golden
+//! depth report, and corrupted bodies through both the owning decode and
+//! the reusing decoder.
 
 use proptest::prelude::*;
 use stereolink_image::segments::components;
 use stereolink_image::{Calibration, IndexedImage, LabelMap, Rgb, RgbImage};
 
 use super::*;
+use crate::lossy::{LossyCodec, LossyView};
 use crate::{DepthReport, ReportLevel, SegmentationKind, StereoFrame, View};
+
+/// A 24x16 view as JPEG (4:2:0) and as lossy WebP.
+const JPEG_VIEW: &[u8] = include_bytes!("testdata/view24x16.jpg");
+const WEBP_VIEW: &[u8] = include_bytes!("testdata/view24x16.webp");
+
+/// A frame of two lossy views: a JPEG left and a WebP right.
+fn lossy_frame() -> StereoFrame {
+    let view = |codec, bits: &[u8]| {
+        View::Lossy(LossyView::decode(codec, bits.to_vec(), (24, 16)).unwrap())
+    };
+    StereoFrame {
+        kind: SegmentationKind::None,
+        levels: 0,
+        thresholds: None,
+        left: view(LossyCodec::Jpeg, JPEG_VIEW),
+        right: view(LossyCodec::Webp, WEBP_VIEW),
+        ..frame(24, 16)
+    }
+}
+
+/// `bytes` with its body's length and CRC made right again.
+fn resealed(mut bytes: Vec<u8>) -> Vec<u8> {
+    let body_len = (bytes.len() - HEADER_LEN) as u32;
+    bytes[20..24].copy_from_slice(&body_len.to_le_bytes());
+    let crc = crc32fast::hash(&bytes[HEADER_LEN..]);
+    bytes[24..28].copy_from_slice(&crc.to_le_bytes());
+    bytes
+}
 
 fn frame(w: usize, h: usize) -> StereoFrame {
     let palette = vec![[10, 20, 30], [200, 100, 0], [0, 255, 0]];
@@ -229,6 +260,96 @@ fn golden_depth_report() {
     );
 }
 
+#[test]
+fn lossy_views_round_trip_through_both_decoders() {
+    let f = lossy_frame();
+    let m = Message::StereoFrame(Box::new(f.clone()));
+    let bytes = encode(&m, 5, 6);
+    assert_eq!(decode(&bytes, &Limits::default()).unwrap().1, m);
+    let Ok((_, Body::StereoFrame(parsed))) = parse(&bytes, &Limits::default()) else {
+        panic!("not a frame")
+    };
+    let mut d = FrameDecoder::default();
+    d.decode_rgb(&parsed).unwrap();
+    assert_eq!(d.views(), (&f.left.to_rgb(), &f.right.to_rgb()));
+    assert!(d.indexed_views().is_none() && d.left_labels(&parsed).is_none());
+    // The views are the pictures, not black: the mean of a channel is
+    // far from zero.
+    let mean = f
+        .left
+        .to_rgb()
+        .as_slice()
+        .iter()
+        .map(|p| p[0] as u32)
+        .sum::<u32>()
+        / (24 * 16);
+    assert!(mean > 40, "mean red {mean}");
+}
+
+#[test]
+fn forged_and_truncated_lossy_views_are_typed_errors() {
+    let l = Limits::default();
+    let bytes = encode(&Message::StereoFrame(Box::new(lossy_frame())), 1, 1);
+    // The left view's codec byte comes just before its bitstream, after
+    // its coding (1 byte), palette count (4) and payload length (4).
+    let at = bytes
+        .windows(JPEG_VIEW.len())
+        .position(|w| w == JPEG_VIEW)
+        .unwrap();
+    let mut codec = bytes.clone();
+    codec[at - 1] = 9;
+    assert_eq!(
+        decode(&resealed(codec), &l).unwrap_err(),
+        CodecError::Invalid("lossy codec 9".into())
+    );
+    // The bitstream cut short inside a consistent message: the JPEG's
+    // scan loses its end, the WebP its RIFF chunk's.
+    for (codec, bits, keep) in [
+        (LossyCodec::Jpeg, JPEG_VIEW, 200),
+        (LossyCodec::Webp, WEBP_VIEW, 100),
+    ] {
+        let forged = StereoFrame {
+            left: View::Lossy(LossyView::decoded(
+                codec,
+                bits[..keep].to_vec(),
+                RgbImage::new(24, 16, [0; 3]),
+            )),
+            ..lossy_frame()
+        };
+        let bytes = encode(&Message::StereoFrame(Box::new(forged)), 1, 1);
+        let e = decode(&bytes, &l);
+        if codec == LossyCodec::Webp {
+            assert!(matches!(e, Err(CodecError::Invalid(_))), "{e:?}");
+        } else {
+            // zune-jpeg pads a scan cut short: an error or a whole view.
+            assert!(
+                e.is_err()
+                    || e.is_ok_and(
+                        |(_, m)| matches!(m, Message::StereoFrame(f) if f.left.dims() == (24, 16))
+                    )
+            );
+        }
+    }
+    // A view of another size than the frame's.
+    let other = StereoFrame {
+        right: View::Lossy(
+            LossyView::decode(LossyCodec::Jpeg, JPEG_VIEW.to_vec(), (24, 16)).unwrap(),
+        ),
+        ..lossy_frame()
+    };
+    let mut bytes = encode(&Message::StereoFrame(Box::new(other)), 1, 1);
+    bytes[HEADER_LEN] = 23; // the frame's width
+    let e = decode(&resealed(bytes), &l).unwrap_err();
+    assert!(
+        matches!(&e, CodecError::Invalid(m) if m.contains("JPEG view")),
+        "{e}"
+    );
+    // A lossy view with a palette (its count's low byte set).
+    let mut p = encode(&Message::StereoFrame(Box::new(lossy_frame())), 1, 1);
+    p[at - 9] = 1;
+    assert!(decode(&resealed(p), &l).is_err());
+}
+
 proptest! {
     /// Corrupted bodies with a correct CRC reach every body parser and
     /// the view decoders: a typed error or a message, never a panic;
@@ -238,18 +359,16 @@ proptest! {
     fn corrupt_bodies_are_errors_or_messages(
         flips in proptest::collection::vec((any::<usize>(), any::<u8>()), 1..8),
         cut in any::<usize>(),
+        lossy in any::<bool>(),
     ) {
-        let f = with_planes(21, 9);
+        let f = if lossy { lossy_frame() } else { with_planes(21, 9) };
         let mut bytes = encode(&Message::StereoFrame(Box::new(f)), 1, 2);
         for (at, x) in flips {
             let i = HEADER_LEN + at % (bytes.len() - HEADER_LEN);
             bytes[i] ^= x | 1;
         }
         bytes.truncate(HEADER_LEN + cut % (bytes.len() - HEADER_LEN + 1));
-        let body_len = (bytes.len() - HEADER_LEN) as u32;
-        bytes[20..24].copy_from_slice(&body_len.to_le_bytes());
-        let crc = crc32fast::hash(&bytes[HEADER_LEN..]);
-        bytes[24..28].copy_from_slice(&crc.to_le_bytes());
+        let bytes = resealed(bytes);
         let owned = decode(&bytes, &Limits::default());
         if let Ok((_, Body::StereoFrame(f))) = parse(&bytes, &Limits::default()) {
             let mut decoder = FrameDecoder::default();

@@ -5,9 +5,12 @@ use std::time::Instant;
 
 use anyhow::Context;
 use serde::Serialize;
+use stereolink_codec::lossy::ViewCoding;
 use stereolink_codec::{container, labels, Limits, Message, SegmentationKind, StereoFrame, View};
-use stereolink_image::metrics::{psnr_rgb, reduction_percent};
-use stereolink_image::{io, Scene};
+use stereolink_image::metrics::{psnr_pair, psnr_rgb, reduction_percent};
+use stereolink_image::{io, RgbImage, Scene};
+use stereolink_pipeline::coding::{encode_fitted, lossy_views, CodingSpec};
+use stereolink_pipeline::sender::segment_pair;
 
 use super::segment::SegmentArgs;
 
@@ -22,14 +25,50 @@ pub struct Args {
     #[arg(short, long)]
     pub output: PathBuf,
     /// Send the original views losslessly instead of segmenting them.
-    #[arg(long)]
+    #[arg(long, conflicts_with_all = ["view_coding", "bytes"])]
     pub original: bool,
     /// Label-map coding: `fast` (the receiver decodes fastest) or `strong`
     /// (smaller, far slower to decode; see docs/tuning.md).
     #[arg(long, default_value = "fast")]
     pub mode: labels::Mode,
     #[command(flatten)]
+    pub coding: CodingArgs,
+    #[command(flatten)]
     pub segment: SegmentArgs,
+}
+
+/// How the views are coded and the frame's byte budget (`encode`, `send`).
+#[derive(Debug, clap::Args)]
+pub struct CodingArgs {
+    /// How the views are coded. `segmented`: the paper's mode, each view
+    /// segmented (--method, --levels) and its label map coded losslessly,
+    /// so the receiver shows the segmentation. `webp`: the original views,
+    /// lossy, with the most picture per byte; the ARM926 board decodes a
+    /// 320x240 pair in time. `jpeg`: lossy, less picture per byte than
+    /// WebP, but the cheapest to decode. docs/benchmarks.md compares them.
+    #[arg(long, default_value = "segmented", value_name = "CODING")]
+    pub view_coding: ViewCoding,
+    /// Quality of a lossy coding without --bytes: 0 (smallest; JPEG's
+    /// lowest is 1) to 100.
+    #[arg(long, default_value_t = 75, value_parser = clap::value_parser!(u8).range(0..=100))]
+    pub quality: u8,
+    /// Fit the frame (the whole message) in N bytes with the best pair PSNR
+    /// the coding gives: the highest quality (jpeg, webp), or the most
+    /// classes from 2 up to --levels (segmented), whose frame fits. A
+    /// budget below the smallest frame is an error that names its size.
+    #[arg(long, value_name = "N")]
+    pub bytes: Option<usize>,
+}
+
+impl CodingArgs {
+    /// The pipeline's coding spec.
+    pub fn spec(&self) -> CodingSpec {
+        CodingSpec {
+            coding: self.view_coding,
+            quality: self.quality,
+            budget: self.bytes,
+        }
+    }
 }
 
 #[derive(Serialize)]
@@ -39,7 +78,16 @@ struct Encoded {
     original_file_bytes: u64,
     reduction_percent: f64,
     bits_per_pixel: f64,
+    /// `segmented`, `jpeg`, `webp` or `rgb` (--original).
+    view_coding: &'static str,
+    /// The lossy quality the frame was coded at.
+    quality: Option<u8>,
+    /// The segmentation's classes the frame was coded with.
+    levels: Option<u8>,
+    /// PSNR of the left and right views as sent.
     psnr_db: Option<(f64, f64)>,
+    /// PSNR of the pair as sent: both views, one MSE.
+    psnr_pair_db: Option<f64>,
 }
 
 /// Segments (unless `--original`) and encodes a pair.
@@ -54,7 +102,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         args.right.display(),
         right.dims()
     );
-    let (frame, psnr) = if args.original {
+    let (bytes, frame, setting) = if args.original {
         let f = StereoFrame {
             kind: SegmentationKind::None,
             levels: 0,
@@ -65,27 +113,68 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
             right: View::Rgb(right.clone()),
             planes: None,
         };
-        (f, None)
-    } else {
-        let method = args.segment.method()?;
-        let (sl, sr) = args.segment.run_pair(&left, &right)?;
-        let psnr = (
-            psnr_rgb(&left, &sl.to_rgb())?.overall,
-            psnr_rgb(&right, &sr.to_rgb())?.overall,
-        );
-        let f = StereoFrame {
-            kind: SegmentationKind::from_name(method.name()).unwrap_or(SegmentationKind::None),
-            levels: args.segment.levels.min(255) as u8,
-            params: format!("seed={}", args.segment.seed),
-            thresholds: sl.channels.as_ref().map(|c| c.thresholds.clone()),
-            calibration: None,
-            left: View::Indexed(sl.image),
-            right: View::Indexed(sr.image),
-            planes: None,
+        let msg = Message::StereoFrame(Box::new(f));
+        let bytes = container::encode_with(&msg, 1, 0, args.mode);
+        let Message::StereoFrame(f) = msg else {
+            unreachable!("built as a frame")
         };
-        (f, Some(psnr))
+        (bytes, *f, None)
+    } else {
+        let spec = args.coding.spec();
+        let settings = spec.settings(args.segment.levels);
+        let ids = (1, 0, args.mode);
+        let coded = match spec.coding {
+            ViewCoding::Lossy(codec) => encode_fitted(settings, spec.budget, ids, |q| {
+                let (l, r) = lossy_views((&left, &right), codec, q)?;
+                Ok(StereoFrame {
+                    kind: SegmentationKind::None,
+                    levels: 0,
+                    params: format!("{} q={q}", codec.name()),
+                    thresholds: None,
+                    calibration: None,
+                    left: l,
+                    right: r,
+                    planes: None,
+                })
+            }),
+            ViewCoding::Segmented => {
+                let method = args.segment.method()?;
+                let carry = args.segment.carry_margin()?;
+                let seed = args.segment.seed;
+                encode_fitted(settings, spec.budget, ids, |levels| {
+                    let (sl, sr) =
+                        segment_pair((&left, &right), &method, (levels as usize, seed), carry)?;
+                    Ok(StereoFrame {
+                        kind: SegmentationKind::from_name(method.name())
+                            .unwrap_or(SegmentationKind::None),
+                        levels,
+                        params: format!("seed={seed}"),
+                        thresholds: sl.channels.as_ref().map(|c| c.thresholds.clone()),
+                        calibration: None,
+                        left: View::Indexed(sl.image),
+                        right: View::Indexed(sr.image),
+                        planes: None,
+                    })
+                })
+            }
+        }
+        .with_context(|| format!("cannot code the pair as {}", spec.coding.name()))?;
+        (coded.bytes, coded.frame, Some(coded.setting))
     };
-    let bytes = container::encode_with(&Message::StereoFrame(Box::new(frame)), 1, 0, args.mode);
+    let sent: (RgbImage, RgbImage) = (frame.left.to_rgb(), frame.right.to_rgb());
+    let psnr = (!args.original)
+        .then(|| {
+            anyhow::Ok((
+                psnr_rgb(&left, &sent.0)?.overall,
+                psnr_rgb(&right, &sent.1)?.overall,
+            ))
+        })
+        .transpose()?;
+    let psnr_pair_db = (!args.original)
+        .then(|| psnr_pair((&left, &right), (&sent.0, &sent.1)))
+        .transpose()?;
+    let view_coding = frame.left.coding_name();
+    let lossy = matches!(frame.left, View::Lossy(_));
     std::fs::write(&args.output, &bytes)
         .with_context(|| format!("cannot write {}", args.output.display()))?;
     let original = std::fs::metadata(&args.left)?.len() + std::fs::metadata(&args.right)?.len();
@@ -95,17 +184,25 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         original_file_bytes: original,
         reduction_percent: reduction_percent(original as usize, bytes.len()),
         bits_per_pixel: bytes.len() as f64 * 8.0 / (2 * left.len()) as f64,
+        view_coding,
+        quality: setting.filter(|_| lossy),
+        levels: setting.filter(|_| !lossy),
         psnr_db: psnr,
+        psnr_pair_db,
     };
     out.emit(&e, || {
         format!(
-            "{}: {} B for the pair ({:.3} bit/pixel), {:.1} % smaller than the original files ({} B){}\n",
+            "{}: {} B for the pair as {} ({:.3} bit/pixel), {:.1} % smaller than the original files ({} B){}\n",
             e.output.display(),
             e.bytes,
+            e.view_coding,
             e.bits_per_pixel,
             e.reduction_percent,
             e.original_file_bytes,
-            e.psnr_db.map_or(String::new(), |(l, r)| format!("; PSNR {l:.2} / {r:.2} dB"))
+            match (e.psnr_db, e.psnr_pair_db) {
+                (Some((l, r)), Some(p)) => format!("; PSNR {l:.2} / {r:.2} dB, pair {p:.2} dB"),
+                _ => String::new(),
+            }
         )
     })
 }
@@ -130,10 +227,14 @@ pub struct DecodeArgs {
 struct Decoded {
     frame_id: u32,
     kind: String,
+    /// `segmented`, `jpeg`, `webp` or `rgb`.
+    view_coding: &'static str,
     width: usize,
     height: usize,
     bytes: usize,
     psnr_db: Option<(f64, f64)>,
+    /// PSNR of the pair: both views, one MSE.
+    psnr_pair_db: Option<f64>,
 }
 
 /// Decodes a frame file into its two views.
@@ -153,25 +254,31 @@ pub fn run_decode(args: DecodeArgs, out: &super::Output) -> anyhow::Result<()> {
     std::fs::create_dir_all(&args.out)?;
     io::write_rgb(args.out.join("left.png"), &l)?;
     io::write_rgb(args.out.join("right.png"), &r)?;
-    let psnr = match (&args.left, &args.right) {
-        (Some(a), Some(b)) => Some((
-            psnr_rgb(&io::read_rgb(a)?, &l)?.overall,
-            psnr_rgb(&io::read_rgb(b)?, &r)?.overall,
-        )),
-        _ => None,
+    let (psnr, psnr_pair_db) = match (&args.left, &args.right) {
+        (Some(a), Some(b)) => {
+            let (a, b) = (io::read_rgb(a)?, io::read_rgb(b)?);
+            (
+                Some((psnr_rgb(&a, &l)?.overall, psnr_rgb(&b, &r)?.overall)),
+                Some(psnr_pair((&a, &b), (&l, &r))?),
+            )
+        }
+        _ => (None, None),
     };
     let d = Decoded {
         frame_id: header.frame_id,
         kind: frame.kind.name().into(),
+        view_coding: frame.left.coding_name(),
         width: l.width(),
         height: l.height(),
         bytes: bytes.len(),
         psnr_db: psnr,
+        psnr_pair_db,
     };
     out.emit(&d, || {
         format!(
-            "frame {} ({}, {}x{}, {} B) written to {}{}\n",
+            "frame {} ({}, {}, {}x{}, {} B) written to {}{}\n",
             d.frame_id,
+            d.view_coding,
             d.kind,
             d.width,
             d.height,

@@ -124,6 +124,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
             roi: None,
             levels_spec: LevelSpec::default(),
             plane_table: TableCoding::default(),
+            coding: stereolink_pipeline::coding::CodingSpec::default(),
         },
         scene,
         link: SimConfig {

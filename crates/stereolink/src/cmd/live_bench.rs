@@ -11,6 +11,7 @@ use stereolink_pipeline::live_bench::{self, LiveFigures};
 use stereolink_pipeline::pairs::Pairs;
 
 use super::calib::CalibArgs;
+use super::codec::CodingArgs;
 use super::matching::MatcherArgs;
 use super::segment::SegmentArgs;
 
@@ -54,6 +55,8 @@ pub struct Args {
     pub segment: SegmentArgs,
     #[command(flatten)]
     pub matcher: MatcherArgs,
+    #[command(flatten)]
+    pub coding: CodingArgs,
 }
 
 /// Runs the live bench and prints its figures.
@@ -74,7 +77,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         (&args.segment, &args.matcher),
         args.max_disp,
         None,
-        TableCoding::default(),
+        (TableCoding::default(), args.coding.spec()),
     )?;
     let pairs = Pairs::sequence(&args.sequence, args.rate)?;
     let figures = live_bench::run(

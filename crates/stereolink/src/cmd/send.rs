@@ -16,6 +16,7 @@ use stereolink_link::endpoint::{Endpoint, Progress, ProgressReport};
 use stereolink_link::secure::SecureConfig;
 use stereolink_link::spec;
 use stereolink_link::transport::Transport;
+use stereolink_pipeline::coding::CodingSpec;
 use stereolink_pipeline::live::{SendLoop, Sent, Status, Update};
 use stereolink_pipeline::pairs::Pairs;
 use stereolink_pipeline::sender::SenderConfig;
@@ -24,6 +25,7 @@ use stereolink_stereo::depth::{LevelSpec, Roi};
 
 use super::calib::CalibArgs;
 use super::camera::CameraArgs;
+use super::codec::CodingArgs;
 use super::keygen::KeyArgs;
 use super::matching::MatcherArgs;
 use super::segment::SegmentArgs;
@@ -115,7 +117,7 @@ pub struct Args {
     /// Target region x,y,w,h (default: the central ninth of the image).
     #[arg(long)]
     pub roi: Option<Roi>,
-    /// Also write the segmented views as sent (sent-left.png, sent-right.png)
+    /// Also write the views as sent (sent-left.png, sent-right.png)
     /// and the sender's disparity map (sent-disparity.pfm) here.
     #[arg(long)]
     pub save: Option<PathBuf>,
@@ -126,6 +128,8 @@ pub struct Args {
     /// Send the pair this many times (frame ids 1, 2, ...).
     #[arg(long, default_value_t = 1, conflicts_with_all = ["watch", "left_camera"])]
     pub repeat: u32,
+    #[command(flatten)]
+    pub coding: CodingArgs,
     #[command(flatten)]
     pub segment: SegmentArgs,
     #[command(flatten)]
@@ -167,7 +171,7 @@ pub fn sender_config(
     (segment, matcher): (&SegmentArgs, &MatcherArgs),
     max_disp: usize,
     roi: Option<Roi>,
-    plane_table: TableCoding,
+    (plane_table, coding): (TableCoding, CodingSpec),
 ) -> anyhow::Result<SenderConfig> {
     Ok(SenderConfig {
         method: segment.method()?,
@@ -178,6 +182,7 @@ pub fn sender_config(
         roi,
         levels_spec: LevelSpec::default(),
         plane_table,
+        coding,
     })
 }
 
@@ -191,7 +196,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         (&args.segment, &args.matcher),
         args.max_disp,
         args.roi,
-        args.plane_table(),
+        (args.plane_table(), args.coding.spec()),
     )?;
     let transport = super::open_links(&args.link)?;
     let report_transport = match &args.report_link {
