@@ -536,7 +536,7 @@ fn a_lossy_pair_within_a_budget_over_udp() {
     ]));
     let sent: serde_json::Value = serde_json::from_str(&finish(spawn(&tx_args), "send")).unwrap();
     finish(rx, "receive");
-    let frame = &sent[0];
+    let frame = &sent["frames"][0];
     assert_eq!(frame["view_coding"], "jpeg", "{sent}");
     let bytes = frame["frame_bytes"].as_u64().unwrap();
     assert!(bytes <= 6000 && bytes > 3000, "{bytes} B");
