@@ -19,7 +19,7 @@ use anyhow::Context;
 use serde::Serialize;
 use stereolink_calib::StereoRectifier;
 use stereolink_codec::control::{unix_us, Control, Reply};
-use stereolink_codec::DepthReport;
+use stereolink_codec::{CodecError, DepthReport};
 use stereolink_image::{io, Calibration, RgbImage};
 use stereolink_link::endpoint::SendStats;
 
@@ -113,6 +113,14 @@ pub struct Summary {
     pub status: Status,
 }
 
+/// The smallest frame's size, when `e` says a budget was below it.
+fn smallest_frame(e: &anyhow::Error) -> Option<usize> {
+    match e.downcast_ref::<CodecError>() {
+        Some(CodecError::BudgetTooSmall { minimum, .. }) => Some(*minimum),
+        _ => None,
+    }
+}
+
 /// The counts behind a [`Status`].
 #[derive(Clone)]
 struct Counts {
@@ -170,6 +178,33 @@ pub struct SendLoop {
     second: Counts,
     /// What the link said last.
     link: String,
+    /// With a frame interval: each frame's byte budget follows the goodput
+    /// the link measures.
+    pace: Option<FramePace>,
+}
+
+/// Frames sized to the link: a frame's budget is the goodput measured on
+/// the last frames times the interval wanted, so that a frame takes about
+/// that long to cross whatever the link carries now (reports included).
+#[derive(Clone, Copy, Debug)]
+struct FramePace {
+    interval: Duration,
+    /// The frames' goodput, bits a second, averaged (half the weight on
+    /// the last frame); none before the first frame ends.
+    goodput_bps: Option<f64>,
+}
+
+impl FramePace {
+    /// The next frame's budget, bytes; none until a frame has been timed.
+    fn budget(&self) -> Option<usize> {
+        self.goodput_bps
+            .map(|g| (g * self.interval.as_secs_f64() / 8.0) as usize)
+    }
+
+    fn delivered(&mut self, frame: &SendStats) {
+        let g = frame.goodput_bps();
+        self.goodput_bps = Some(self.goodput_bps.map_or(g, |old| (old + g) / 2.0));
+    }
 }
 
 /// A frame on its way: what was measured preparing it, and how its two
@@ -207,7 +242,20 @@ impl SendLoop {
             total: Counts::new(now),
             second: Counts::new(now),
             link: String::new(),
+            pace: None,
         }
+    }
+
+    /// Sizes each frame (with the coding's rate control) to cross the link
+    /// in about `interval` at the goodput it measures; the first frame
+    /// takes the configured budget. A budget below the smallest frame
+    /// sends the smallest.
+    pub fn frame_interval(mut self, interval: Duration) -> SendLoop {
+        self.pace = Some(FramePace {
+            interval,
+            goodput_bps: None,
+        });
+        self
     }
 
     /// Sends `pairs` until they end or `frames` frames are sent, obeying
@@ -334,9 +382,20 @@ impl SendLoop {
         pair_id: u32,
         report_as: (usize, bool),
     ) -> anyhow::Result<()> {
-        let (calib, cfg) = (self.calib, self.cfg.clone());
+        let (calib, mut cfg, paced) = (self.calib, self.cfg.clone(), self.pace.is_some());
+        if let Some(budget) = self.pace.and_then(|p| p.budget()) {
+            cfg.coding.budget = Some(budget);
+        }
         let ((left, right), rectify_ms) = self.views(next, pair_id)?;
-        let p = prepare(left, right, &calib, &cfg, (pair_id, next.captured_us))?;
+        let stamp = (pair_id, next.captured_us);
+        let p = match prepare(left, right, &calib, &cfg, stamp) {
+            // The link is slower than the smallest frame allows: send it.
+            Err(e) if paced && smallest_frame(&e).is_some() => {
+                cfg.coding.budget = smallest_frame(&e);
+                prepare(left, right, &calib, &cfg, stamp)?
+            }
+            p => p?,
+        };
         if let Some(dir) = &self.save {
             std::fs::create_dir_all(dir)
                 .with_context(|| format!("cannot create {}", dir.display()))?;
@@ -461,6 +520,9 @@ impl SendLoop {
                 }
                 c.retransmissions += stats.map_or(0, |s| s.retransmissions);
             }
+            if let (Kind::Frame, Some(s), Some(pace)) = (o.kind, stats, self.pace.as_mut()) {
+                pace.delivered(&s);
+            }
             let Some(w) = self.waiting.get_mut(&o.frame_id) else {
                 continue;
             };
@@ -494,5 +556,44 @@ impl SendLoop {
         s.send_ms = s.seconds * 1e3;
         on(Update::Frame(&s));
         self.sent.push(s);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(bytes: u64, ms: u64) -> SendStats {
+        SendStats {
+            bytes,
+            segments: 1,
+            retransmissions: 0,
+            elapsed: Duration::from_millis(ms),
+        }
+    }
+
+    #[test]
+    fn a_frames_budget_follows_the_goodput_measured() {
+        let mut pace = FramePace {
+            interval: Duration::from_millis(500),
+            goodput_bps: None,
+        };
+        assert_eq!(pace.budget(), None);
+        // 4000 B in 1 s: 32 kb/s, so 2000 B in half a second.
+        pace.delivered(&frame(4000, 1000));
+        assert_eq!(pace.budget(), Some(2000));
+        // The link slows to 16 kb/s: the average halves the step.
+        pace.delivered(&frame(2000, 1000));
+        assert_eq!(pace.budget(), Some(1500));
+    }
+
+    #[test]
+    fn only_a_too_small_budget_names_the_smallest_frame() {
+        let e = anyhow::Error::from(CodecError::BudgetTooSmall {
+            budget: 900,
+            minimum: 1200,
+        });
+        assert_eq!(smallest_frame(&e), Some(1200));
+        assert_eq!(smallest_frame(&anyhow::anyhow!("other")), None);
     }
 }

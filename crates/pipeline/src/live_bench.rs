@@ -40,14 +40,15 @@ pub struct LiveFigures {
     pub watchdog_trips: u64,
 }
 
-/// Plays `pairs`, one every `period`, through the sender (`cfg`, `calib`) over the simulated
+/// Plays `pairs`, one every `period`, through the sender (`cfg`, `calib`,
+/// frames sized to cross in `frame_interval` when given) over the simulated
 /// radio `link` to a board matching up to `max_disp`, whose watchdog
 /// stops the axis after `watchdog` without a report; `on_second` sees the
 /// sender's status once a second.
 pub fn run(
     (pairs, period): (Pairs, Duration),
     link: SimConfig,
-    (cfg, calib): (SenderConfig, Calibration),
+    (cfg, calib, frame_interval): (SenderConfig, Calibration, Option<Duration>),
     (max_disp, watchdog): (usize, Duration),
     mut on_second: impl FnMut(&Status),
 ) -> anyhow::Result<LiveFigures> {
@@ -65,7 +66,11 @@ pub fn run(
         })
     };
     let uplink = Uplink::start(move || Ok((Endpoint::new(Box::new(tx))?, None)));
-    let sent = SendLoop::new(uplink, calib, None, cfg, None).run(pairs, None, |u| {
+    let mut sender = SendLoop::new(uplink, calib, None, cfg, None);
+    if let Some(interval) = frame_interval {
+        sender = sender.frame_interval(interval);
+    }
+    let sent = sender.run(pairs, None, |u| {
         if let Update::Second(s) = u {
             on_second(s)
         }

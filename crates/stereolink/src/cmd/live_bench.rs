@@ -46,6 +46,10 @@ pub struct Args {
     /// Largest disparity searched, by the sender and by the board.
     #[arg(long, default_value_t = 64)]
     pub max_disp: usize,
+    /// Size each frame to cross the link in about this many seconds (as
+    /// `send --frame-interval-s`).
+    #[arg(long, value_name = "SECONDS", value_parser = super::send::positive_seconds)]
+    pub frame_interval_s: Option<f64>,
     /// The board stops the axis when no valid report came for this long, seconds.
     #[arg(long, default_value_t = 0.5)]
     pub watchdog_s: f64,
@@ -83,7 +87,11 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     let figures = live_bench::run(
         (pairs, Duration::from_secs_f64(1.0 / args.rate)),
         config,
-        (cfg, sensor.depth),
+        (
+            cfg,
+            sensor.depth,
+            args.frame_interval_s.map(Duration::from_secs_f64),
+        ),
         (args.max_disp, Duration::from_secs_f64(args.watchdog_s)),
         |s| eprintln!("{}", super::send::status_line(s)),
     )?;

@@ -121,6 +121,12 @@ pub struct Args {
     /// and the sender's disparity map (sent-disparity.pfm) here.
     #[arg(long)]
     pub save: Option<PathBuf>,
+    /// Size each frame to cross the link in about this many seconds: its
+    /// byte budget is the goodput measured on the last frames times this
+    /// (the coding's rate control: quality for jpeg/webp, classes for
+    /// segmented; the first frame takes --bytes if given). Overrides --bytes.
+    #[arg(long, value_name = "SECONDS", value_parser = positive_seconds)]
+    pub frame_interval_s: Option<f64>,
     /// Give up on a message (and stop) when it is not acknowledged within
     /// this many seconds.
     #[arg(long, default_value_t = 120, value_parser = clap::value_parser!(u64).range(1..))]
@@ -162,6 +168,16 @@ impl Args {
             offset_bits: self.plane_offset_bits.unwrap_or(d.offset_bits),
             implied_below: self.plane_implied_below.unwrap_or(d.implied_below),
         }
+    }
+}
+
+/// A positive, finite number of seconds (at most a day).
+pub fn positive_seconds(text: &str) -> Result<f64, String> {
+    match text.parse::<f64>() {
+        Ok(s) if s.is_finite() && s > 0.0 && s <= 86_400.0 => Ok(s),
+        _ => Err(format!(
+            "{text:?} is not a number of seconds between 0 and 86400"
+        )),
     }
 }
 
@@ -237,13 +253,16 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         };
         Ok((frames, reports))
     });
-    let sender = SendLoop::new(
+    let mut sender = SendLoop::new(
         uplink,
         sensor.depth,
         sensor.rectifier()?,
         cfg,
         args.save.clone(),
     );
+    if let Some(s) = args.frame_interval_s {
+        sender = sender.frame_interval(Duration::from_secs_f64(s));
+    }
     let pairs = match (&args.watch, &args.left, &args.right) {
         (Some(dir), _, _) => Pairs::folder(dir.clone(), Duration::from_millis(args.poll_ms)),
         (None, Some(left), Some(right)) => {
