@@ -1,9 +1,12 @@
 //! Helpers shared by the process-level tests: running the binary, free UDP
-//! ports, and ([`xbee`]) an emulated pair of XBee radios between two
-//! pseudo-terminals.
+//! ports, ([`xbee`]) an emulated pair of XBee radios between two
+//! pseudo-terminals, and ([`mqtt`]) a Mosquitto, a subscriber and the
+//! gateway process.
 
 #![allow(dead_code)] // each test binary uses its own subset
 
+#[cfg(all(feature = "gateway", not(target_arch = "arm")))]
+pub mod mqtt;
 pub mod xbee;
 
 use std::process::{Child, Command, Stdio};
