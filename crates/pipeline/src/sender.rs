@@ -13,6 +13,7 @@
 //! approaches; `--roi x,y,w,h` chooses another.
 
 use std::collections::BTreeMap;
+use std::ops::RangeInclusive;
 use std::time::Instant;
 
 use anyhow::Context;
@@ -284,7 +285,27 @@ pub fn prepare(
     right: &RgbImage,
     calib: &Calibration,
     cfg: &SenderConfig,
+    ids: (u32, u64),
+) -> anyhow::Result<Prepared> {
+    prepare_with(left, right, calib, cfg, ids, None)
+}
+
+/// How a stream codes a predicted frame's lossy views
+/// ([`crate::stream`]): the qualities it may take, and the views at a
+/// quality.
+pub(crate) struct Predict<'a> {
+    pub(crate) qualities: RangeInclusive<u8>,
+    pub(crate) views: &'a mut dyn FnMut(u8) -> anyhow::Result<(View, View)>,
+}
+
+/// [`prepare`], with the lossy views coded by `predict` when given.
+pub(crate) fn prepare_with(
+    left: &RgbImage,
+    right: &RgbImage,
+    calib: &Calibration,
+    cfg: &SenderConfig,
     (frame_id, captured_us): (u32, u64),
+    mut predict: Option<Predict>,
 ) -> anyhow::Result<Prepared> {
     anyhow::ensure!(
         left.dims() == right.dims(),
@@ -306,8 +327,15 @@ pub fn prepare(
                 !planes,
                 "the plane matcher's table needs segmented views (--view-coding segmented)"
             );
+            let settings = match &predict {
+                Some(p) => p.qualities.clone(),
+                None => settings,
+            };
             encode_fitted(settings, cfg.coding.budget, ids, |q| {
-                let (l, r) = lossy_views((left, right), codec, q)?;
+                let (l, r) = match predict.as_mut() {
+                    Some(p) => (p.views)(q)?,
+                    None => lossy_views((left, right), codec, q)?,
+                };
                 Ok(StereoFrame {
                     kind: SegmentationKind::None,
                     levels: 0,

@@ -7,19 +7,32 @@ use stereolink_image::{IndexedImage, LabelMap, Rgb, RgbImage};
 
 use super::{coding, FrameRef, ViewRef};
 use crate::lossy::{self, LossyView};
+use crate::temporal::{self, References};
 use crate::{labels, rgb, CodecError, StereoFrame, View};
 
 impl FrameRef<'_> {
-    /// Decodes both views into an owned [`StereoFrame`].
+    /// Decodes both views into an owned [`StereoFrame`] (a key frame: a
+    /// predicted view is [`CodecError::MissingReference`]).
     pub fn decode(&self) -> Result<StereoFrame, CodecError> {
+        self.decode_with(&References::default())
+    }
+
+    /// Decodes both views into an owned [`StereoFrame`], predicted views
+    /// from the frames in `refs`.
+    pub fn decode_with(&self, refs: &References) -> Result<StereoFrame, CodecError> {
         let mut d = FrameDecoder::default();
-        d.decode_labels(self)?;
-        let view = |v: &ViewRef, labels: LabelMap, rgb: RgbImage| -> Result<View, CodecError> {
+        d.decode_labels(self, refs)?;
+        let (w, h) = (self.width, self.height);
+        let view = |v: &ViewRef, side: usize, labels: LabelMap, rgb: RgbImage| {
             if let Some((codec, bits)) = v.lossy() {
                 return Ok(View::Lossy(LossyView::decoded(codec, bits.to_vec(), rgb)));
             }
             Ok(match v.coding {
                 coding::RGB => View::Rgb(rgb),
+                coding::PREDICTED => {
+                    let coded = temporal::Coded::parse(v.payload, (w, h))?;
+                    View::Predicted(coded.decode(&reference(refs, coded.reference)?[side])?)
+                }
                 _ => View::Indexed(
                     IndexedImage::new(labels, v.palette().collect())
                         .map_err(|e| CodecError::Invalid(e.to_string()))?,
@@ -39,11 +52,19 @@ impl FrameRef<'_> {
             params: self.params.to_owned(),
             thresholds: self.thresholds.map(|t| t.map(<[u8]>::to_vec)),
             calibration: self.calibration,
-            left: view(&self.left, d.labels.0, d.rgb.0)?,
-            right: view(&self.right, d.labels.1, d.rgb.1)?,
+            left: view(&self.left, 0, d.labels.0, d.rgb.0)?,
+            right: view(&self.right, 1, d.labels.1, d.rgb.1)?,
             planes,
         })
     }
+}
+
+/// The views of reference frame `id`, or the error that names it.
+fn reference(refs: &References, id: temporal::RefId) -> Result<&[RgbImage; 2], CodecError> {
+    refs.get(id).ok_or(CodecError::MissingReference {
+        frame_id: id.frame_id,
+        timestamp_us: id.timestamp_us,
+    })
 }
 
 /// Decodes frame after frame into buffers it keeps: the label maps, the
@@ -64,6 +85,9 @@ pub struct FrameDecoder {
     expanded: bool,
     label_decoder: labels::LabelDecoder,
     rgb_decoder: rgb::RgbDecoder,
+    /// A predicted view's changed blocks and their decoded mosaic.
+    changed: Vec<bool>,
+    mosaic: RgbImage,
 }
 
 impl FrameDecoder {
@@ -80,9 +104,15 @@ impl FrameDecoder {
     /// that works on the labels needs none), RGB views into
     /// [`views`](Self::views).
     pub fn decode(&mut self, frame: &FrameRef) -> Result<(), CodecError> {
+        self.decode_with(frame, &References::default())
+    }
+
+    /// [`decode`](Self::decode), predicted views from the frames in
+    /// `refs` (a reference not held is [`CodecError::MissingReference`]).
+    pub fn decode_with(&mut self, frame: &FrameRef, refs: &References) -> Result<(), CodecError> {
         self.expanded = false;
         self.indexed = [frame.left, frame.right].map(|v| coding::indexed(v.coding));
-        self.decode_labels(frame)
+        self.decode_labels(frame, refs)
     }
 
     /// Writes the colours of the last frame's indexed views into
@@ -132,7 +162,7 @@ impl FrameDecoder {
 
     /// Decodes each view: indexed views into the label maps, RGB and lossy
     /// views into the RGB images.
-    fn decode_labels(&mut self, frame: &FrameRef) -> Result<(), CodecError> {
+    fn decode_labels(&mut self, frame: &FrameRef, refs: &References) -> Result<(), CodecError> {
         let (w, h) = (frame.width, frame.height);
         for (i, view) in [frame.left, frame.right].iter().enumerate() {
             let (labels, rgb) = if i == 0 {
@@ -152,6 +182,12 @@ impl FrameDecoder {
                 coding::LOSSY => {
                     let (codec, bits) = view.lossy().ok_or(CodecError::Truncated("lossy view"))?;
                     lossy::decode_into(codec, bits, (w, h), rgb)?;
+                }
+                coding::PREDICTED => {
+                    let coded = temporal::Coded::parse(view.payload, (w, h))?;
+                    let reference = &reference(refs, coded.reference)?[i];
+                    coded.changed_into(&mut self.changed);
+                    coded.decode_into(reference, &self.changed, &mut self.mosaic, rgb)?;
                 }
                 coding::LABELS => {
                     // The decoder writes every label: a map of the size is

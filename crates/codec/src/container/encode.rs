@@ -82,13 +82,13 @@ fn encode_frame(w: &mut Writer, f: &StereoFrame, mode: labels::Mode) {
     encode_view(w, &f.left, None, mode);
     let reference = match &f.left {
         View::Indexed(l) => Some(l),
-        View::Rgb(_) | View::Lossy(_) => None,
+        View::Rgb(_) | View::Lossy(_) | View::Predicted(_) => None,
     };
     encode_view(w, &f.right, reference, mode);
     if let Some(t) = &f.planes {
         let ids = match &f.left {
             View::Indexed(l) => Some(components(l.labels(), t.tile as usize).0),
-            View::Rgb(_) | View::Lossy(_) => None,
+            View::Rgb(_) | View::Lossy(_) | View::Predicted(_) => None,
         };
         t.encode(w, ids.as_ref());
     }
@@ -115,6 +115,7 @@ fn encode_view(w: &mut Writer, view: &View, reference: Option<&IndexedImage>, mo
             payload.extend_from_slice(v.bytes());
             (coding::LOSSY, &[], payload)
         }
+        View::Predicted(v) => (coding::PREDICTED, &[], v.payload()),
     };
     w.u8(code);
     w.u32(palette.len() as u32);

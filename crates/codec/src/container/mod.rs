@@ -54,6 +54,8 @@ mod coding {
     /// A lossy view: the codec's byte ([`crate::lossy::LossyCodec`]),
     /// then its bitstream.
     pub const LOSSY: u8 = 3;
+    /// A view predicted from an earlier frame ([`crate::temporal`]).
+    pub const PREDICTED: u8 = 4;
 
     /// Whether a view so coded is a label map.
     pub fn indexed(code: u8) -> bool {
