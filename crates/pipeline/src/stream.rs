@@ -229,3 +229,232 @@ fn predicted_views(
     let (l, r) = rayon::join(|| view(left, 0), || view(right, 1));
     Ok((l?, r?))
 }
+
+#[cfg(all(test, not(target_arch = "arm")))]
+mod tests {
+    use super::*;
+    use crate::coding::CodingSpec;
+    use crate::receiver::{BoardReceiver, Event};
+    use stereolink_image::metrics::psnr_pair;
+    use stereolink_image::synth::{synthesize, SynthSpec};
+    use stereolink_segment::Method;
+    use stereolink_stereo::depth::LevelSpec;
+    use stereolink_stereo::{Algorithm, MatchSpec};
+
+    fn config(budget: Option<usize>) -> SenderConfig {
+        SenderConfig {
+            method: Method::KMeans,
+            levels: 3,
+            seed: 1,
+            carry_margin: None,
+            matcher: MatchSpec::new(Algorithm::Wta, 0, 16).unwrap(),
+            roi: None,
+            levels_spec: LevelSpec::default(),
+            plane_table: Default::default(),
+            coding: CodingSpec {
+                coding: ViewCoding::Lossy(LossyCodec::Webp),
+                quality: 60,
+                budget,
+            },
+        }
+    }
+
+    /// `view` with sensor noise (about σ = 2 grey levels: the sum of four
+    /// uniform draws), seeded.
+    fn noisy(view: &RgbImage, seed: u32) -> RgbImage {
+        let mut s = seed.wrapping_mul(2_654_435_761) | 1;
+        let mut draw = || {
+            s ^= s << 13;
+            s ^= s >> 17;
+            s ^= s << 5;
+            (s % 5) as i32 - 2
+        };
+        let mut out = view.clone();
+        for p in out.as_mut_slice() {
+            for c in p.iter_mut() {
+                let n = (0..4).map(|_| draw()).sum::<i32>() / 2;
+                *c = (i32::from(*c) + n).clamp(0, 255) as u8;
+            }
+        }
+        out
+    }
+
+    /// A fixed rig filmed 8 times with sensor noise, a square moving
+    /// through the last 3 pairs.
+    fn sequence() -> Vec<(RgbImage, RgbImage)> {
+        let s = synthesize(&SynthSpec {
+            width: 160,
+            height: 120,
+            max_disp: 16,
+            seed: 6,
+        })
+        .unwrap();
+        (0..8u32)
+            .map(|i| {
+                let (mut l, mut r) = (noisy(&s.left, 2 * i + 1), noisy(&s.right, 2 * i + 2));
+                if i >= 5 {
+                    let x0 = 20 + 12 * i as usize;
+                    for y in 40..70 {
+                        for x in x0..x0 + 30 {
+                            l.set(x, y, [250, 30, 30]);
+                            r.set(x - 8, y, [250, 30, 30]);
+                        }
+                    }
+                }
+                (l, r)
+            })
+            .collect()
+    }
+
+    fn calib() -> Calibration {
+        Calibration {
+            focal_px: None,
+            baseline_m: None,
+            doffs: 0.0,
+            ndisp: 16,
+        }
+    }
+
+    /// The board rebuilds every frame, key or predicted, bit for bit as
+    /// the sender's reconstruction; on a still noisy rig a predicted pair
+    /// costs far less than a key pair at about its PSNR, and a moving
+    /// square is coded (the picture follows it).
+    #[test]
+    fn the_board_rebuilds_the_senders_reconstruction_bit_for_bit() {
+        let pairs = sequence();
+        let cfg = config(Some(4_000));
+        let mut stream = StreamEncoder::new(SkipSpec::default());
+        let mut board = BoardReceiver::new(15, 5, std::time::Duration::from_secs(10));
+        let mut seen = Vec::new();
+        for (i, (l, r)) in pairs.iter().enumerate() {
+            let id = i as u32 + 1;
+            let (p, kind) = stream
+                .prepare((l, r), &calib(), &cfg, (id, 1_000 * u64::from(id)), false)
+                .unwrap();
+            let event = board.handle(&p.frame_bytes);
+            assert!(matches!(event, Event::Frame { .. }), "{id}: {event:?}");
+            assert_eq!(board.pair().unwrap(), (&p.sent.0, &p.sent.1), "frame {id}");
+            stream.acknowledge(id);
+            let psnr = psnr_pair((l, r), (&p.sent.0, &p.sent.1)).unwrap();
+            seen.push((kind, p.frame_bytes.len(), psnr));
+        }
+        assert_eq!(seen[0].0, FrameKind::Key);
+        let (key_bytes, key_psnr) = (seen[0].1, seen[0].2);
+        for (i, &(kind, bytes, psnr)) in seen.iter().enumerate().skip(1) {
+            assert_eq!(
+                kind,
+                FrameKind::Predicted {
+                    reference: i as u32
+                },
+                "{i}"
+            );
+            assert!(
+                psnr > key_psnr - 0.5,
+                "frame {}: {psnr} against {key_psnr} dB",
+                i + 1
+            );
+            if i < 5 {
+                assert!(
+                    bytes * 8 < key_bytes,
+                    "still frame {}: {bytes} B against {key_bytes}",
+                    i + 1
+                );
+            } else {
+                // The square's blocks are coded, and only they.
+                assert!(
+                    bytes * 8 > key_bytes / 2 && bytes < key_bytes,
+                    "moving frame {}: {bytes} B",
+                    i + 1
+                );
+            }
+        }
+    }
+
+    /// A receiver that lacks the reference (restarted, or a new one)
+    /// rejects a predicted frame, shows nothing wrong and asks for a key
+    /// frame; the sender's key frame, when wanted, is taken.
+    #[test]
+    fn a_missing_reference_is_rejected_until_a_key_frame() {
+        let pairs = sequence();
+        let cfg = config(None);
+        let mut stream = StreamEncoder::new(SkipSpec::default());
+        let mut prepare = |i: usize, want_key| {
+            let id = i as u32 + 1;
+            let (p, kind) = stream
+                .prepare(
+                    (&pairs[i].0, &pairs[i].1),
+                    &calib(),
+                    &cfg,
+                    (id, u64::from(id)),
+                    want_key,
+                )
+                .unwrap();
+            stream.acknowledge(id);
+            (p, kind)
+        };
+        let (key, _) = prepare(0, false);
+        let (predicted, kind) = prepare(1, false);
+        assert_eq!(kind, FrameKind::Predicted { reference: 1 });
+        let mut restarted = BoardReceiver::new(15, 5, std::time::Duration::from_secs(10));
+        let e = restarted.handle(&predicted.frame_bytes);
+        assert!(
+            matches!(&e, Event::Rejected(why) if why.contains("reference frame 1")),
+            "{e:?}"
+        );
+        assert!(restarted.needs_key() && restarted.pair().is_none());
+        let (again, kind) = prepare(2, true);
+        assert_eq!(kind, FrameKind::Key);
+        assert!(matches!(
+            restarted.handle(&again.frame_bytes),
+            Event::Frame { .. }
+        ));
+        assert!(!restarted.needs_key());
+        // A receiver that forgot its references (a new session) rejects
+        // what it held before.
+        let mut board = BoardReceiver::new(15, 5, std::time::Duration::from_secs(10));
+        assert!(matches!(
+            board.handle(&key.frame_bytes),
+            Event::Frame { .. }
+        ));
+        assert!(matches!(
+            board.handle(&predicted.frame_bytes),
+            Event::Frame { .. }
+        ));
+        board.reset_references();
+        assert!(matches!(
+            board.handle(&predicted.frame_bytes),
+            Event::Rejected(_)
+        ));
+    }
+
+    /// Only a frame among the last sent is acknowledged, and a reset makes
+    /// the next frame a key frame.
+    #[test]
+    fn acknowledgements_choose_the_reference() {
+        let pairs = sequence();
+        let cfg = config(None);
+        let mut stream = StreamEncoder::new(SkipSpec::default());
+        let send = |stream: &mut StreamEncoder, id: u32| {
+            let (l, r) = &pairs[id as usize % pairs.len()];
+            stream
+                .prepare((l, r), &calib(), &cfg, (id, u64::from(id)), false)
+                .unwrap()
+                .1
+        };
+        assert_eq!(send(&mut stream, 1), FrameKind::Key);
+        assert_eq!(send(&mut stream, 2), FrameKind::Key, "nothing acknowledged");
+        stream.acknowledge(2);
+        stream.acknowledge(1);
+        stream.acknowledge(99);
+        assert_eq!(send(&mut stream, 3), FrameKind::Predicted { reference: 2 });
+        for id in 4..=7 {
+            send(&mut stream, id);
+        }
+        // Frame 2 is no longer among the last sent: a key frame.
+        assert_eq!(stream.reference(), None);
+        assert_eq!(send(&mut stream, 8), FrameKind::Key);
+        stream.acknowledge(8);
+        stream.reset();
+        assert_eq!(send(&mut stream, 9), FrameKind::Key);
+    }
+}
