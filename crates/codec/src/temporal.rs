@@ -66,10 +66,10 @@ pub struct SkipSpec {
 }
 
 impl Default for SkipSpec {
-    /// Sensor noise up to about σ = 2 grey levels is skipped.
+    /// Sensor noise up to about σ = 3 grey levels is skipped.
     fn default() -> Self {
         SkipSpec {
-            max_mad: 3.5,
+            max_mad: 4.0,
             max_mean: 2.5,
         }
     }
