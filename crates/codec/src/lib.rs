@@ -213,6 +213,8 @@ pub enum View {
     Lossy(lossy::LossyView),
     /// An unsegmented view predicted from an earlier frame ([`temporal`]).
     Predicted(temporal::PredictedView),
+    /// A segmented view predicted from an earlier frame ([`temporal`]).
+    PredictedLabels(temporal::PredictedLabels),
 }
 
 impl View {
@@ -223,6 +225,7 @@ impl View {
             View::Rgb(r) => r.clone(),
             View::Lossy(v) => v.image().clone(),
             View::Predicted(v) => v.image().clone(),
+            View::PredictedLabels(v) => v.image().to_rgb(),
         }
     }
 
@@ -234,6 +237,16 @@ impl View {
             View::Rgb(_) => "rgb",
             View::Lossy(v) => v.codec().name(),
             View::Predicted(_) => "predicted",
+            View::PredictedLabels(_) => lossy::ViewCoding::Segmented.name(),
+        }
+    }
+
+    /// The labels and palette of a segmented view.
+    pub fn indexed(&self) -> Option<&IndexedImage> {
+        match self {
+            View::Indexed(i) => Some(i),
+            View::PredictedLabels(v) => Some(v.image()),
+            View::Rgb(_) | View::Lossy(_) | View::Predicted(_) => None,
         }
     }
 
@@ -244,6 +257,7 @@ impl View {
             View::Rgb(r) => r.dims(),
             View::Lossy(v) => v.image().dims(),
             View::Predicted(v) => v.image().dims(),
+            View::PredictedLabels(v) => v.image().labels().dims(),
         }
     }
 }

@@ -19,6 +19,12 @@
 //! slowly is so coded again once it has drifted beyond the noise, however
 //! small each frame's step.
 //!
+//! A segmented view ([`PredictedLabels`]) is predicted as the right view
+//! is from the left ([`crate::labels`]): its label map is coded with the
+//! reference's labels, in its own numbering through a label table sent
+//! with it, as the coder's prediction (no shift: the rig is fixed). Labels
+//! the reference already has cost a few thousandths of a bit each.
+//!
 //! A reference is named by its frame id *and* its time stamp
 //! ([`RefId`]), so that a restarted sender's frame ids, which start again,
 //! never name a frame of an earlier session that the receiver still holds.
@@ -30,11 +36,11 @@
 //! raster order, LSB first) | [codec (u8) | mosaic bitstream]  (if any changed)
 //! ```
 
-use stereolink_image::RgbImage;
+use stereolink_image::{IndexedImage, LabelMap, Rgb, RgbImage};
 
-use crate::container::Reader;
+use crate::container::{self, Reader};
 use crate::lossy::{self, LossyCodec, LossyView};
-use crate::CodecError;
+use crate::{labels, CodecError};
 
 /// Side of a block, in pixels.
 pub const BLOCK: usize = 16;
@@ -244,9 +250,7 @@ impl PredictedView {
 
     /// The view's payload in the container.
     pub(crate) fn payload(&self) -> Vec<u8> {
-        let mut out = Vec::new();
-        out.extend_from_slice(&self.reference.frame_id.to_le_bytes());
-        out.extend_from_slice(&self.reference.timestamp_us.to_le_bytes());
+        let mut out = reference_bytes(self.reference);
         let mut map = vec![0u8; self.changed.len().div_ceil(8)];
         for (i, _) in self.changed.iter().enumerate().filter(|(_, &c)| c) {
             map[i / 8] |= 1 << (i % 8);
@@ -258,6 +262,84 @@ impl PredictedView {
         }
         out
     }
+}
+
+/// A segmented view predicted from the same view of a reference frame:
+/// the label map as sent, and its payload (reference, label table from
+/// the reference's palette to this view's, labels coded).
+#[derive(Clone, Debug, PartialEq)]
+pub struct PredictedLabels {
+    reference: RefId,
+    image: IndexedImage,
+    payload: Vec<u8>,
+}
+
+impl PredictedLabels {
+    /// Codes `current` predicted from `reference` (the reference frame's
+    /// same view, named `id`), label maps in `mode`.
+    ///
+    /// # Panics
+    /// If the views differ in size.
+    pub fn encode(
+        current: IndexedImage,
+        (id, reference): (RefId, &IndexedImage),
+        mode: labels::Mode,
+    ) -> Self {
+        let mut payload = reference_bytes(id);
+        payload.extend(container::predicted_payload(reference, &current, 0, mode));
+        PredictedLabels {
+            reference: id,
+            image: current,
+            payload,
+        }
+    }
+
+    /// A view decoded from its payload.
+    pub(crate) fn decoded(reference: RefId, image: IndexedImage, payload: Vec<u8>) -> Self {
+        PredictedLabels {
+            reference,
+            image,
+            payload,
+        }
+    }
+
+    /// The reference frame.
+    pub fn reference(&self) -> RefId {
+        self.reference
+    }
+
+    /// The view: labels and palette.
+    pub fn image(&self) -> &IndexedImage {
+        &self.image
+    }
+
+    /// The view's payload in the container.
+    pub(crate) fn payload(&self) -> &[u8] {
+        &self.payload
+    }
+}
+
+/// The reference as a payload starts: frame id, then time stamp.
+fn reference_bytes(id: RefId) -> Vec<u8> {
+    let mut out = Vec::new();
+    out.extend_from_slice(&id.frame_id.to_le_bytes());
+    out.extend_from_slice(&id.timestamp_us.to_le_bytes());
+    out
+}
+
+/// The reference a predicted payload names, and the rest of the payload.
+pub(crate) fn split_reference(payload: &[u8]) -> Result<(RefId, &[u8]), CodecError> {
+    let (id, rest) = payload
+        .split_first_chunk::<4>()
+        .ok_or(CodecError::Truncated("predicted view"))?;
+    let (stamp, rest) = rest
+        .split_first_chunk::<8>()
+        .ok_or(CodecError::Truncated("predicted view"))?;
+    let id = RefId {
+        frame_id: u32::from_le_bytes(*id),
+        timestamp_us: u64::from_le_bytes(*stamp),
+    };
+    Ok((id, rest))
 }
 
 /// A predicted view's payload, parsed: the reference, the changed map and
@@ -273,13 +355,8 @@ pub(crate) struct Coded<'a> {
 impl<'a> Coded<'a> {
     /// Checks and splits the payload of a `width`×`height` predicted view.
     pub(crate) fn parse(payload: &'a [u8], dims: (usize, usize)) -> Result<Self, CodecError> {
-        let mut r = Reader {
-            data: payload,
-            pos: 0,
-        };
-        let frame_id = r.u32("predicted view")?;
-        let timestamp_us =
-            u64::from_le_bytes(r.take(8, "predicted view")?.try_into().expect("8 bytes"));
+        let (reference, rest) = split_reference(payload)?;
+        let mut r = Reader { data: rest, pos: 0 };
         let (cols, rows) = blocks(dims);
         let blocks = cols * rows;
         let map = r.take(blocks.div_ceil(8), "changed-block map")?;
@@ -289,7 +366,7 @@ impl<'a> Coded<'a> {
             ));
         }
         let any = map.iter().any(|&b| b != 0);
-        let rest = &payload[r.pos..];
+        let rest = &rest[r.pos..];
         let mosaic = match (any, rest.split_first()) {
             (false, None) => None,
             (false, Some(_)) => {
@@ -303,10 +380,7 @@ impl<'a> Coded<'a> {
             )),
         };
         Ok(Coded {
-            reference: RefId {
-                frame_id,
-                timestamp_us,
-            },
+            reference,
             dims,
             map,
             blocks,
@@ -382,21 +456,64 @@ pub struct References {
 struct Slot {
     id: Option<RefId>,
     kept_at: u64,
+    /// Segmented views are kept as their labels and palettes, others as
+    /// their pixels.
+    indexed: bool,
     views: [RgbImage; 2],
+    labels: [LabelMap; 2],
+    palettes: [Vec<Rgb>; 2],
 }
 
 impl References {
-    /// The views of frame `id`, if held.
+    /// The views of frame `id`, if held (and not segmented).
     pub fn get(&self, id: RefId) -> Option<&[RgbImage; 2]> {
         self.slots
             .iter()
-            .find(|s| s.id == Some(id))
+            .find(|s| s.id == Some(id) && !s.indexed)
             .map(|s| &s.views)
+    }
+
+    /// The label maps and palettes of segmented frame `id`, if held.
+    pub fn get_labels(&self, id: RefId) -> Option<[(&LabelMap, &[Rgb]); 2]> {
+        let s = self.slots.iter().find(|s| s.id == Some(id) && s.indexed)?;
+        Some([
+            (&s.labels[0], &s.palettes[0][..]),
+            (&s.labels[1], &s.palettes[1][..]),
+        ])
     }
 
     /// Keeps the views of frame `id` (replacing a frame of the same id,
     /// else the oldest once [`REFERENCES`] are held).
     pub fn keep(&mut self, id: RefId, (left, right): (&RgbImage, &RgbImage)) {
+        let slot = self.slot(id);
+        slot.indexed = false;
+        for (into, from) in slot.views.iter_mut().zip([left, right]) {
+            if into.dims() != from.dims() {
+                into.reset(from.width(), from.height(), [0; 3]);
+            }
+            into.as_mut_slice().copy_from_slice(from.as_slice());
+        }
+    }
+
+    /// Keeps the label maps and palettes of segmented frame `id` (as
+    /// [`keep`](Self::keep)).
+    pub fn keep_labels(&mut self, id: RefId, views: [(&LabelMap, &[Rgb]); 2]) {
+        let slot = self.slot(id);
+        slot.indexed = true;
+        for ((labels, palette), (from, colours)) in
+            slot.labels.iter_mut().zip(&mut slot.palettes).zip(views)
+        {
+            if labels.dims() != from.dims() {
+                labels.reset(from.width(), from.height(), 0);
+            }
+            labels.as_mut_slice().copy_from_slice(from.as_slice());
+            palette.clear();
+            palette.extend_from_slice(colours);
+        }
+    }
+
+    /// The slot frame `id` goes into, named and stamped.
+    fn slot(&mut self, id: RefId) -> &mut Slot {
         self.clock += 1;
         let same = self
             .slots
@@ -408,7 +525,10 @@ impl References {
                 self.slots.push(Slot {
                     id: None,
                     kept_at: 0,
+                    indexed: false,
                     views: Default::default(),
+                    labels: Default::default(),
+                    palettes: Default::default(),
                 });
                 self.slots.len() - 1
             }
@@ -419,12 +539,7 @@ impl References {
         let slot = &mut self.slots[i];
         slot.id = Some(id);
         slot.kept_at = self.clock;
-        for (into, from) in slot.views.iter_mut().zip([left, right]) {
-            if into.dims() != from.dims() {
-                into.reset(from.width(), from.height(), [0; 3]);
-            }
-            into.as_mut_slice().copy_from_slice(from.as_slice());
-        }
+        slot
     }
 
     /// Forgets frame `frame_id` (a frame of that id was rejected: whatever

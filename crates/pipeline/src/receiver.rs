@@ -323,11 +323,14 @@ impl BoardReceiver {
         }
         self.decoder.decode_with(frame, &self.references)?;
         let key = frame.references().next().is_none();
-        // Lossy and predicted pairs are kept as references (segmented
-        // pairs are not predicted), their colours expanded.
-        if self.decoder.indexed_views().is_none() {
-            self.decoder.expand_views();
-            self.references.keep(id, self.decoder.views());
+        // The pair is kept as a reference: segmented views as their
+        // labels, others as their colours.
+        match self.decoder.indexed_views() {
+            Some(views) => self.references.keep_labels(id, views),
+            None => {
+                self.decoder.expand_views();
+                self.references.keep(id, self.decoder.views());
+            }
         }
         if key {
             self.needs_key = false;

@@ -16,17 +16,22 @@
 //! A predicted frame codes each view's changed blocks at the quality of the
 //! last key frame (at most: a budget may lower it), so that the picture
 //! keeps one quality; a view whose blocks mostly changed is coded whole,
-//! as in a key frame. Only lossy views are predicted: segmented frames are
-//! all key frames.
+//! as in a key frame. A predicted segmented frame codes each label map from
+//! the reference's, its segments first made to keep the reference's labels
+//! where the colours allow (the noise would otherwise move their edges).
 
-use std::collections::VecDeque;
+use std::collections::{BTreeMap, VecDeque};
 
 use stereolink_codec::lossy::{self, LossyCodec, ViewCoding};
-use stereolink_codec::temporal::{self, PredictedView, RefId, SkipSpec, REFERENCES};
-use stereolink_codec::View;
-use stereolink_image::{Calibration, RgbImage};
+use stereolink_codec::temporal::{
+    self, PredictedLabels, PredictedView, RefId, SkipSpec, REFERENCES,
+};
+use stereolink_codec::{container, labels, View};
+use stereolink_image::{Calibration, IndexedImage, RgbImage};
+use stereolink_segment::carry::{carry_over, default_margin};
+use stereolink_segment::Segmentation;
 
-use crate::sender::{prepare_with, Predict, Prepared, SenderConfig};
+use crate::sender::{prepare_with, Predict, Prepared, SegmentedPair, SenderConfig};
 
 /// What a frame of the stream is.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -62,8 +67,28 @@ impl FrameKind {
 /// originals its blocks were coded from.
 struct Sent {
     id: RefId,
-    rebuilt: [RgbImage; 2],
-    basis: [RgbImage; 2],
+    kept: Kept,
+}
+
+/// What a frame sent left the receiver with, per view.
+enum Kept {
+    /// Lossy views: the pixels rebuilt, and the originals each block was
+    /// coded from.
+    Pixels {
+        rebuilt: [RgbImage; 2],
+        basis: [RgbImage; 2],
+    },
+    /// Segmented views: the label maps and palettes.
+    Labels([IndexedImage; 2]),
+}
+
+impl Kept {
+    fn dims(&self) -> (usize, usize) {
+        match self {
+            Kept::Pixels { rebuilt, .. } => rebuilt[0].dims(),
+            Kept::Labels(views) => views[0].labels().dims(),
+        }
+    }
 }
 
 /// The sender's stream state: the frames sent that a predicted frame may
@@ -126,61 +151,57 @@ impl StreamEncoder {
     }
 
     /// Prepares pair `frame_id` captured at `captured_us`
-    /// ([`crate::sender::prepare`]): a key frame if `want_key`, if the
-    /// views are segmented, or if no acknowledged frame is held; else
+    /// ([`crate::sender::prepare`]): a key frame if `want_key` or if no
+    /// acknowledged frame of the same coding and size is held; else
     /// predicted from the newest acknowledged frame.
     pub fn prepare(
         &mut self,
         (left, right): (&RgbImage, &RgbImage),
         calib: &Calibration,
         cfg: &SenderConfig,
-        (frame_id, captured_us): (u32, u64),
+        ids: (u32, u64),
         want_key: bool,
     ) -> anyhow::Result<(Prepared, FrameKind)> {
-        let ids = (frame_id, captured_us);
-        let ViewCoding::Lossy(codec) = cfg.coding.coding else {
-            self.reset();
-            let p = prepare_with(left, right, calib, cfg, ids, None)?;
-            self.last_key_us = Some(captured_us);
-            return Ok((p, FrameKind::Key));
-        };
-        let reference = self.reference().zip(self.key_quality).filter(|_| !want_key);
-        let (prepared, kind, basis) = match reference {
-            None => {
-                let p = prepare_with(left, right, calib, cfg, ids, None)?;
-                self.key_quality = Some(p.setting);
-                self.last_key_us = Some(captured_us);
-                (p, FrameKind::Key, [left.clone(), right.clone()])
-            }
-            Some((id, key_quality)) => {
-                let i = self.position(id.frame_id).expect("the reference is held");
-                let r = &self.sent[i];
-                let changed = [(left, 0), (right, 1)]
-                    .map(|(v, k)| temporal::changed_blocks(v, &r.basis[k], &self.skip));
-                let mut views = |q| predicted_views((left, right), r, &changed, codec, q);
-                let lowest = *codec.qualities().start();
-                let predict = Predict {
-                    qualities: lowest..=key_quality.max(lowest),
-                    views: &mut views,
-                };
-                let p = prepare_with(left, right, calib, cfg, ids, Some(predict))?;
-                // Each view's basis: the original where it was coded.
-                let r = &self.sent[i];
-                let basis = [(left, 0), (right, 1)].map(|(v, k)| {
-                    let mut b = r.basis[k].clone();
-                    let all = vec![true; changed[k].len()];
-                    let coded = if coded_whole(&changed[k]) {
-                        &all
-                    } else {
-                        &changed[k]
-                    };
-                    temporal::paste_blocks(&mut b, v, coded);
-                    b
+        let reference = self
+            .reference()
+            .filter(|_| !want_key)
+            .map(|id| {
+                (
+                    id,
+                    &self.sent[self.position(id.frame_id).expect("held")].kept,
+                )
+            })
+            .filter(|(_, kept)| kept.dims() == left.dims());
+        let (prepared, kept) = match cfg.coding.coding {
+            ViewCoding::Segmented => {
+                let reference = reference.and_then(|(id, kept)| match kept {
+                    Kept::Labels(views) => Some((id, views)),
+                    Kept::Pixels { .. } => None,
                 });
-                let kind = FrameKind::Predicted {
-                    reference: id.frame_id,
-                };
-                (p, kind, basis)
+                segmented((left, right), calib, cfg, ids, reference)?
+            }
+            ViewCoding::Lossy(codec) => {
+                let reference =
+                    reference
+                        .zip(self.key_quality)
+                        .and_then(|((id, kept), q)| match kept {
+                            Kept::Pixels { rebuilt, basis } => Some((id, rebuilt, basis, q)),
+                            Kept::Labels(_) => None,
+                        });
+                let skip = &self.skip;
+                lossy((left, right), calib, cfg, ids, (codec, skip), reference)?
+            }
+        };
+        let kind = match prepared.1 {
+            Some(id) => FrameKind::Predicted {
+                reference: id.frame_id,
+            },
+            None => {
+                self.last_key_us = Some(ids.1);
+                if let ViewCoding::Lossy(_) = cfg.coding.coding {
+                    self.key_quality = Some(prepared.0.setting);
+                }
+                FrameKind::Key
             }
         };
         if self.sent.len() == REFERENCES {
@@ -188,14 +209,108 @@ impl StreamEncoder {
         }
         self.sent.push_back(Sent {
             id: RefId {
-                frame_id,
-                timestamp_us: captured_us,
+                frame_id: ids.0,
+                timestamp_us: ids.1,
             },
-            rebuilt: [prepared.sent.0.clone(), prepared.sent.1.clone()],
-            basis,
+            kept,
         });
-        Ok((prepared, kind))
+        Ok((prepared.0, kind))
     }
+}
+
+/// A prepared frame and the reference it was predicted from (none: a key
+/// frame).
+type Made = (Prepared, Option<RefId>);
+
+/// A lossy frame: key, or predicted from `reference` (its id, the
+/// receiver's views, their basis, and the key frame's quality).
+fn lossy(
+    (left, right): (&RgbImage, &RgbImage),
+    calib: &Calibration,
+    cfg: &SenderConfig,
+    ids: (u32, u64),
+    (codec, skip): (LossyCodec, &SkipSpec),
+    reference: Option<(RefId, &[RgbImage; 2], &[RgbImage; 2], u8)>,
+) -> anyhow::Result<(Made, Kept)> {
+    let Some((id, rebuilt, basis, key_quality)) = reference else {
+        let p = prepare_with(left, right, calib, cfg, ids, None)?;
+        let rebuilt = [p.sent.0.clone(), p.sent.1.clone()];
+        let basis = [left.clone(), right.clone()];
+        return Ok(((p, None), Kept::Pixels { rebuilt, basis }));
+    };
+    let changed =
+        [(left, 0), (right, 1)].map(|(v, k)| temporal::changed_blocks(v, &basis[k], skip));
+    let mut views = |q| predicted_views((left, right), (id, rebuilt), &changed, codec, q);
+    let lowest = *codec.qualities().start();
+    let predict = Predict::Lossy {
+        qualities: lowest..=key_quality.max(lowest),
+        views: &mut views,
+    };
+    let p = prepare_with(left, right, calib, cfg, ids, Some(predict))?;
+    // Each view's basis: the original where it was coded.
+    let basis = [(left, 0), (right, 1)].map(|(v, k)| {
+        let mut b = basis[k].clone();
+        let all = vec![true; changed[k].len()];
+        let coded = if coded_whole(&changed[k]) {
+            &all
+        } else {
+            &changed[k]
+        };
+        temporal::paste_blocks(&mut b, v, coded);
+        b
+    });
+    let rebuilt = [p.sent.0.clone(), p.sent.1.clone()];
+    Ok(((p, Some(id)), Kept::Pixels { rebuilt, basis }))
+}
+
+/// A segmented frame: key, or predicted from `reference` (its id and its
+/// views). A predicted frame's segmentations take the reference's labels
+/// (in their own numbering) wherever their colours allow, within the
+/// stereo carry's margin ([`carry_over`]), so that noise does not move
+/// the segments' edges from frame to frame.
+fn segmented(
+    (left, right): (&RgbImage, &RgbImage),
+    calib: &Calibration,
+    cfg: &SenderConfig,
+    ids: (u32, u64),
+    reference: Option<(RefId, &[IndexedImage; 2])>,
+) -> anyhow::Result<(Made, Kept)> {
+    let margin = cfg
+        .carry_margin
+        .unwrap_or_else(|| default_margin(&cfg.method));
+    let mut sent = BTreeMap::new();
+    let mut carry = |(sl, sr): SegmentedPair| match reference {
+        None => (sl, sr),
+        Some((_, views)) => {
+            let carried = |view: &RgbImage, seg: Segmentation, k: usize| {
+                let from = container::right_prediction(&views[k], &seg.image);
+                carry_over(view, &seg, &from, margin)
+            };
+            (carried(left, sl, 0), carried(right, sr, 1))
+        }
+    };
+    let mut views = |levels: u8, l: IndexedImage, r: IndexedImage| {
+        sent.insert(levels, [l.clone(), r.clone()]);
+        match reference {
+            None => (View::Indexed(l), View::Indexed(r)),
+            Some((id, views)) => {
+                let view = |v: IndexedImage, k: usize| {
+                    let from = (id, &views[k]);
+                    View::PredictedLabels(PredictedLabels::encode(v, from, labels::Mode::default()))
+                };
+                (view(l, 0), view(r, 1))
+            }
+        }
+    };
+    let predict = Predict::Labels {
+        carry: &mut carry,
+        views: &mut views,
+    };
+    let p = prepare_with(left, right, calib, cfg, ids, Some(predict))?;
+    let kept = sent
+        .remove(&p.setting)
+        .expect("the views of the setting chosen");
+    Ok(((p, reference.map(|(id, _)| id)), Kept::Labels(kept)))
 }
 
 /// Whether a view whose blocks `changed` is coded whole: when most of its
@@ -204,11 +319,11 @@ fn coded_whole(changed: &[bool]) -> bool {
     2 * changed.iter().filter(|&&c| c).count() > changed.len()
 }
 
-/// Both views predicted from `reference` at quality `q`; a view whose
-/// blocks mostly changed is coded whole.
+/// Both views predicted from `reference` (its id and the receiver's views)
+/// at quality `q`; a view whose blocks mostly changed is coded whole.
 fn predicted_views(
     (left, right): (&RgbImage, &RgbImage),
-    reference: &Sent,
+    (id, rebuilt): (RefId, &[RgbImage; 2]),
     changed: &[Vec<bool>; 2],
     codec: LossyCodec,
     q: u8,
@@ -217,7 +332,7 @@ fn predicted_views(
         if coded_whole(&changed[k]) {
             return Ok(View::Lossy(lossy::encode(current, codec, q)?));
         }
-        let from = (reference.id, &reference.rebuilt[k]);
+        let from = (id, &rebuilt[k]);
         Ok(View::Predicted(PredictedView::encode(
             current,
             from,
@@ -368,6 +483,54 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// Segmented frames too: the board rebuilds each predicted label map
+    /// as sent, a predicted pair costs under a quarter of the key pair at
+    /// about its PSNR, and without the reference it is refused.
+    #[test]
+    fn segmented_frames_are_predicted_from_the_reference_labels() {
+        let pairs = &sequence()[..5];
+        let cfg = SenderConfig {
+            coding: CodingSpec::default(),
+            ..config(None)
+        };
+        let mut stream = StreamEncoder::new(SkipSpec::default());
+        let mut board = BoardReceiver::new(15, 5, std::time::Duration::from_secs(10));
+        let mut seen = Vec::new();
+        for (i, (l, r)) in pairs.iter().enumerate() {
+            let id = i as u32 + 1;
+            let (p, kind) = stream
+                .prepare((l, r), &calib(), &cfg, (id, u64::from(id)), false)
+                .unwrap();
+            let event = board.handle(&p.frame_bytes);
+            assert!(matches!(event, Event::Frame { .. }), "{id}: {event:?}");
+            assert_eq!(board.pair().unwrap(), (&p.sent.0, &p.sent.1), "frame {id}");
+            stream.acknowledge(id);
+            let psnr = psnr_pair((l, r), (&p.sent.0, &p.sent.1)).unwrap();
+            seen.push((kind, p.frame_bytes.len(), psnr, p.frame_bytes));
+        }
+        let (key_bytes, key_psnr) = (seen[0].1, seen[0].2);
+        assert_eq!(seen[0].0, FrameKind::Key);
+        for (i, (kind, bytes, psnr, _)) in seen.iter().enumerate().skip(1) {
+            assert_eq!(kind.name(), "predicted");
+            assert!(
+                bytes * 4 < key_bytes,
+                "frame {}: {bytes} B against {key_bytes}",
+                i + 1
+            );
+            assert!(
+                *psnr > key_psnr - 0.5,
+                "frame {}: {psnr} against {key_psnr} dB",
+                i + 1
+            );
+        }
+        let mut fresh = BoardReceiver::new(15, 5, std::time::Duration::from_secs(10));
+        let e = fresh.handle(&seen[2].3);
+        assert!(
+            matches!(&e, Event::Rejected(why) if why.contains("reference frame 2")),
+            "{e:?}"
+        );
     }
 
     /// A receiver that lacks the reference (restarted, or a new one)

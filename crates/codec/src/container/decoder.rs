@@ -33,6 +33,16 @@ impl FrameRef<'_> {
                     let coded = temporal::Coded::parse(v.payload, (w, h))?;
                     View::Predicted(coded.decode(&reference(refs, coded.reference)?[side])?)
                 }
+                coding::LABELS_PREDICTED => {
+                    let (id, _) = temporal::split_reference(v.payload)?;
+                    let image = IndexedImage::new(labels, v.palette().collect())
+                        .map_err(|e| CodecError::Invalid(e.to_string()))?;
+                    View::PredictedLabels(temporal::PredictedLabels::decoded(
+                        id,
+                        image,
+                        v.payload.to_vec(),
+                    ))
+                }
                 _ => View::Indexed(
                     IndexedImage::new(labels, v.palette().collect())
                         .map_err(|e| CodecError::Invalid(e.to_string()))?,
@@ -62,6 +72,44 @@ impl FrameRef<'_> {
 /// The views of reference frame `id`, or the error that names it.
 fn reference(refs: &References, id: temporal::RefId) -> Result<&[RgbImage; 2], CodecError> {
     refs.get(id).ok_or(CodecError::MissingReference {
+        frame_id: id.frame_id,
+        timestamp_us: id.timestamp_us,
+    })
+}
+
+/// Reads a label table of `from` entries (each below `n`, the view's
+/// palette size) from the start of `payload` into `table`; returns the
+/// rest.
+fn read_table<'a>(
+    payload: &'a [u8],
+    from: usize,
+    n: usize,
+    table: &mut Vec<u16>,
+) -> Result<&'a [u8], CodecError> {
+    let (raw, coded) = payload
+        .split_at_checked(2 * from)
+        .ok_or(CodecError::Truncated("label table"))?;
+    table.clear();
+    table.extend(
+        raw.chunks_exact(2)
+            .map(|t| u16::from_le_bytes([t[0], t[1]])),
+    );
+    if let Some(&bad) = table.iter().find(|&&t| t as usize >= n) {
+        return Err(CodecError::LabelOutOfRange {
+            label: bad as u32,
+            labels: n,
+        });
+    }
+    Ok(coded)
+}
+
+/// The label maps and palettes of segmented reference frame `id`, or the
+/// error that names it.
+fn label_reference(
+    refs: &References,
+    id: temporal::RefId,
+) -> Result<[(&LabelMap, &[Rgb]); 2], CodecError> {
+    refs.get_labels(id).ok_or(CodecError::MissingReference {
         frame_id: id.frame_id,
         timestamp_us: id.timestamp_us,
     })
@@ -189,6 +237,32 @@ impl FrameDecoder {
                     coded.changed_into(&mut self.changed);
                     coded.decode_into(reference, &self.changed, &mut self.mosaic, rgb)?;
                 }
+                coding::LABELS_PREDICTED => {
+                    // The reference, a label table (one u16 per reference
+                    // label, each below this view's palette size), then
+                    // the labels predicted through it from the reference.
+                    let (id, rest) = temporal::split_reference(view.payload)?;
+                    let (from, colours) = label_reference(refs, id)?[i];
+                    if from.dims() != (w, h) {
+                        return Err(CodecError::Invalid(format!(
+                            "a {w}x{h} view predicted from a {}x{} one",
+                            from.width(),
+                            from.height()
+                        )));
+                    }
+                    let coded = read_table(rest, colours.len(), n, &mut self.table)?;
+                    let table = &self.table;
+                    from.map_into(&mut self.predicted, |l| table[l as usize]);
+                    if labels.dims() != (w, h) {
+                        labels.reset(w, h, 0);
+                    }
+                    self.label_decoder.decode_into(
+                        coded,
+                        palette,
+                        Some(&self.predicted),
+                        labels,
+                    )?;
+                }
                 coding::LABELS => {
                     // The decoder writes every label: a map of the size is
                     // not cleared first.
@@ -202,22 +276,7 @@ impl FrameDecoder {
                     // Conditioned: the label table (one u16 per left label,
                     // each below this view's palette size), then the labels
                     // predicted through it from the left view.
-                    let (table, coded) = view
-                        .payload
-                        .split_at_checked(2 * frame.left.colours())
-                        .ok_or(CodecError::Truncated("label table"))?;
-                    self.table.clear();
-                    self.table.extend(
-                        table
-                            .chunks_exact(2)
-                            .map(|t| u16::from_le_bytes([t[0], t[1]])),
-                    );
-                    if let Some(&bad) = self.table.iter().find(|&&t| t as usize >= n) {
-                        return Err(CodecError::LabelOutOfRange {
-                            label: bad as u32,
-                            labels: n,
-                        });
-                    }
+                    let coded = read_table(view.payload, frame.left.colours(), n, &mut self.table)?;
                     // The left labels index the table: the left view decoded
                     // below its palette size, the table's length.
                     let table = &self.table;

@@ -157,15 +157,10 @@ impl ViewRef<'_> {
 
     /// The frame a predicted view is predicted from (checked by [`parse`]).
     pub fn reference(&self) -> Option<RefId> {
-        if self.coding != coding::PREDICTED {
-            return None;
-        }
-        let (id, stamp) = self.payload.split_first_chunk::<4>()?;
-        let (stamp, _) = stamp.split_first_chunk::<8>()?;
-        Some(RefId {
-            frame_id: u32::from_le_bytes(*id),
-            timestamp_us: u64::from_le_bytes(*stamp),
-        })
+        matches!(self.coding, coding::PREDICTED | coding::LABELS_PREDICTED)
+            .then(|| temporal::split_reference(self.payload).ok())
+            .flatten()
+            .map(|(id, _)| id)
     }
 
     /// Number of palette colours (0 for an unsegmented view).
@@ -282,6 +277,9 @@ fn parse_view<'a>(r: &mut Reader<'a>, limits: &Limits) -> Result<ViewRef<'a>, Co
     let payload = r.take(len, "view payload")?;
     match code {
         coding::LABELS | coding::LABELS_CONDITIONED if n > 0 => {}
+        coding::LABELS_PREDICTED if n > 0 => {
+            temporal::split_reference(payload)?;
+        }
         coding::RGB => {}
         coding::PREDICTED if n == 0 => {}
         coding::LOSSY if n == 0 => {

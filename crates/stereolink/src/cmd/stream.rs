@@ -238,7 +238,12 @@ pub fn run_decode(
             frame_id: header.frame_id,
             timestamp_us: header.timestamp_us,
         };
-        refs.keep(id, (&l, &r));
+        match (decoded.left.indexed(), decoded.right.indexed()) {
+            (Some(a), Some(b)) => {
+                refs.keep_labels(id, [(a.labels(), a.palette()), (b.labels(), b.palette())])
+            }
+            _ => refs.keep(id, (&l, &r)),
+        }
         let stem = file.file_stem().and_then(|s| s.to_str()).unwrap_or("");
         let stem = stem.strip_prefix("frame").unwrap_or(stem);
         io::write_rgb(out_dir.join(format!("left{stem}.png")), &l)?;
