@@ -11,9 +11,10 @@
 //!   its colour channels' classes for the strong mode.
 //! * [`lossy`] codes unsegmented views with a stock codec (JPEG, WebP) for
 //!   the best picture per byte, and [`rate`] fits a frame in a byte budget.
-//! * [`temporal`] predicts a lossy view from the same view of an earlier
-//!   frame the receiver holds (conditional replenishment: only the blocks
-//!   that changed beyond sensor noise are coded).
+//! * [`temporal`] predicts a view from the same view of an earlier frame
+//!   the receiver holds: a lossy view by conditional replenishment (only
+//!   the blocks that changed beyond sensor noise are coded), a label map
+//!   coded with the reference's labels as its prediction.
 //! * [`rgb`] codes unsegmented RGB losslessly (MED predictor), so the
 //!   original pair can be sent for comparison.
 //! * [`container`] frames [`Message`]s ([`StereoFrame`], [`DepthReport`],

@@ -560,3 +560,79 @@ fn forged_and_truncated_predicted_views_are_typed_errors() {
         Err(CodecError::Invalid(_))
     ));
 }
+
+#[test]
+fn predicted_label_maps_decode_from_their_reference_only() {
+    use crate::temporal::{PredictedLabels, RefId, References};
+    let key = frame(40, 24);
+    let id = RefId {
+        frame_id: 3,
+        timestamp_us: 30,
+    };
+    let (Some(kl), Some(kr)) = (key.left.indexed(), key.right.indexed()) else {
+        panic!("indexed")
+    };
+    // The next frame: the key's views, a few labels changed, in another
+    // palette order.
+    let next = |v: &IndexedImage| {
+        let mut labels = v.labels().map(|l| 2 - l);
+        labels.set(5, 5, 0);
+        let palette = v.palette().iter().rev().copied().collect();
+        IndexedImage::new(labels, palette).unwrap()
+    };
+    let p = StereoFrame {
+        left: View::PredictedLabels(PredictedLabels::encode(
+            next(kl),
+            (id, kl),
+            crate::labels::Mode::Fast,
+        )),
+        right: View::PredictedLabels(PredictedLabels::encode(
+            next(kr),
+            (id, kr),
+            crate::labels::Mode::Fast,
+        )),
+        ..key.clone()
+    };
+    let bytes = encode(&Message::StereoFrame(Box::new(p.clone())), 4, 40);
+    let Ok((_, Body::StereoFrame(parsed))) = parse(&bytes, &Limits::default()) else {
+        panic!("not a frame")
+    };
+    assert!(matches!(
+        parsed.decode(),
+        Err(CodecError::MissingReference { frame_id: 3, .. })
+    ));
+    let mut refs = References::default();
+    let (l, r) = (key.left.to_rgb(), key.right.to_rgb());
+    // Pixels of frame 3 are not its labels.
+    refs.keep(id, (&l, &r));
+    assert!(matches!(
+        parsed.decode_with(&refs),
+        Err(CodecError::MissingReference { .. })
+    ));
+    refs.keep_labels(
+        id,
+        [(kl.labels(), kl.palette()), (kr.labels(), kr.palette())],
+    );
+    let decoded = parsed.decode_with(&refs).unwrap();
+    assert_eq!(decoded, p);
+    assert_eq!(decoded.left.indexed(), Some(&next(kl)));
+    // A label table entry past the view's palette is refused.
+    let at = bytes.len()
+        - match &p.right {
+            View::PredictedLabels(v) => v.payload().len() - 12,
+            _ => unreachable!(),
+        };
+    let mut forged = bytes.clone();
+    forged[at] = 9;
+    let forged = resealed(forged);
+    let Ok((_, Body::StereoFrame(parsed))) = parse(&forged, &Limits::default()) else {
+        panic!("parses")
+    };
+    assert_eq!(
+        parsed.decode_with(&refs),
+        Err(CodecError::LabelOutOfRange {
+            label: 9,
+            labels: 3
+        })
+    );
+}
