@@ -485,6 +485,13 @@ impl References {
     /// Keeps the views of frame `id` (replacing a frame of the same id,
     /// else the oldest once [`REFERENCES`] are held).
     pub fn keep(&mut self, id: RefId, (left, right): (&RgbImage, &RgbImage)) {
+        self.make_slots();
+        // Every slot grows with the first frame of a size: none later.
+        for view in self.slots.iter_mut().flat_map(|s| &mut s.views) {
+            if view.dims() != left.dims() {
+                view.reset(left.width(), left.height(), [0; 3]);
+            }
+        }
         let slot = self.slot(id);
         slot.indexed = false;
         for (into, from) in slot.views.iter_mut().zip([left, right]) {
@@ -498,6 +505,13 @@ impl References {
     /// Keeps the label maps and palettes of segmented frame `id` (as
     /// [`keep`](Self::keep)).
     pub fn keep_labels(&mut self, id: RefId, views: [(&LabelMap, &[Rgb]); 2]) {
+        self.make_slots();
+        let dims = views[0].0.dims();
+        for labels in self.slots.iter_mut().flat_map(|s| &mut s.labels) {
+            if labels.dims() != dims {
+                labels.reset(dims.0, dims.1, 0);
+            }
+        }
         let slot = self.slot(id);
         slot.indexed = true;
         for ((labels, palette), (from, colours)) in
@@ -512,30 +526,33 @@ impl References {
         }
     }
 
-    /// The slot frame `id` goes into, named and stamped.
+    /// The [`REFERENCES`] slots, empty, on the first frame kept.
+    fn make_slots(&mut self) {
+        if self.slots.is_empty() {
+            self.slots.extend((0..REFERENCES).map(|_| Slot {
+                id: None,
+                kept_at: 0,
+                indexed: false,
+                views: Default::default(),
+                labels: Default::default(),
+                palettes: Default::default(),
+            }));
+        }
+    }
+
+    /// The slot frame `id` goes into (the one of its id, else an empty
+    /// one, else the oldest), named and stamped.
     fn slot(&mut self, id: RefId) -> &mut Slot {
         self.clock += 1;
         let same = self
             .slots
             .iter()
             .position(|s| s.id.is_some_and(|k| k.frame_id == id.frame_id));
-        let i = match same {
-            Some(i) => i,
-            None if self.slots.len() < REFERENCES => {
-                self.slots.push(Slot {
-                    id: None,
-                    kept_at: 0,
-                    indexed: false,
-                    views: Default::default(),
-                    labels: Default::default(),
-                    palettes: Default::default(),
-                });
-                self.slots.len() - 1
-            }
-            None => (0..self.slots.len())
+        let i = same.unwrap_or_else(|| {
+            (0..self.slots.len())
                 .min_by_key(|&i| self.slots[i].kept_at)
-                .expect("slots are full"),
-        };
+                .expect("the slots are made")
+        });
         let slot = &mut self.slots[i];
         slot.id = Some(id);
         slot.kept_at = self.clock;
@@ -618,7 +635,10 @@ mod tests {
             timestamp_us: u64::from(frame_id) * 10,
         };
         let view = noisy(16, 16, 4);
-        for f in 1..=6 {
+        refs.keep(id(1), (&view, &view));
+        // The first frame sizes every slot: the next ones allocate nothing.
+        assert!(refs.slots.iter().all(|s| s.views[1].dims() == (16, 16)));
+        for f in 2..=6 {
             refs.keep(id(f), (&view, &view));
         }
         assert!(refs.get(id(2)).is_none() && refs.get(id(3)).is_some());
