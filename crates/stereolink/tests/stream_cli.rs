@@ -173,3 +173,50 @@ fn a_stream_decodes_to_what_the_encoder_measured() {
         "{why}"
     );
 }
+
+#[test]
+fn a_segmented_stream_predicts_its_label_maps() {
+    let dir = tempfile::tempdir().unwrap();
+    let seq = sequence(dir.path());
+    let frames = dir.path().join("frames");
+    let e = json(
+        &stereolink()
+            .args(["--json", "encode"])
+            .arg(&seq)
+            .arg("-o")
+            .arg(&frames)
+            .args(["--levels", "3"])
+            .output()
+            .unwrap(),
+    );
+    assert_eq!(
+        (e["key_frames"].as_u64(), e["predicted_frames"].as_u64()),
+        (Some(1), Some(5))
+    );
+    let key = e["key_bytes_mean"].as_f64().unwrap();
+    let predicted = e["predicted_bytes_mean"].as_f64().unwrap();
+    assert!(predicted * 4.0 < key, "{predicted} B against {key}");
+    let d = json(
+        &stereolink()
+            .args(["--json", "decode"])
+            .arg(&frames)
+            .arg("--out")
+            .arg(dir.path().join("out"))
+            .arg("--originals")
+            .arg(&seq)
+            .output()
+            .unwrap(),
+    );
+    for (a, b) in e["frames"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .zip(d["frames"].as_array().unwrap())
+    {
+        assert_eq!(
+            (&a["kind"], &a["psnr_pair_db"]),
+            (&b["kind"], &b["psnr_pair_db"]),
+            "{b}"
+        );
+    }
+}
