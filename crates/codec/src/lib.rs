@@ -11,6 +11,10 @@
 //!   its colour channels' classes for the strong mode.
 //! * [`lossy`] codes unsegmented views with a stock codec (JPEG, WebP) for
 //!   the best picture per byte, and [`rate`] fits a frame in a byte budget.
+//! * [`temporal`] predicts a view from the same view of an earlier frame
+//!   the receiver holds: a lossy view by conditional replenishment (only
+//!   the blocks that changed beyond sensor noise are coded), a label map
+//!   coded with the reference's labels as its prediction.
 //! * [`rgb`] codes unsegmented RGB losslessly (MED predictor), so the
 //!   original pair can be sent for comparison.
 //! * [`container`] frames [`Message`]s ([`StereoFrame`], [`DepthReport`],
@@ -49,6 +53,7 @@ pub mod planetable;
 pub mod rangecoder;
 pub mod rate;
 pub mod rgb;
+pub mod temporal;
 
 use stereolink_image::{Calibration, IndexedImage, RgbImage};
 
@@ -96,6 +101,14 @@ pub enum CodecError {
         budget: usize,
         /// The smallest frame (bytes).
         minimum: usize,
+    },
+    /// A predicted view's reference frame is not held by the decoder.
+    #[error("the reference frame {frame_id} (time stamp {timestamp_us} µs) is not held: a key frame is needed")]
+    MissingReference {
+        /// The reference's frame id.
+        frame_id: u32,
+        /// The reference's time stamp.
+        timestamp_us: u64,
     },
     /// Any other inconsistency.
     #[error("invalid message: {0}")]
@@ -199,6 +212,10 @@ pub enum View {
     Rgb(RgbImage),
     /// An unsegmented view, coded lossily ([`lossy`]).
     Lossy(lossy::LossyView),
+    /// An unsegmented view predicted from an earlier frame ([`temporal`]).
+    Predicted(temporal::PredictedView),
+    /// A segmented view predicted from an earlier frame ([`temporal`]).
+    PredictedLabels(temporal::PredictedLabels),
 }
 
 impl View {
@@ -208,16 +225,29 @@ impl View {
             View::Indexed(i) => i.to_rgb(),
             View::Rgb(r) => r.clone(),
             View::Lossy(v) => v.image().clone(),
+            View::Predicted(v) => v.image().clone(),
+            View::PredictedLabels(v) => v.image().to_rgb(),
         }
     }
 
-    /// How the view is coded: `segmented`, `rgb` (lossless), or the lossy
-    /// codec's name.
+    /// How the view is coded: `segmented`, `rgb` (lossless), the lossy
+    /// codec's name, or `predicted`.
     pub fn coding_name(&self) -> &'static str {
         match self {
             View::Indexed(_) => lossy::ViewCoding::Segmented.name(),
             View::Rgb(_) => "rgb",
             View::Lossy(v) => v.codec().name(),
+            View::Predicted(_) => "predicted",
+            View::PredictedLabels(_) => lossy::ViewCoding::Segmented.name(),
+        }
+    }
+
+    /// The labels and palette of a segmented view.
+    pub fn indexed(&self) -> Option<&IndexedImage> {
+        match self {
+            View::Indexed(i) => Some(i),
+            View::PredictedLabels(v) => Some(v.image()),
+            View::Rgb(_) | View::Lossy(_) | View::Predicted(_) => None,
         }
     }
 
@@ -227,6 +257,8 @@ impl View {
             View::Indexed(i) => i.labels().dims(),
             View::Rgb(r) => r.dims(),
             View::Lossy(v) => v.image().dims(),
+            View::Predicted(v) => v.image().dims(),
+            View::PredictedLabels(v) => v.image().labels().dims(),
         }
     }
 }

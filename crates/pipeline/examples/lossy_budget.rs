@@ -12,33 +12,71 @@
 //! handled whole by the board's receiver (`receive`: decode, WTA-match with
 //! 32 disparities, render the screen). `tools/arm926/board count-lossy`
 //! counts its ARM926 instructions per pair under qemu.
+//!
+//! `webp-still` and `webp-moving` are predicted pairs
+//! (`stereolink_codec::temporal`): the same pair with fresh sensor noise
+//! (σ = 2), and with a red rectangle of 80x60 px added, coded by
+//! `stereolink encode DIR -o OUT --view-coding webp --bytes 8000` after the
+//! WebP key pair `cones-320x240-webp-key.slnk` (of the same pair with other
+//! noise), which is decoded once first; each predicted pair is then
+//! decoded and kept as a reference, as the receiver does.
 
 use std::time::Duration;
 
 use stereolink_codec::container::{self, Body, FrameDecoder};
+use stereolink_codec::temporal::{RefId, References};
 use stereolink_codec::Limits;
 use stereolink_pipeline::receiver::{BoardReceiver, Event};
 
 const JPEG: &[u8] = include_bytes!("lossy/cones-320x240-jpeg.slnk");
 const WEBP: &[u8] = include_bytes!("lossy/cones-320x240-webp.slnk");
+const KEY: &[u8] = include_bytes!("lossy/cones-320x240-webp-key.slnk");
+const STILL: &[u8] = include_bytes!("lossy/cones-320x240-webp-still.slnk");
+const MOVING: &[u8] = include_bytes!("lossy/cones-320x240-webp-moving.slnk");
+
+/// Parses and decodes a frame with `refs`, and keeps it there.
+fn decode(bytes: &[u8], decoder: &mut FrameDecoder, refs: &mut References) {
+    let Ok((header, Body::StereoFrame(frame))) = container::parse(bytes, &Limits::default()) else {
+        panic!("not a stereo frame")
+    };
+    decoder.decode_with(&frame, refs).expect("the pair decodes");
+    decoder.expand_views();
+    let id = RefId {
+        frame_id: header.frame_id,
+        timestamp_us: header.timestamp_us,
+    };
+    refs.keep(id, decoder.views());
+}
 
 fn main() {
     let arg = |i| std::env::args().nth(i);
     let frames: u32 = arg(1).and_then(|a| a.parse().ok()).unwrap_or(1);
-    let bytes = match arg(2).as_deref() {
-        None | Some("jpeg") => JPEG,
-        Some("webp") => WEBP,
-        Some(other) => panic!("codec {other:?}: jpeg or webp"),
+    let (bytes, key) = match arg(2).as_deref() {
+        None | Some("jpeg") => (JPEG, None),
+        Some("webp") => (WEBP, None),
+        Some("webp-still") => (STILL, Some(KEY)),
+        Some("webp-moving") => (MOVING, Some(KEY)),
+        Some(other) => panic!("codec {other:?}: jpeg, webp, webp-still or webp-moving"),
     };
     let receive = arg(3).as_deref() == Some("receive");
     let mut decoder = FrameDecoder::default();
+    let mut refs = References::default();
     let mut board = BoardReceiver::new(31, 9, Duration::from_secs(10));
+    if let Some(key) = key {
+        if receive {
+            assert!(matches!(board.handle(key), Event::Frame { .. }));
+        } else {
+            decode(key, &mut decoder, &mut refs);
+        }
+    }
     for _ in 0..frames {
         if receive {
             match board.handle(bytes) {
                 Event::Frame { .. } => {}
                 other => panic!("unexpected {other:?}"),
             }
+        } else if key.is_some() {
+            decode(bytes, &mut decoder, &mut refs);
         } else {
             let Ok((_, Body::StereoFrame(frame))) = container::parse(bytes, &Limits::default())
             else {

@@ -31,5 +31,6 @@ pub mod rates;
 pub mod receiver;
 pub mod sender;
 pub mod sensor;
+pub mod stream;
 pub mod uplink;
 pub mod watch;

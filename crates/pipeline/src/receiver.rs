@@ -25,6 +25,7 @@ use std::fmt::Write;
 
 use stereolink_codec::container::{self, Body, FrameDecoder, FrameRef};
 use stereolink_codec::control::{Command, Control};
+use stereolink_codec::temporal::{RefId, References};
 use stereolink_codec::{CodecError, Limits, Message, SegmentationKind, StereoFrame, View};
 use stereolink_display::{
     anaglyph_into, anaglyph_labels_shown_into, Anaglyph, Screen, ScreenStatus, Sink,
@@ -90,6 +91,11 @@ pub enum DisparitySource {
 /// is decoded, matched and rendered without allocating.
 pub struct BoardReceiver {
     decoder: FrameDecoder,
+    /// The last frames decoded, that predicted frames reference.
+    references: References,
+    /// A frame could not be decoded since the last key frame shown: the
+    /// sender should send a key frame.
+    needs_key: bool,
     matcher: WtaMatcher,
     params: WtaParams,
     gray: (Samples, Samples),
@@ -133,6 +139,8 @@ impl BoardReceiver {
     pub fn new(max_disp: usize, block: usize, watchdog: std::time::Duration) -> Self {
         BoardReceiver {
             decoder: FrameDecoder::default(),
+            references: References::default(),
+            needs_key: false,
             matcher: WtaMatcher::new(),
             params: WtaParams {
                 min_disp: 0,
@@ -203,13 +211,23 @@ impl BoardReceiver {
         match container::parse(bytes, &self.limits) {
             Err(e) => Event::Rejected(format!("message rejected: {e}")),
             Ok((header, Body::StereoFrame(frame))) => {
-                match self.show_frame(header.frame_id, &frame) {
+                let id = RefId {
+                    frame_id: header.frame_id,
+                    timestamp_us: header.timestamp_us,
+                };
+                match self.show_frame(id, &frame) {
                     Ok(()) => Event::Frame {
                         frame_id: header.frame_id,
                         bytes: bytes.len(),
                         ms: start.elapsed().as_secs_f64() * 1e3,
                     },
-                    Err(e) => Event::Rejected(format!("frame {} rejected: {e}", header.frame_id)),
+                    Err(e) => {
+                        // What was held under this id is not what the
+                        // sender believes delivered.
+                        self.references.forget(header.frame_id);
+                        self.needs_key = true;
+                        Event::Rejected(format!("frame {} rejected: {e}", header.frame_id))
+                    }
                 }
             }
             Ok((header, Body::DepthReport(report))) => {
@@ -282,20 +300,44 @@ impl BoardReceiver {
         }
     }
 
-    fn show_frame(&mut self, frame_id: u32, frame: &FrameRef) -> Result<(), CodecError> {
+    /// Whether a frame could not be decoded (a predicted frame's reference
+    /// missing, or a corrupt frame) since the last key frame was shown: the
+    /// sender should send a key frame next.
+    pub fn needs_key(&self) -> bool {
+        self.needs_key
+    }
+
+    /// Forgets the frames kept as references (a new session: a restarted
+    /// sender's frames are not predicted from an earlier one's).
+    pub fn reset_references(&mut self) {
+        self.references.clear();
+    }
+
+    fn show_frame(&mut self, id: RefId, frame: &FrameRef) -> Result<(), CodecError> {
+        let frame_id = id.frame_id;
         let (w, h) = (frame.width, frame.height);
         if self.params.ndisp > w {
             return Err(CodecError::Invalid(format!(
                 "a {w} px wide frame is narrower than the disparity range"
             )));
         }
-        self.decoder.decode(frame)?;
+        self.decoder.decode_with(frame, &self.references)?;
+        let key = frame.references().next().is_none();
+        // The pair is kept as a reference: segmented views as their
+        // labels, others as their colours.
+        match self.decoder.indexed_views() {
+            Some(views) => self.references.keep_labels(id, views),
+            None => {
+                self.decoder.expand_views();
+                self.references.keep(id, self.decoder.views());
+            }
+        }
+        if key {
+            self.needs_key = false;
+        }
         // Indexed views (segmented: few colours) give their luma and their
         // anaglyph through the palettes, a lookup per pixel; other views
         // are matched and shown from their colours.
-        if self.decoder.indexed_views().is_none() {
-            self.decoder.expand_views();
-        }
         let (left, right) = self.decoder.views();
         let indexed = self.decoder.indexed_views();
         match self.source {
@@ -346,10 +388,11 @@ impl BoardReceiver {
         self.status.frame_id = frame_id;
         self.status.message.clear();
         // A lossy pair is named by its codec, a segmented one by its method.
-        let what = frame
-            .left
-            .lossy_codec()
-            .map_or(frame.kind.name(), |c| c.name());
+        let what = match frame.left.lossy_codec() {
+            _ if !key => "predicted",
+            Some(c) => c.name(),
+            None => frame.kind.name(),
+        };
         let _ = write!(self.status.message, "{what} PAIR {w}X{h}");
         if let Some(axis) = self.axis.as_mut() {
             self.status.axis_mm = axis.position().ok();

@@ -13,6 +13,7 @@
 //! approaches; `--roi x,y,w,h` chooses another.
 
 use std::collections::BTreeMap;
+use std::ops::RangeInclusive;
 use std::time::Instant;
 
 use anyhow::Context;
@@ -23,7 +24,9 @@ use stereolink_codec::{
     planetable::{PlaneTable, TableCoding},
     DepthReport, Message, ReportLevel, SegmentationKind, StereoFrame, View,
 };
-use stereolink_image::{metrics::psnr_rgb, Calibration, DisparityMap, LabelMap, RgbImage};
+use stereolink_image::{
+    metrics::psnr_rgb, Calibration, DisparityMap, IndexedImage, LabelMap, RgbImage,
+};
 use stereolink_segment::carry::{carry_over, default_margin, NOTHING};
 use stereolink_segment::{segment, Method, Segmentation};
 use stereolink_stereo::depth::{depth_levels, depth_of, metric, region_distance, LevelSpec, Roi};
@@ -284,7 +287,39 @@ pub fn prepare(
     right: &RgbImage,
     calib: &Calibration,
     cfg: &SenderConfig,
+    ids: (u32, u64),
+) -> anyhow::Result<Prepared> {
+    prepare_with(left, right, calib, cfg, ids, None)
+}
+
+/// A pair of segmentations.
+pub(crate) type SegmentedPair = (Segmentation, Segmentation);
+
+/// How a stream codes a predicted frame ([`crate::stream`]).
+pub(crate) enum Predict<'a> {
+    /// Lossy views: the qualities the frame may take, and its views at a
+    /// quality.
+    Lossy {
+        qualities: RangeInclusive<u8>,
+        views: &'a mut dyn FnMut(u8) -> anyhow::Result<(View, View)>,
+    },
+    /// Segmented views: the segmentations made consistent with the
+    /// reference's (before the plane matcher fits them), and the views the
+    /// label maps of a number of classes are coded as.
+    Labels {
+        carry: &'a mut dyn FnMut(SegmentedPair) -> SegmentedPair,
+        views: &'a mut dyn FnMut(u8, IndexedImage, IndexedImage) -> (View, View),
+    },
+}
+
+/// [`prepare`], with the views coded by `predict` when given.
+pub(crate) fn prepare_with(
+    left: &RgbImage,
+    right: &RgbImage,
+    calib: &Calibration,
+    cfg: &SenderConfig,
     (frame_id, captured_us): (u32, u64),
+    mut predict: Option<Predict>,
 ) -> anyhow::Result<Prepared> {
     anyhow::ensure!(
         left.dims() == right.dims(),
@@ -306,8 +341,15 @@ pub fn prepare(
                 !planes,
                 "the plane matcher's table needs segmented views (--view-coding segmented)"
             );
+            let settings = match &predict {
+                Some(Predict::Lossy { qualities, .. }) => qualities.clone(),
+                _ => settings,
+            };
             encode_fitted(settings, cfg.coding.budget, ids, |q| {
-                let (l, r) = lossy_views((left, right), codec, q)?;
+                let (l, r) = match predict.as_mut() {
+                    Some(Predict::Lossy { views, .. }) => views(q)?,
+                    _ => lossy_views((left, right), codec, q)?,
+                };
                 Ok(StereoFrame {
                     kind: SegmentationKind::None,
                     levels: 0,
@@ -322,12 +364,16 @@ pub fn prepare(
         }
         ViewCoding::Segmented => encode_fitted(settings, cfg.coding.budget, ids, |levels| {
             let t = Instant::now();
-            let (sl, sr) = segment_pair(
+            let mut pair = segment_pair(
                 (left, right),
                 &cfg.method,
                 (levels as usize, cfg.seed),
                 cfg.carry_margin,
             )?;
+            if let Some(Predict::Labels { carry, .. }) = predict.as_mut() {
+                pair = carry(pair);
+            }
+            let (sl, sr) = pair;
             seg_ms += t.elapsed().as_secs_f64() * 1e3;
             let t = Instant::now();
             let table = if planes {
@@ -338,15 +384,20 @@ pub fn prepare(
                 None
             };
             match_ms += t.elapsed().as_secs_f64() * 1e3;
+            let thresholds = sl.channels.as_ref().map(|c| c.thresholds.clone());
+            let (l, r) = match predict.as_mut() {
+                Some(Predict::Labels { views, .. }) => views(levels, sl.image, sr.image),
+                _ => (View::Indexed(sl.image), View::Indexed(sr.image)),
+            };
             Ok(StereoFrame {
                 kind: SegmentationKind::from_name(cfg.method.name())
                     .unwrap_or(SegmentationKind::None),
                 levels,
                 params: format!("seed={}", cfg.seed),
-                thresholds: sl.channels.as_ref().map(|c| c.thresholds.clone()),
+                thresholds,
                 calibration: Some(*calib),
-                left: View::Indexed(sl.image),
-                right: View::Indexed(sr.image),
+                left: l,
+                right: r,
                 planes: table,
             })
         })?,

@@ -7,19 +7,42 @@ use stereolink_image::{IndexedImage, LabelMap, Rgb, RgbImage};
 
 use super::{coding, FrameRef, ViewRef};
 use crate::lossy::{self, LossyView};
+use crate::temporal::{self, References};
 use crate::{labels, rgb, CodecError, StereoFrame, View};
 
 impl FrameRef<'_> {
-    /// Decodes both views into an owned [`StereoFrame`].
+    /// Decodes both views into an owned [`StereoFrame`] (a key frame: a
+    /// predicted view is [`CodecError::MissingReference`]).
     pub fn decode(&self) -> Result<StereoFrame, CodecError> {
+        self.decode_with(&References::default())
+    }
+
+    /// Decodes both views into an owned [`StereoFrame`], predicted views
+    /// from the frames in `refs`.
+    pub fn decode_with(&self, refs: &References) -> Result<StereoFrame, CodecError> {
         let mut d = FrameDecoder::default();
-        d.decode_labels(self)?;
-        let view = |v: &ViewRef, labels: LabelMap, rgb: RgbImage| -> Result<View, CodecError> {
+        d.decode_labels(self, refs)?;
+        let (w, h) = (self.width, self.height);
+        let view = |v: &ViewRef, side: usize, labels: LabelMap, rgb: RgbImage| {
             if let Some((codec, bits)) = v.lossy() {
                 return Ok(View::Lossy(LossyView::decoded(codec, bits.to_vec(), rgb)));
             }
             Ok(match v.coding {
                 coding::RGB => View::Rgb(rgb),
+                coding::PREDICTED => {
+                    let coded = temporal::Coded::parse(v.payload, (w, h))?;
+                    View::Predicted(coded.decode(&reference(refs, coded.reference)?[side])?)
+                }
+                coding::LABELS_PREDICTED => {
+                    let (id, _) = temporal::split_reference(v.payload)?;
+                    let image = IndexedImage::new(labels, v.palette().collect())
+                        .map_err(|e| CodecError::Invalid(e.to_string()))?;
+                    View::PredictedLabels(temporal::PredictedLabels::decoded(
+                        id,
+                        image,
+                        v.payload.to_vec(),
+                    ))
+                }
                 _ => View::Indexed(
                     IndexedImage::new(labels, v.palette().collect())
                         .map_err(|e| CodecError::Invalid(e.to_string()))?,
@@ -39,11 +62,57 @@ impl FrameRef<'_> {
             params: self.params.to_owned(),
             thresholds: self.thresholds.map(|t| t.map(<[u8]>::to_vec)),
             calibration: self.calibration,
-            left: view(&self.left, d.labels.0, d.rgb.0)?,
-            right: view(&self.right, d.labels.1, d.rgb.1)?,
+            left: view(&self.left, 0, d.labels.0, d.rgb.0)?,
+            right: view(&self.right, 1, d.labels.1, d.rgb.1)?,
             planes,
         })
     }
+}
+
+/// The views of reference frame `id`, or the error that names it.
+fn reference(refs: &References, id: temporal::RefId) -> Result<&[RgbImage; 2], CodecError> {
+    refs.get(id).ok_or(CodecError::MissingReference {
+        frame_id: id.frame_id,
+        timestamp_us: id.timestamp_us,
+    })
+}
+
+/// Reads a label table of `from` entries (each below `n`, the view's
+/// palette size) from the start of `payload` into `table`; returns the
+/// rest.
+fn read_table<'a>(
+    payload: &'a [u8],
+    from: usize,
+    n: usize,
+    table: &mut Vec<u16>,
+) -> Result<&'a [u8], CodecError> {
+    let (raw, coded) = payload
+        .split_at_checked(2 * from)
+        .ok_or(CodecError::Truncated("label table"))?;
+    table.clear();
+    table.extend(
+        raw.chunks_exact(2)
+            .map(|t| u16::from_le_bytes([t[0], t[1]])),
+    );
+    if let Some(&bad) = table.iter().find(|&&t| t as usize >= n) {
+        return Err(CodecError::LabelOutOfRange {
+            label: bad as u32,
+            labels: n,
+        });
+    }
+    Ok(coded)
+}
+
+/// The label maps and palettes of segmented reference frame `id`, or the
+/// error that names it.
+fn label_reference(
+    refs: &References,
+    id: temporal::RefId,
+) -> Result<[(&LabelMap, &[Rgb]); 2], CodecError> {
+    refs.get_labels(id).ok_or(CodecError::MissingReference {
+        frame_id: id.frame_id,
+        timestamp_us: id.timestamp_us,
+    })
 }
 
 /// Decodes frame after frame into buffers it keeps: the label maps, the
@@ -64,6 +133,9 @@ pub struct FrameDecoder {
     expanded: bool,
     label_decoder: labels::LabelDecoder,
     rgb_decoder: rgb::RgbDecoder,
+    /// A predicted view's changed blocks and their decoded mosaic.
+    changed: Vec<bool>,
+    mosaic: RgbImage,
 }
 
 impl FrameDecoder {
@@ -80,9 +152,15 @@ impl FrameDecoder {
     /// that works on the labels needs none), RGB views into
     /// [`views`](Self::views).
     pub fn decode(&mut self, frame: &FrameRef) -> Result<(), CodecError> {
+        self.decode_with(frame, &References::default())
+    }
+
+    /// [`decode`](Self::decode), predicted views from the frames in
+    /// `refs` (a reference not held is [`CodecError::MissingReference`]).
+    pub fn decode_with(&mut self, frame: &FrameRef, refs: &References) -> Result<(), CodecError> {
         self.expanded = false;
         self.indexed = [frame.left, frame.right].map(|v| coding::indexed(v.coding));
-        self.decode_labels(frame)
+        self.decode_labels(frame, refs)
     }
 
     /// Writes the colours of the last frame's indexed views into
@@ -132,7 +210,7 @@ impl FrameDecoder {
 
     /// Decodes each view: indexed views into the label maps, RGB and lossy
     /// views into the RGB images.
-    fn decode_labels(&mut self, frame: &FrameRef) -> Result<(), CodecError> {
+    fn decode_labels(&mut self, frame: &FrameRef, refs: &References) -> Result<(), CodecError> {
         let (w, h) = (frame.width, frame.height);
         for (i, view) in [frame.left, frame.right].iter().enumerate() {
             let (labels, rgb) = if i == 0 {
@@ -153,6 +231,38 @@ impl FrameDecoder {
                     let (codec, bits) = view.lossy().ok_or(CodecError::Truncated("lossy view"))?;
                     lossy::decode_into(codec, bits, (w, h), rgb)?;
                 }
+                coding::PREDICTED => {
+                    let coded = temporal::Coded::parse(view.payload, (w, h))?;
+                    let reference = &reference(refs, coded.reference)?[i];
+                    coded.changed_into(&mut self.changed);
+                    coded.decode_into(reference, &self.changed, &mut self.mosaic, rgb)?;
+                }
+                coding::LABELS_PREDICTED => {
+                    // The reference, a label table (one u16 per reference
+                    // label, each below this view's palette size), then
+                    // the labels predicted through it from the reference.
+                    let (id, rest) = temporal::split_reference(view.payload)?;
+                    let (from, colours) = label_reference(refs, id)?[i];
+                    if from.dims() != (w, h) {
+                        return Err(CodecError::Invalid(format!(
+                            "a {w}x{h} view predicted from a {}x{} one",
+                            from.width(),
+                            from.height()
+                        )));
+                    }
+                    let coded = read_table(rest, colours.len(), n, &mut self.table)?;
+                    let table = &self.table;
+                    from.map_into(&mut self.predicted, |l| table[l as usize]);
+                    if labels.dims() != (w, h) {
+                        labels.reset(w, h, 0);
+                    }
+                    self.label_decoder.decode_into(
+                        coded,
+                        palette,
+                        Some(&self.predicted),
+                        labels,
+                    )?;
+                }
                 coding::LABELS => {
                     // The decoder writes every label: a map of the size is
                     // not cleared first.
@@ -166,22 +276,7 @@ impl FrameDecoder {
                     // Conditioned: the label table (one u16 per left label,
                     // each below this view's palette size), then the labels
                     // predicted through it from the left view.
-                    let (table, coded) = view
-                        .payload
-                        .split_at_checked(2 * frame.left.colours())
-                        .ok_or(CodecError::Truncated("label table"))?;
-                    self.table.clear();
-                    self.table.extend(
-                        table
-                            .chunks_exact(2)
-                            .map(|t| u16::from_le_bytes([t[0], t[1]])),
-                    );
-                    if let Some(&bad) = self.table.iter().find(|&&t| t as usize >= n) {
-                        return Err(CodecError::LabelOutOfRange {
-                            label: bad as u32,
-                            labels: n,
-                        });
-                    }
+                    let coded = read_table(view.payload, frame.left.colours(), n, &mut self.table)?;
                     // The left labels index the table: the left view decoded
                     // below its palette size, the table's length.
                     let table = &self.table;

@@ -82,13 +82,15 @@ fn encode_frame(w: &mut Writer, f: &StereoFrame, mode: labels::Mode) {
     encode_view(w, &f.left, None, mode);
     let reference = match &f.left {
         View::Indexed(l) => Some(l),
-        View::Rgb(_) | View::Lossy(_) => None,
+        View::PredictedLabels(l) => Some(l.image()),
+        View::Rgb(_) | View::Lossy(_) | View::Predicted(_) => None,
     };
     encode_view(w, &f.right, reference, mode);
     if let Some(t) = &f.planes {
         let ids = match &f.left {
             View::Indexed(l) => Some(components(l.labels(), t.tile as usize).0),
-            View::Rgb(_) | View::Lossy(_) => None,
+            View::PredictedLabels(l) => Some(components(l.image().labels(), t.tile as usize).0),
+            View::Rgb(_) | View::Lossy(_) | View::Predicted(_) => None,
         };
         t.encode(w, ids.as_ref());
     }
@@ -115,6 +117,12 @@ fn encode_view(w: &mut Writer, view: &View, reference: Option<&IndexedImage>, mo
             payload.extend_from_slice(v.bytes());
             (coding::LOSSY, &[], payload)
         }
+        View::Predicted(v) => (coding::PREDICTED, &[], v.payload()),
+        View::PredictedLabels(v) => (
+            coding::LABELS_PREDICTED,
+            v.image().palette(),
+            v.payload().to_vec(),
+        ),
     };
     w.u8(code);
     w.u32(palette.len() as u32);
@@ -132,14 +140,26 @@ pub fn conditioned_payload(
     right: &IndexedImage,
     mode: labels::Mode,
 ) -> Vec<u8> {
-    let table = label_table(left, right);
-    let predicted = prediction(left, &table);
+    predicted_payload(left, right, SHIFT_SEARCH, mode)
+}
+
+/// The payload of `view` coded predicted from `reference` (the left view,
+/// or an earlier frame's same view) with shifts searched up to
+/// `max_shift`: the label table, then the labels predicted through it.
+pub(crate) fn predicted_payload(
+    reference: &IndexedImage,
+    view: &IndexedImage,
+    max_shift: usize,
+    mode: labels::Mode,
+) -> Vec<u8> {
+    let table = label_table(reference, view);
+    let predicted = prediction(reference, &table);
     let mut payload: Vec<u8> = table.iter().flat_map(|t| t.to_le_bytes()).collect();
     payload.extend(labels::encode(
-        right.labels(),
-        right.palette(),
+        view.labels(),
+        view.palette(),
         Some(&predicted),
-        SHIFT_SEARCH,
+        max_shift,
         mode,
     ));
     payload

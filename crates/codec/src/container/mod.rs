@@ -22,6 +22,7 @@ mod tests;
 
 pub(crate) use bytes::{Reader, Writer};
 pub use decoder::FrameDecoder;
+pub(crate) use encode::predicted_payload;
 pub use encode::{
     conditioned_payload, encode, encode_with, report_len, right_prediction, REPORT_LEVEL_LEN,
 };
@@ -54,10 +55,14 @@ mod coding {
     /// A lossy view: the codec's byte ([`crate::lossy::LossyCodec`]),
     /// then its bitstream.
     pub const LOSSY: u8 = 3;
+    /// A view predicted from an earlier frame ([`crate::temporal`]).
+    pub const PREDICTED: u8 = 4;
+    /// A label map predicted from an earlier frame's.
+    pub const LABELS_PREDICTED: u8 = 5;
 
     /// Whether a view so coded is a label map.
     pub fn indexed(code: u8) -> bool {
-        matches!(code, LABELS | LABELS_CONDITIONED)
+        matches!(code, LABELS | LABELS_CONDITIONED | LABELS_PREDICTED)
     }
 }
 

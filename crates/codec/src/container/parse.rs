@@ -8,6 +8,7 @@ use super::bytes::check;
 use super::{coding, kind, Header, Reader, HEADER_LEN, MAGIC, VERSION};
 use crate::lossy::LossyCodec;
 use crate::planetable::{self, CodedPlaneTable};
+use crate::temporal::{self, RefId};
 use crate::{CodecError, DepthReport, Limits, ReportLevel, SegmentationKind};
 
 /// Parses and checks a header (without the body).
@@ -119,6 +120,16 @@ pub struct FrameRef<'a> {
     pub planes: Option<Box<CodedPlaneTable>>,
 }
 
+impl FrameRef<'_> {
+    /// The frames the views are predicted from, if any view is
+    /// ([`crate::temporal`]): a key frame has none.
+    pub fn references(&self) -> impl Iterator<Item = RefId> + '_ {
+        [self.left, self.right]
+            .into_iter()
+            .filter_map(|v| v.reference())
+    }
+}
+
 /// One coded view: how it is coded, its palette and its payload.
 #[derive(Clone, Copy, Debug)]
 pub struct ViewRef<'a> {
@@ -142,6 +153,14 @@ impl ViewRef<'_> {
     /// The view's lossy codec, if it is lossy.
     pub fn lossy_codec(&self) -> Option<LossyCodec> {
         self.lossy().map(|(codec, _)| codec)
+    }
+
+    /// The frame a predicted view is predicted from (checked by [`parse`]).
+    pub fn reference(&self) -> Option<RefId> {
+        matches!(self.coding, coding::PREDICTED | coding::LABELS_PREDICTED)
+            .then(|| temporal::split_reference(self.payload).ok())
+            .flatten()
+            .map(|(id, _)| id)
     }
 
     /// Number of palette colours (0 for an unsegmented view).
@@ -202,6 +221,11 @@ fn parse_frame<'a>(r: &mut Reader<'a>, limits: &Limits) -> Result<FrameRef<'a>, 
             "the left view is coded conditioned (on nothing)".into(),
         ));
     }
+    for view in [&left, &right] {
+        if view.coding == coding::PREDICTED {
+            temporal::Coded::parse(view.payload, (w, h))?;
+        }
+    }
     let planes = parse_sections(r, w * h)?;
     if planes.is_some() && !coding::indexed(left.coding) {
         return Err(CodecError::Invalid(
@@ -253,7 +277,11 @@ fn parse_view<'a>(r: &mut Reader<'a>, limits: &Limits) -> Result<ViewRef<'a>, Co
     let payload = r.take(len, "view payload")?;
     match code {
         coding::LABELS | coding::LABELS_CONDITIONED if n > 0 => {}
+        coding::LABELS_PREDICTED if n > 0 => {
+            temporal::split_reference(payload)?;
+        }
         coding::RGB => {}
+        coding::PREDICTED if n == 0 => {}
         coding::LOSSY if n == 0 => {
             let codec = *payload.first().ok_or(CodecError::Truncated("lossy view"))?;
             if LossyCodec::from_u8(codec).is_none() {

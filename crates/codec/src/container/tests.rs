@@ -423,3 +423,216 @@ fn a_fitted_report_encodes_within_its_budget() {
         );
     }
 }
+
+/// A frame predicted from `key` (sent as frame `id`) with no block
+/// changed: both views its views.
+fn predicted_frame(key: &StereoFrame, id: crate::temporal::RefId) -> StereoFrame {
+    use crate::temporal::{blocks, PredictedView};
+    let view = |v: &View| {
+        let img = v.to_rgb();
+        let (cols, rows) = blocks(img.dims());
+        let p = PredictedView::encode(
+            &img,
+            (id, &img),
+            vec![false; cols * rows],
+            LossyCodec::Webp,
+            0,
+        );
+        View::Predicted(p.unwrap())
+    };
+    StereoFrame {
+        left: view(&key.left),
+        right: view(&key.right),
+        ..key.clone()
+    }
+}
+
+#[test]
+fn predicted_frames_decode_from_their_reference_only() {
+    use crate::temporal::{RefId, References};
+    let key = lossy_frame();
+    let id = RefId {
+        frame_id: 7,
+        timestamp_us: 70,
+    };
+    let p = predicted_frame(&key, id);
+    let bytes = encode(&Message::StereoFrame(Box::new(p.clone())), 8, 80);
+    let Ok((_, Body::StereoFrame(parsed))) = parse(&bytes, &Limits::default()) else {
+        panic!("not a frame")
+    };
+    assert_eq!(parsed.references().collect::<Vec<_>>(), [id, id]);
+    let missing = Err(CodecError::MissingReference {
+        frame_id: 7,
+        timestamp_us: 70,
+    });
+    assert_eq!(parsed.decode(), missing);
+    let mut refs = References::default();
+    // The same id from another session (another time stamp) is not it.
+    let (l, r) = (key.left.to_rgb(), key.right.to_rgb());
+    refs.keep(
+        RefId {
+            timestamp_us: 1,
+            ..id
+        },
+        (&l, &r),
+    );
+    assert_eq!(parsed.decode_with(&refs), missing);
+    let mut d = FrameDecoder::default();
+    assert_eq!(
+        d.decode_with(&parsed, &refs),
+        missing.map(|_: StereoFrame| ())
+    );
+    refs.keep(id, (&l, &r));
+    assert_eq!(parsed.decode_with(&refs).unwrap(), p);
+    d.decode_with(&parsed, &refs).unwrap();
+    d.expand_views();
+    assert_eq!(d.views(), (&l, &r));
+    // A reference of another size is refused.
+    let small = RgbImage::new(16, 16, [0; 3]);
+    refs.keep(id, (&small, &small));
+    assert!(
+        matches!(parsed.decode_with(&refs), Err(CodecError::Invalid(m)) if m.contains("16x16"))
+    );
+}
+
+#[test]
+fn forged_and_truncated_predicted_views_are_typed_errors() {
+    use crate::temporal::RefId;
+    let id = RefId {
+        frame_id: 1,
+        timestamp_us: 2,
+    };
+    let bytes = encode(
+        &Message::StereoFrame(Box::new(predicted_frame(&lossy_frame(), id))),
+        2,
+        3,
+    );
+    let l = Limits::default();
+    assert!(parse(&bytes, &l).is_ok());
+    // The right view is last: coding (1), palette count (4), payload
+    // length (4), reference (12), changed map (2 blocks: 1 byte).
+    let payload_at = bytes.len() - 13;
+    assert_eq!(bytes[payload_at - 9], coding::PREDICTED);
+    let with = |payload: &[u8]| {
+        let mut b = bytes[..payload_at - 4].to_vec();
+        b.extend_from_slice(&(payload.len() as u32).to_le_bytes());
+        b.extend_from_slice(payload);
+        parse(&resealed(b), &l).map(|_| ())
+    };
+    let good = bytes[payload_at..].to_vec();
+    assert_eq!(with(&good), Ok(()));
+    assert_eq!(
+        with(&good[..12]),
+        Err(CodecError::Truncated("changed-block map"))
+    );
+    assert_eq!(
+        with(&good[..5]),
+        Err(CodecError::Truncated("predicted view"))
+    );
+    let mut past = good.clone();
+    past[12] = 0b100;
+    assert!(matches!(with(&past), Err(CodecError::Invalid(m)) if m.contains("past the view")));
+    let mut flagged = good.clone();
+    flagged[12] = 0b1;
+    assert_eq!(with(&flagged), Err(CodecError::Truncated("mosaic")));
+    flagged.push(7);
+    assert!(matches!(with(&flagged), Err(CodecError::Invalid(m)) if m.contains("codec 7")));
+    let mut trailing = good.clone();
+    trailing.push(1);
+    assert!(
+        matches!(with(&trailing), Err(CodecError::Invalid(m)) if m.contains("no changed block"))
+    );
+    // A mosaic that is not a bitstream of its size: an error when decoded.
+    flagged.pop();
+    flagged.extend_from_slice(&[1, 0, 0, 0]);
+    let mut b = bytes[..payload_at - 4].to_vec();
+    b.extend_from_slice(&(flagged.len() as u32).to_le_bytes());
+    b.extend_from_slice(&flagged);
+    let b = resealed(b);
+    let Ok((_, Body::StereoFrame(parsed))) = parse(&b, &l) else {
+        panic!("parses")
+    };
+    let mut refs = crate::temporal::References::default();
+    let img = lossy_frame().left.to_rgb();
+    refs.keep(id, (&img, &img));
+    assert!(matches!(
+        parsed.decode_with(&refs),
+        Err(CodecError::Invalid(_))
+    ));
+}
+
+#[test]
+fn predicted_label_maps_decode_from_their_reference_only() {
+    use crate::temporal::{PredictedLabels, RefId, References};
+    let key = frame(40, 24);
+    let id = RefId {
+        frame_id: 3,
+        timestamp_us: 30,
+    };
+    let (Some(kl), Some(kr)) = (key.left.indexed(), key.right.indexed()) else {
+        panic!("indexed")
+    };
+    // The next frame: the key's views, a few labels changed, in another
+    // palette order.
+    let next = |v: &IndexedImage| {
+        let mut labels = v.labels().map(|l| 2 - l);
+        labels.set(5, 5, 0);
+        let palette = v.palette().iter().rev().copied().collect();
+        IndexedImage::new(labels, palette).unwrap()
+    };
+    let p = StereoFrame {
+        left: View::PredictedLabels(PredictedLabels::encode(
+            next(kl),
+            (id, kl),
+            crate::labels::Mode::Fast,
+        )),
+        right: View::PredictedLabels(PredictedLabels::encode(
+            next(kr),
+            (id, kr),
+            crate::labels::Mode::Fast,
+        )),
+        ..key.clone()
+    };
+    let bytes = encode(&Message::StereoFrame(Box::new(p.clone())), 4, 40);
+    let Ok((_, Body::StereoFrame(parsed))) = parse(&bytes, &Limits::default()) else {
+        panic!("not a frame")
+    };
+    assert!(matches!(
+        parsed.decode(),
+        Err(CodecError::MissingReference { frame_id: 3, .. })
+    ));
+    let mut refs = References::default();
+    let (l, r) = (key.left.to_rgb(), key.right.to_rgb());
+    // Pixels of frame 3 are not its labels.
+    refs.keep(id, (&l, &r));
+    assert!(matches!(
+        parsed.decode_with(&refs),
+        Err(CodecError::MissingReference { .. })
+    ));
+    refs.keep_labels(
+        id,
+        [(kl.labels(), kl.palette()), (kr.labels(), kr.palette())],
+    );
+    let decoded = parsed.decode_with(&refs).unwrap();
+    assert_eq!(decoded, p);
+    assert_eq!(decoded.left.indexed(), Some(&next(kl)));
+    // A label table entry past the view's palette is refused.
+    let at = bytes.len()
+        - match &p.right {
+            View::PredictedLabels(v) => v.payload().len() - 12,
+            _ => unreachable!(),
+        };
+    let mut forged = bytes.clone();
+    forged[at] = 9;
+    let forged = resealed(forged);
+    let Ok((_, Body::StereoFrame(parsed))) = parse(&forged, &Limits::default()) else {
+        panic!("parses")
+    };
+    assert_eq!(
+        parsed.decode_with(&refs),
+        Err(CodecError::LabelOutOfRange {
+            label: 9,
+            labels: 3
+        })
+    );
+}

@@ -17,13 +17,26 @@ use super::segment::SegmentArgs;
 /// Arguments of `stereolink encode`.
 #[derive(Debug, clap::Args)]
 pub struct Args {
-    /// Left image.
+    /// Left image; or a folder of pairs (left_0001.png with
+    /// right_0001.png, ...) coded in name order as a stream: a key frame
+    /// first, then frames predicted from the one before (lossy codings).
     pub left: PathBuf,
-    /// Right image.
-    pub right: PathBuf,
-    /// Output frame file.
+    /// Right image (none for a folder).
+    pub right: Option<PathBuf>,
+    /// Output frame file; for a folder of pairs, the folder to write a
+    /// frame file per pair into (frame_0001.slnk, ...).
     #[arg(short, long)]
     pub output: PathBuf,
+    /// A stream's key frames: every N pairs (0: the first only).
+    #[arg(long, value_name = "N")]
+    pub key_every: Option<usize>,
+    /// A stream's predicted frames skip a block whose mean absolute
+    /// difference from the reference's is at most this (grey levels).
+    #[arg(long, value_name = "LEVELS")]
+    pub skip_mad: Option<f32>,
+    /// ... and each of whose 8x8 quarters' mean moved at most this.
+    #[arg(long, value_name = "LEVELS")]
+    pub skip_mean: Option<f32>,
     /// Send the original views losslessly instead of segmenting them.
     #[arg(long, conflicts_with_all = ["view_coding", "bytes"])]
     pub original: bool,
@@ -92,14 +105,27 @@ struct Encoded {
 
 /// Segments (unless `--original`) and encodes a pair.
 pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
+    if args.left.is_dir() {
+        anyhow::ensure!(
+            args.right.is_none() && !args.original,
+            "a folder of pairs is coded as a stream: no right image, no --original"
+        );
+        return super::stream::run_encode(args, out);
+    }
+    let Some(right_path) = args.right.as_ref() else {
+        anyhow::bail!(
+            "encode takes a left and a right image, or a folder of pairs ({} is not a folder)",
+            args.left.display()
+        )
+    };
     let left = io::read_rgb(&args.left)?;
-    let right = io::read_rgb(&args.right)?;
+    let right = io::read_rgb(right_path)?;
     anyhow::ensure!(
         left.dims() == right.dims(),
         "{} is {:?} but {} is {:?}",
         args.left.display(),
         left.dims(),
-        args.right.display(),
+        right_path.display(),
         right.dims()
     );
     let (bytes, frame, setting) = if args.original {
@@ -177,7 +203,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     let lossy = matches!(frame.left, View::Lossy(_));
     std::fs::write(&args.output, &bytes)
         .with_context(|| format!("cannot write {}", args.output.display()))?;
-    let original = std::fs::metadata(&args.left)?.len() + std::fs::metadata(&args.right)?.len();
+    let original = std::fs::metadata(&args.left)?.len() + std::fs::metadata(right_path)?.len();
     let e = Encoded {
         output: args.output.clone(),
         bytes: bytes.len(),
@@ -210,11 +236,16 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
 /// Arguments of `stereolink decode`.
 #[derive(Debug, clap::Args)]
 pub struct DecodeArgs {
-    /// Frame file written by `stereolink encode` (or received).
+    /// Frame file written by `stereolink encode` (or received); or a folder
+    /// of a stream's frame files, decoded in name order.
     pub input: PathBuf,
-    /// Folder to write left.png and right.png into.
+    /// Folder to write left.png and right.png into (for a stream,
+    /// left_0001.png, right_0001.png, ...).
     #[arg(long)]
     pub out: PathBuf,
+    /// For a stream: the folder of the pairs coded, to report PSNR.
+    #[arg(long, value_name = "DIR", conflicts_with_all = ["left", "right"])]
+    pub originals: Option<PathBuf>,
     /// Original left image, to report PSNR.
     #[arg(long)]
     pub left: Option<PathBuf>,
@@ -239,6 +270,9 @@ struct Decoded {
 
 /// Decodes a frame file into its two views.
 pub fn run_decode(args: DecodeArgs, out: &super::Output) -> anyhow::Result<()> {
+    if args.input.is_dir() {
+        return super::stream::run_decode(&args.input, &args.out, args.originals.as_deref(), out);
+    }
     let bytes = std::fs::read(&args.input)
         .with_context(|| format!("cannot read {}", args.input.display()))?;
     let (header, msg) = container::decode(&bytes, &Limits::default())

@@ -26,6 +26,7 @@ pub mod report;
 pub mod secure_bench;
 pub mod segment;
 pub mod send;
+pub mod stream;
 pub mod synth;
 
 /// A progress bar on stderr, hidden when stderr is not a terminal.
@@ -151,9 +152,11 @@ pub enum Command {
     Depth(depth::Args),
     /// Score matchers against Middlebury ground truth.
     Eval(eval::Args),
-    /// Segment and encode a stereo pair into a frame file.
+    /// Segment and encode a stereo pair into a frame file (or a folder of
+    /// pairs into a stream of frame files).
     Encode(codec::Args),
-    /// Decode a frame file back into the two segmented views.
+    /// Decode a frame file back into the two views (or a stream's folder
+    /// of frame files into its pairs).
     Decode(codec::DecodeArgs),
     /// Send test messages over a link and report goodput, loss and retransmissions.
     LinkTest(link_test::Args),
