@@ -19,6 +19,7 @@ use anyhow::Context;
 use serde::Serialize;
 use stereolink_calib::StereoRectifier;
 use stereolink_codec::control::{unix_us, Control, Reply};
+use stereolink_codec::temporal::SkipSpec;
 use stereolink_codec::{CodecError, DepthReport};
 use stereolink_image::{io, Calibration, RgbImage};
 use stereolink_link::endpoint::SendStats;
@@ -26,6 +27,7 @@ use stereolink_link::endpoint::SendStats;
 use crate::pairs::{Got, Next, Pairs};
 use crate::rates::{Figures, Rates};
 use crate::sender::{measure_depth, prepare, report_message, Applied, SenderConfig};
+use crate::stream::StreamEncoder;
 use crate::uplink::{Ended, Kind, Outcome, Uplink};
 
 /// One frame sent: its sizes, what preparing it cost, and how its frame
@@ -38,6 +40,9 @@ pub struct Sent {
     pub frame_bytes: usize,
     /// Bytes of the depth report message.
     pub report_bytes: usize,
+    /// `key`, or `predicted` from the last frame delivered (`send
+    /// --temporal`).
+    pub frame_kind: &'static str,
     /// How the views were coded (`segmented`, `jpeg`, `webp`).
     pub view_coding: &'static str,
     /// The coding's setting: the lossy quality, or the segmentation's classes.
@@ -181,6 +186,9 @@ pub struct SendLoop {
     /// With a frame interval: each frame's byte budget follows the goodput
     /// the link measures.
     pace: Option<FramePace>,
+    /// With temporal prediction: the stream's references, and how often a
+    /// key frame goes anyway.
+    stream: Option<(StreamEncoder, Duration)>,
 }
 
 /// Frames sized to the link: a frame's budget is the goodput measured on
@@ -243,7 +251,17 @@ impl SendLoop {
             second: Counts::new(now),
             link: String::new(),
             pace: None,
+            stream: None,
         }
+    }
+
+    /// Predicts each frame from the last one the link delivered
+    /// ([`StreamEncoder`]: blocks within sensor noise skipped), with a key
+    /// frame first, on a frame request, and once `key_every` has passed
+    /// since the last one.
+    pub fn temporal(mut self, key_every: Duration) -> SendLoop {
+        self.stream = Some((StreamEncoder::new(SkipSpec::default()), key_every));
+        self
     }
 
     /// Sizes each frame (with the coding's rate control) to cross the link
@@ -302,7 +320,11 @@ impl SendLoop {
             let frame =
                 wanted == Applied::FrameNow || !pairs.paced() || !self.uplink.frame_in_flight();
             if frame {
-                self.send_frame(&next, pair_id, (room, pairs.paced()))?;
+                // The frame just ended counts as delivered (a reference).
+                let ended = self.uplink.outcomes();
+                self.collect(ended, &mut on)?;
+                let want_key = wanted == Applied::FrameNow;
+                self.send_frame(&next, (pair_id, want_key), (room, pairs.paced()))?;
                 frames_sent += 1;
             } else {
                 self.send_report(&next, pair_id, (room, true))?;
@@ -379,23 +401,38 @@ impl SendLoop {
     fn send_frame(
         &mut self,
         next: &Next,
-        pair_id: u32,
+        (pair_id, want_key): (u32, bool),
         report_as: (usize, bool),
     ) -> anyhow::Result<()> {
         let (calib, mut cfg, paced) = (self.calib, self.cfg.clone(), self.pace.is_some());
         if let Some(budget) = self.pace.and_then(|p| p.budget()) {
             cfg.coding.budget = Some(budget);
         }
+        // Out while the views borrow the loop.
+        let mut stream = self.stream.take();
         let ((left, right), rectify_ms) = self.views(next, pair_id)?;
         let stamp = (pair_id, next.captured_us);
-        let p = match prepare(left, right, &calib, &cfg, stamp) {
+        let mut make = |cfg: &SenderConfig| match &mut stream {
+            Some((encoder, key_every)) => {
+                let due = encoder
+                    .last_key_us()
+                    .is_none_or(|t| stamp.1.saturating_sub(t) >= key_every.as_micros() as u64);
+                let (p, kind) =
+                    encoder.prepare((left, right), &calib, cfg, stamp, want_key || due)?;
+                anyhow::Ok((p, kind.name()))
+            }
+            None => Ok((prepare(left, right, &calib, cfg, stamp)?, "key")),
+        };
+        let made = match make(&cfg) {
             // The link is slower than the smallest frame allows: send it.
             Err(e) if paced && smallest_frame(&e).is_some() => {
                 cfg.coding.budget = smallest_frame(&e);
-                prepare(left, right, &calib, &cfg, stamp)?
+                make(&cfg)
             }
-            p => p?,
+            made => made,
         };
+        self.stream = stream;
+        let (p, frame_kind) = made?;
         if let Some(dir) = &self.save {
             std::fs::create_dir_all(dir)
                 .with_context(|| format!("cannot create {}", dir.display()))?;
@@ -413,6 +450,7 @@ impl SendLoop {
             frame_bytes,
             report_bytes,
             view_coding: self.cfg.coding.coding.name(),
+            frame_kind,
             setting: p.setting,
             psnr_db: p.psnr_db,
             distance_m: p.report.target_distance_m,
@@ -522,6 +560,11 @@ impl SendLoop {
             }
             if let (Kind::Frame, Some(s), Some(pace)) = (o.kind, stats, self.pace.as_mut()) {
                 pace.delivered(&s);
+            }
+            if let (Kind::Frame, Some(_), Some((encoder, _))) =
+                (o.kind, stats, self.stream.as_mut())
+            {
+                encoder.acknowledge(o.frame_id);
             }
             let Some(w) = self.waiting.get_mut(&o.frame_id) else {
                 continue;

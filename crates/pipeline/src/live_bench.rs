@@ -41,14 +41,19 @@ pub struct LiveFigures {
 }
 
 /// Plays `pairs`, one every `period`, through the sender (`cfg`, `calib`,
-/// frames sized to cross in `frame_interval` when given) over the simulated
+/// frames sized to cross in `frame_interval` when given, predicted with a
+/// key frame every `key_every` when given) over the simulated
 /// radio `link` to a board matching up to `max_disp`, whose watchdog
 /// stops the axis after `watchdog` without a report; `on_second` sees the
 /// sender's status once a second.
 pub fn run(
     (pairs, period): (Pairs, Duration),
     link: SimConfig,
-    (cfg, calib, frame_interval): (SenderConfig, Calibration, Option<Duration>),
+    (cfg, calib, (frame_interval, key_every)): (
+        SenderConfig,
+        Calibration,
+        (Option<Duration>, Option<Duration>),
+    ),
     (max_disp, watchdog): (usize, Duration),
     mut on_second: impl FnMut(&Status),
 ) -> anyhow::Result<LiveFigures> {
@@ -69,6 +74,9 @@ pub fn run(
     let mut sender = SendLoop::new(uplink, calib, None, cfg, None);
     if let Some(interval) = frame_interval {
         sender = sender.frame_interval(interval);
+    }
+    if let Some(key_every) = key_every {
+        sender = sender.temporal(key_every);
     }
     let sent = sender.run(pairs, None, |u| {
         if let Update::Second(s) = u {

@@ -61,6 +61,8 @@ pub struct Args {
     pub matcher: MatcherArgs,
     #[command(flatten)]
     pub coding: CodingArgs,
+    #[command(flatten)]
+    pub temporal: super::send::TemporalArgs,
 }
 
 /// Runs the live bench and prints its figures.
@@ -90,7 +92,10 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         (
             cfg,
             sensor.depth,
-            args.frame_interval_s.map(Duration::from_secs_f64),
+            (
+                args.frame_interval_s.map(Duration::from_secs_f64),
+                args.temporal.key_every(),
+            ),
         ),
         (args.max_disp, Duration::from_secs_f64(args.watchdog_s)),
         |s| eprintln!("{}", super::send::status_line(s)),

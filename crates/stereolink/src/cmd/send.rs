@@ -127,6 +127,8 @@ pub struct Args {
     /// segmented; the first frame takes --bytes if given). Overrides --bytes.
     #[arg(long, value_name = "SECONDS", value_parser = positive_seconds)]
     pub frame_interval_s: Option<f64>,
+    #[command(flatten)]
+    pub temporal: TemporalArgs,
     /// Give up on a message (and stop) when it is not acknowledged within
     /// this many seconds.
     #[arg(long, default_value_t = 120, value_parser = clap::value_parser!(u64).range(1..))]
@@ -168,6 +170,31 @@ impl Args {
             offset_bits: self.plane_offset_bits.unwrap_or(d.offset_bits),
             implied_below: self.plane_implied_below.unwrap_or(d.implied_below),
         }
+    }
+}
+
+/// Temporal prediction on the link (shared by `send` and `bench live`).
+#[derive(Debug, clap::Args)]
+pub struct TemporalArgs {
+    /// Predict each frame from the last one the link delivered: blocks
+    /// that changed no more than sensor noise are skipped, the others
+    /// coded (lossy views), or the label maps coded from the previous ones
+    /// (segmented). The sender keeps what the receiver rebuilt, bit for
+    /// bit. A receiver without the reference (restarted) shows nothing
+    /// wrong: it refuses predicted frames until the next key frame.
+    #[arg(long)]
+    pub temporal: bool,
+    /// With --temporal: a key frame at least this often, seconds (and on a
+    /// frame request, and first).
+    #[arg(long, default_value_t = 10.0, value_parser = positive_seconds, requires = "temporal")]
+    pub key_every_s: f64,
+}
+
+impl TemporalArgs {
+    /// How often a key frame goes, with temporal prediction on.
+    pub fn key_every(&self) -> Option<Duration> {
+        self.temporal
+            .then(|| Duration::from_secs_f64(self.key_every_s))
     }
 }
 
@@ -262,6 +289,9 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     );
     if let Some(s) = args.frame_interval_s {
         sender = sender.frame_interval(Duration::from_secs_f64(s));
+    }
+    if let Some(key_every) = args.temporal.key_every() {
+        sender = sender.temporal(key_every);
     }
     let pairs = match (&args.watch, &args.left, &args.right) {
         (Some(dir), _, _) => Pairs::folder(dir.clone(), Duration::from_millis(args.poll_ms)),
