@@ -547,3 +547,53 @@ fn a_lossy_pair_within_a_budget_over_udp() {
     }
     assert!(shots.join("screen-00001.png").is_file());
 }
+
+/// `send --temporal` over UDP: after a key frame, a pair seen again is
+/// predicted from the frame the link delivered and costs a fraction of it;
+/// the board rebuilds it bit for bit as the sender's closed loop did.
+#[test]
+fn predicted_frames_over_udp_rebuild_the_senders_reconstruction() {
+    let (a, b) = (free_port(), free_port());
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("scene");
+    synth(&scene);
+    let saved = dir.path().join("saved");
+    let saved_arg = saved.to_str().unwrap();
+    let rx = spawn_udp_receiver(
+        a,
+        b,
+        &["--frames", "4", "--timeout-s", "60", "--save", saved_arg],
+    );
+    std::thread::sleep(Duration::from_millis(200));
+    let mut tx_args = vec!["--json".to_string()];
+    tx_args.extend(send_args(
+        &format!("udp:127.0.0.1:{a}?peer=127.0.0.1:{b}"),
+        &scene,
+    ));
+    tx_args.extend(strings(&[
+        "--view-coding",
+        "webp",
+        "--quality",
+        "60",
+        "--temporal",
+        "--repeat",
+        "4",
+        "--save",
+        saved_arg,
+    ]));
+    let sent: serde_json::Value = serde_json::from_str(&finish(spawn(&tx_args), "send")).unwrap();
+    finish(rx, "receive");
+    let frames = sent["frames"].as_array().unwrap();
+    assert_eq!(frames.len(), 4, "{sent}");
+    let (first, last) = (&frames[0], &frames[3]);
+    assert_eq!(first["frame_kind"], "key", "{sent}");
+    assert_eq!(last["frame_kind"], "predicted", "{sent}");
+    let bytes = |f: &serde_json::Value| f["frame_bytes"].as_u64().unwrap();
+    assert!(bytes(last) * 4 <= bytes(first), "{sent}");
+    // The last pair as the sender's loop rebuilt it, and as the board did.
+    for side in ["left", "right"] {
+        let a = io::read_rgb(saved.join(format!("sent-{side}.png"))).unwrap();
+        let b = io::read_rgb(saved.join(format!("received-{side}.png"))).unwrap();
+        assert_eq!(a, b, "{side} view differs");
+    }
+}
