@@ -1,0 +1,365 @@
+//! Recordings: `--record FILE.mcap` on `send` and `receive`. An MCAP file
+//! (profile `ros2`, schemas `ros2msg`, messages `cdr`: [`crate::rosmsg`])
+//! that `ros2 bag play`, Foxglove, Lichtblick and Rerun open as it is, with
+//! the topics of `stereo_image_proc` ([`topic`]): each pair's views and
+//! cameras, the disparity, the baseline once on `/tf_static`, the depth
+//! reports and the link's statistics. Every message's log time and
+//! `header.stamp` is its pair's capture time (µs since the epoch, as the
+//! sender stamps it); the statistics carry the time they were taken.
+//!
+//! Uncompressed chunks: the `mcap` crate's zstd and lz4 are C builds, and
+//! the views the link carries are small.
+//!
+//! A recording that fails mid-run (a full disk) is closed as far as it
+//! can be and, by [`OnError`], the run goes on without it or stops.
+
+use std::collections::BTreeMap;
+use std::fs::File;
+use std::io::BufWriter;
+use std::path::{Path, PathBuf};
+
+use serde::Serialize;
+use stereolink_codec::DepthReport;
+use stereolink_image::{Calibration, DisparityMap, RgbImage};
+
+use crate::rosmsg::{self, MsgType};
+
+/// The topics, as `stereo_image_proc` names them, and the frames.
+pub mod topic {
+    /// The left view (rectified on the sender, received on the receiver).
+    pub const LEFT_IMAGE: &str = "/stereo/left/image_rect_color";
+    /// The right view.
+    pub const RIGHT_IMAGE: &str = "/stereo/right/image_rect_color";
+    /// The left camera.
+    pub const LEFT_INFO: &str = "/stereo/left/camera_info";
+    /// The right camera (the baseline in P's Tx).
+    pub const RIGHT_INFO: &str = "/stereo/right/camera_info";
+    /// The disparity map.
+    pub const DISPARITY: &str = "/stereo/disparity";
+    /// The baseline, once.
+    pub const TF_STATIC: &str = "/tf_static";
+    /// The depth reports.
+    pub const DEPTH_REPORT: &str = "/stereo/depth_report";
+    /// The link's statistics.
+    pub const DIAGNOSTICS: &str = "/diagnostics";
+    /// The left camera's optical frame (the reference).
+    pub const LEFT_FRAME: &str = "stereo_left_optical";
+    /// The right camera's optical frame.
+    pub const RIGHT_FRAME: &str = "stereo_right_optical";
+}
+
+/// What a failed write does to the run.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
+pub enum OnError {
+    /// The recording is closed and the run goes on without it.
+    #[default]
+    Continue,
+    /// The recording is closed and the run stops with the error.
+    Stop,
+}
+
+/// QoS that rosbag2 records with each topic: reliable, volatile, or
+/// transient local for `/tf_static` (a late subscriber still gets it).
+fn qos(transient_local: bool) -> BTreeMap<String, String> {
+    let durability = if transient_local { 1 } else { 2 };
+    let forever = "\n    sec: 2147483647\n    nsec: 4294967295";
+    let yaml = format!(
+        "- history: 1\n  depth: 1\n  reliability: 1\n  durability: {durability}\n  \
+         deadline:{forever}\n  lifespan:{forever}\n  liveliness: 1\n  \
+         liveliness_lease_duration:{forever}\n  avoid_ros_namespace_conventions: false\n"
+    );
+    BTreeMap::from([("offered_qos_profiles".to_string(), yaml)])
+}
+
+/// The channels, by topic.
+struct Channels {
+    left: u16,
+    right: u16,
+    left_info: u16,
+    right_info: u16,
+    disparity: u16,
+    tf: u16,
+    report: u16,
+    diagnostics: u16,
+}
+
+/// An MCAP recording being written.
+pub struct Recorder {
+    path: PathBuf,
+    /// `None` once closed after a failure.
+    writer: Option<mcap::Writer<BufWriter<File>>>,
+    channels: Channels,
+    on_error: OnError,
+    /// Whether the baseline went on `/tf_static`.
+    tf_written: bool,
+    sequence: u32,
+}
+
+/// A recording that failed, naming its file.
+#[derive(Debug)]
+pub struct RecordError {
+    path: PathBuf,
+    what: &'static str,
+    source: mcap::McapError,
+}
+
+impl std::fmt::Display for RecordError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "cannot {} the recording {}: {}",
+            self.what,
+            self.path.display(),
+            self.source
+        )
+    }
+}
+
+impl std::error::Error for RecordError {
+    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
+        Some(&self.source)
+    }
+}
+
+impl Recorder {
+    /// Creates `path` (replacing a file there) and writes its header,
+    /// schemas and channels: a path that cannot be written fails here,
+    /// before any work.
+    pub fn create(path: &Path, on_error: OnError) -> Result<Recorder, RecordError> {
+        let fail = |what, source| RecordError {
+            path: path.to_path_buf(),
+            what,
+            source,
+        };
+        let file = File::create(path).map_err(|e| fail("create", e.into()))?;
+        let mut w = mcap::WriteOptions::new()
+            .profile("ros2")
+            .library(concat!("stereolink ", env!("CARGO_PKG_VERSION")))
+            .compression(None)
+            .create(BufWriter::new(file))
+            .map_err(|e| fail("create", e))?;
+        let mut channel = |t: &MsgType, topic: &str, latched: bool| -> mcap::McapResult<u16> {
+            let schema = w.add_schema(&t.name, "ros2msg", t.schema.as_bytes())?;
+            w.add_channel(schema, topic, "cdr", &qos(latched))
+        };
+        let (image, info) = (rosmsg::image_type(), rosmsg::camera_info_type());
+        let channels = (|| {
+            Ok(Channels {
+                left: channel(&image, topic::LEFT_IMAGE, false)?,
+                right: channel(&image, topic::RIGHT_IMAGE, false)?,
+                left_info: channel(&info, topic::LEFT_INFO, false)?,
+                right_info: channel(&info, topic::RIGHT_INFO, false)?,
+                disparity: channel(&rosmsg::disparity_type(), topic::DISPARITY, false)?,
+                tf: channel(&rosmsg::tf_type(), topic::TF_STATIC, true)?,
+                report: channel(&rosmsg::depth_report_type(), topic::DEPTH_REPORT, false)?,
+                diagnostics: channel(&rosmsg::diagnostics_type(), topic::DIAGNOSTICS, false)?,
+            })
+        })()
+        .map_err(|e| fail("write", e))?;
+        w.flush().map_err(|e| fail("write", e))?;
+        Ok(Recorder {
+            path: path.to_path_buf(),
+            writer: Some(w),
+            channels,
+            on_error,
+            tf_written: false,
+            sequence: 0,
+        })
+    }
+
+    /// Writes one message, stamped `stamp_us`; a failure closes the
+    /// recording and, by [`OnError`], is returned or said once on stderr.
+    fn write(&mut self, channel_id: u16, stamp_us: u64, data: &[u8]) -> Result<(), RecordError> {
+        let Some(w) = self.writer.as_mut() else {
+            return Ok(());
+        };
+        self.sequence = self.sequence.wrapping_add(1);
+        let header = mcap::records::MessageHeader {
+            channel_id,
+            sequence: self.sequence,
+            log_time: stamp_us * 1000,
+            publish_time: stamp_us * 1000,
+        };
+        let Err(source) = w.write_to_known_channel(&header, data) else {
+            return Ok(());
+        };
+        // Closing writes what it can of the summary (dropping finishes).
+        drop(self.writer.take());
+        let e = RecordError {
+            path: self.path.clone(),
+            what: "write",
+            source,
+        };
+        match self.on_error {
+            OnError::Stop => Err(e),
+            OnError::Continue => {
+                eprintln!("{e}; the recording is closed, the run goes on");
+                Ok(())
+            }
+        }
+    }
+
+    /// A pair's views and their cameras (and, the first time the
+    /// calibration has a baseline, the baseline on `/tf_static`).
+    pub fn views(
+        &mut self,
+        stamp_us: u64,
+        (left, right): (&RgbImage, &RgbImage),
+        calib: &Calibration,
+    ) -> Result<(), RecordError> {
+        use topic::{LEFT_FRAME, RIGHT_FRAME};
+        let c = &self.channels;
+        let (l, r, li, ri) = (c.left, c.right, c.left_info, c.right_info);
+        self.write(l, stamp_us, &rosmsg::image(stamp_us, LEFT_FRAME, left))?;
+        self.write(r, stamp_us, &rosmsg::image(stamp_us, RIGHT_FRAME, right))?;
+        let info = |frame, dims, right| rosmsg::camera_info(stamp_us, frame, dims, calib, right);
+        self.write(li, stamp_us, &info(LEFT_FRAME, left.dims(), false))?;
+        self.write(ri, stamp_us, &info(RIGHT_FRAME, right.dims(), true))?;
+        if let (false, Some(b)) = (self.tf_written, calib.baseline_m) {
+            let tf = rosmsg::baseline_tf(stamp_us, LEFT_FRAME, RIGHT_FRAME, b);
+            self.write(self.channels.tf, stamp_us, &tf)?;
+            self.tf_written = true;
+        }
+        Ok(())
+    }
+
+    /// A pair's disparity map, in ROS's conventions ([`rosmsg::disparity`]).
+    pub fn disparity(
+        &mut self,
+        stamp_us: u64,
+        map: &DisparityMap,
+        calib: &Calibration,
+    ) -> Result<(), RecordError> {
+        let msg = rosmsg::disparity(stamp_us, topic::LEFT_FRAME, map, calib);
+        self.write(self.channels.disparity, stamp_us, &msg)
+    }
+
+    /// A pair's depth report.
+    pub fn report(&mut self, stamp_us: u64, report: &DepthReport) -> Result<(), RecordError> {
+        let msg = rosmsg::depth_report(stamp_us, topic::LEFT_FRAME, report);
+        self.write(self.channels.report, stamp_us, &msg)
+    }
+
+    /// The link's statistics taken at `stamp_us`, as one diagnostic status
+    /// `name`: each field of `stats` a key (nested ones as `outer.inner`).
+    pub fn link(
+        &mut self,
+        stamp_us: u64,
+        name: &str,
+        stats: &impl Serialize,
+    ) -> Result<(), RecordError> {
+        let mut values = Vec::new();
+        if let Ok(v) = serde_json::to_value(stats) {
+            flatten("", &v, &mut values);
+        }
+        let msg = rosmsg::diagnostics(stamp_us, name, "stereolink", "link", &values);
+        self.write(self.channels.diagnostics, stamp_us, &msg)
+    }
+
+    /// Writes the summary and closes the file.
+    pub fn finish(mut self) -> Result<(), RecordError> {
+        let Some(mut w) = self.writer.take() else {
+            return Ok(());
+        };
+        w.finish().map_err(|source| RecordError {
+            path: self.path.clone(),
+            what: "finish",
+            source,
+        })?;
+        Ok(())
+    }
+}
+
+/// A JSON value's leaves as `(key, value)`, objects' keys joined by `.`.
+fn flatten(prefix: &str, v: &serde_json::Value, out: &mut Vec<(String, String)>) {
+    match v {
+        serde_json::Value::Object(m) => {
+            for (k, v) in m {
+                let key = if prefix.is_empty() {
+                    k.clone()
+                } else {
+                    format!("{prefix}.{k}")
+                };
+                flatten(&key, v, out);
+            }
+        }
+        serde_json::Value::String(s) => out.push((prefix.to_string(), s.clone())),
+        other => out.push((prefix.to_string(), other.to_string())),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_recording_reads_back_with_its_topics_and_stamps() {
+        let dir = tempfile::tempdir().unwrap();
+        let path = dir.path().join("r.mcap");
+        let calib = Calibration {
+            focal_px: Some(500.0),
+            baseline_m: Some(0.12),
+            doffs: 0.0,
+            ndisp: 16,
+        };
+        let view = RgbImage::new(8, 4, [1, 2, 3]);
+        let map = DisparityMap::new(8, 4, 2.0);
+        let report = DepthReport {
+            target_distance_m: 1.5,
+            target_region: [1, 2, 3, 4],
+            levels: Vec::new(),
+            histogram: vec![1, 2],
+        };
+        let mut r = Recorder::create(&path, OnError::Stop).unwrap();
+        for stamp in [1_000_000, 2_000_000] {
+            r.views(stamp, (&view, &view), &calib).unwrap();
+            r.disparity(stamp, &map, &calib).unwrap();
+            r.report(stamp, &report).unwrap();
+        }
+        r.link(2_500_000, "send", &serde_json::json!({"a": 1, "b": {"c": "x"}}))
+            .unwrap();
+        r.finish().unwrap();
+
+        let bytes = std::fs::read(&path).unwrap();
+        let mut seen: BTreeMap<String, Vec<u64>> = BTreeMap::new();
+        for m in mcap::MessageStream::new(&bytes).unwrap() {
+            let m = m.unwrap();
+            assert_eq!(m.channel.message_encoding, "cdr");
+            assert_eq!(m.channel.schema.as_ref().unwrap().encoding, "ros2msg");
+            seen.entry(m.channel.topic.clone())
+                .or_default()
+                .push(m.log_time);
+        }
+        let twice = vec![1_000_000_000, 2_000_000_000];
+        for t in [
+            topic::LEFT_IMAGE,
+            topic::RIGHT_IMAGE,
+            topic::LEFT_INFO,
+            topic::RIGHT_INFO,
+            topic::DISPARITY,
+            topic::DEPTH_REPORT,
+        ] {
+            assert_eq!(seen[t], twice, "{t}");
+        }
+        assert_eq!(seen[topic::TF_STATIC], vec![1_000_000_000]);
+        assert_eq!(seen[topic::DIAGNOSTICS], vec![2_500_000_000]);
+    }
+
+    #[test]
+    fn an_unwritable_path_fails_at_once_naming_it() {
+        let e = Recorder::create(Path::new("/nonexistent-dir/r.mcap"), OnError::Stop)
+            .err()
+            .unwrap();
+        assert!(e.to_string().contains("/nonexistent-dir/r.mcap"), "{e}");
+    }
+
+    #[test]
+    fn nested_statistics_flatten_to_dotted_keys() {
+        let mut out = Vec::new();
+        flatten("", &serde_json::json!({"a": {"b": 2}, "s": "x"}), &mut out);
+        assert_eq!(
+            out,
+            vec![("a.b".into(), "2".into()), ("s".into(), "x".into())]
+        );
+    }
+}
