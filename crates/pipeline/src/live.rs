@@ -25,6 +25,7 @@ use stereolink_link::endpoint::SendStats;
 
 use crate::pairs::{Got, Next, Pairs};
 use crate::rates::{Figures, Rates};
+use crate::record::Recorder;
 use crate::sender::{measure_depth, prepare, report_message, Applied, SenderConfig};
 use crate::uplink::{Ended, Kind, Outcome, Uplink};
 
@@ -181,6 +182,8 @@ pub struct SendLoop {
     /// With a frame interval: each frame's byte budget follows the goodput
     /// the link measures.
     pace: Option<FramePace>,
+    /// `--record FILE.mcap`.
+    recorder: Option<Recorder>,
 }
 
 /// Frames sized to the link: a frame's budget is the goodput measured on
@@ -243,7 +246,15 @@ impl SendLoop {
             second: Counts::new(now),
             link: String::new(),
             pace: None,
+            recorder: None,
         }
+    }
+
+    /// Records each frame's views, cameras and disparity, each depth
+    /// report and the link's statistics once a second in `recorder`.
+    pub fn record(mut self, recorder: Option<Recorder>) -> SendLoop {
+        self.recorder = recorder;
+        self
     }
 
     /// Sizes each frame (with the coding's rate control) to cross the link
@@ -278,6 +289,9 @@ impl SendLoop {
             if now >= next_second {
                 let status = self.second.status(now, &self.link);
                 self.second = Counts::new(now);
+                if let Some(r) = &mut self.recorder {
+                    r.link(unix_us(), "stereolink send: link", &status)?;
+                }
                 on(Update::Second(&status));
                 next_second = now + Duration::from_secs(1);
             }
@@ -316,6 +330,9 @@ impl SendLoop {
         let rest = self.uplink.finish()?;
         self.collect(rest, &mut on)?;
         let status = self.total.status(Instant::now(), &self.link);
+        if let Some(r) = self.recorder.take() {
+            r.finish()?;
+        }
         Ok(Summary {
             frames: self.sent,
             status,
@@ -370,6 +387,9 @@ impl SendLoop {
         let (calib, cfg) = (self.calib, self.cfg.clone());
         let (views, _) = self.views(next, pair_id)?;
         let depth = measure_depth(views, None, &calib, &cfg)?;
+        if let Some(r) = &mut self.recorder {
+            r.report(next.captured_us, &depth.report)?;
+        }
         self.hand_report(&depth.report, (pair_id, next.captured_us), report_as)?;
         Ok(())
     }
@@ -386,6 +406,8 @@ impl SendLoop {
         if let Some(budget) = self.pace.and_then(|p| p.budget()) {
             cfg.coding.budget = Some(budget);
         }
+        // Out while the views borrow the loop (an error drops it: closed).
+        let mut recorder = self.recorder.take();
         let ((left, right), rectify_ms) = self.views(next, pair_id)?;
         let stamp = (pair_id, next.captured_us);
         let p = match prepare(left, right, &calib, &cfg, stamp) {
@@ -396,6 +418,13 @@ impl SendLoop {
             }
             p => p?,
         };
+        if let Some(r) = &mut recorder {
+            let captured_us = next.captured_us;
+            r.views(captured_us, (left, right), &calib)?;
+            r.disparity(captured_us, &p.disparity, &calib)?;
+            r.report(captured_us, &p.report)?;
+        }
+        self.recorder = recorder;
         if let Some(dir) = &self.save {
             std::fs::create_dir_all(dir)
                 .with_context(|| format!("cannot create {}", dir.display()))?;
