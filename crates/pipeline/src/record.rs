@@ -316,8 +316,12 @@ mod tests {
             r.disparity(stamp, &map, &calib).unwrap();
             r.report(stamp, &report).unwrap();
         }
-        r.link(2_500_000, "send", &serde_json::json!({"a": 1, "b": {"c": "x"}}))
-            .unwrap();
+        r.link(
+            2_500_000,
+            "send",
+            &serde_json::json!({"a": 1, "b": {"c": "x"}}),
+        )
+        .unwrap();
         r.finish().unwrap();
 
         let bytes = std::fs::read(&path).unwrap();

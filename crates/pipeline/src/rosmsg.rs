@@ -121,7 +121,14 @@ pub fn disparity_type() -> MsgType {
 pub fn tf_type() -> MsgType {
     msg_type(
         TF,
-        &[TRANSFORM_STAMPED, HEADER, TIME, TRANSFORM, VECTOR3, QUATERNION],
+        &[
+            TRANSFORM_STAMPED,
+            HEADER,
+            TIME,
+            TRANSFORM,
+            VECTOR3,
+            QUATERNION,
+        ],
     )
 }
 
@@ -206,10 +213,19 @@ fn roi(c: &mut Cdr, (x, y): (usize, usize), (width, height): (usize, usize)) {
 /// ≥ 0), `max_disparity` the largest valid value, invalid pixels at
 /// `min_disparity - 1`, `delta_d` 1 for a map of whole pixels (0 when it
 /// holds sub-pixel values).
-pub fn disparity(stamp_us: u64, frame_id: &str, map: &DisparityMap, calib: &Calibration) -> Vec<u8> {
+pub fn disparity(
+    stamp_us: u64,
+    frame_id: &str,
+    map: &DisparityMap,
+    calib: &Calibration,
+) -> Vec<u8> {
     let doffs = calib.doffs as f32;
     let min = doffs;
-    let valid = || map.as_slice().iter().filter(|d| d.is_finite() && **d >= 0.0);
+    let valid = || {
+        map.as_slice()
+            .iter()
+            .filter(|d| d.is_finite() && **d >= 0.0)
+    };
     let max = valid().fold(min, |m, &d| m.max(d + doffs));
     let whole = valid().all(|d| d.fract() == 0.0);
     let (width, height) = map.dims();
@@ -335,7 +351,10 @@ mod tests {
         assert_eq!(data, vec![5.0, 1.0]);
         assert_eq!((f32_at(0), f32_at(4)), (100.0, 0.1));
         // valid_window 0, 0, height 1, width 2, false; padding to 4.
-        assert_eq!(&tail[8..25], &[0, 0, 0, 0, 0, 0, 0, 0, 1, 0, 0, 0, 2, 0, 0, 0, 0]);
+        assert_eq!(
+            &tail[8..25],
+            &[0, 0, 0, 0, 0, 0, 0, 0, 1, 0, 0, 0, 2, 0, 0, 0, 0]
+        );
         assert_eq!((f32_at(28), f32_at(32), f32_at(36)), (2.0, 5.0, 1.0));
     }
 }

@@ -22,7 +22,10 @@ fn topics(path: &Path) -> BTreeMap<String, (String, Vec<u64>)> {
         let m = m.unwrap();
         let schema = m.channel.schema.as_ref().unwrap();
         assert_eq!(
-            (schema.encoding.as_str(), m.channel.message_encoding.as_str()),
+            (
+                schema.encoding.as_str(),
+                m.channel.message_encoding.as_str()
+            ),
             ("ros2msg", "cdr")
         );
         let e = out.entry(m.channel.topic.clone()).or_default();
@@ -34,7 +37,12 @@ fn topics(path: &Path) -> BTreeMap<String, (String, Vec<u64>)> {
             let id_len = u32::from_le_bytes(m.data[12..16].try_into().unwrap()) as usize;
             let at = (16 + id_len).next_multiple_of(4);
             let u32_at = |i: usize| u32::from_le_bytes(m.data[i..i + 4].try_into().unwrap());
-            assert_eq!((u32_at(at + 4), u32_at(at)), (160, 120), "{}", m.channel.topic);
+            assert_eq!(
+                (u32_at(at + 4), u32_at(at)),
+                (160, 120),
+                "{}",
+                m.channel.topic
+            );
         }
     }
     out
@@ -67,7 +75,10 @@ fn outside_check(path: &Path) {
     );
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(v["messages"]["/tf_static"], 1);
-    assert!((v["baseline_m"].as_f64().unwrap() - 0.03).abs() < 1e-9, "{v}");
+    assert!(
+        (v["baseline_m"].as_f64().unwrap() - 0.03).abs() < 1e-9,
+        "{v}"
+    );
 }
 
 #[test]
@@ -77,22 +88,52 @@ fn send_and_receive_record_the_same_stamped_topics() {
     synth(&scene);
     let (tx_rec, rx_rec) = (dir.path().join("tx.mcap"), dir.path().join("rx.mcap"));
     let (a, b) = (free_port(), free_port());
-    let before_us = SystemTime::now().duration_since(UNIX_EPOCH).unwrap().as_micros() as u64;
+    let before_us = SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .unwrap()
+        .as_micros() as u64;
     let rx = spawn_udp_receiver(
         a,
         b,
-        &["--frames", "2", "--timeout-s", "60", "--record", rx_rec.to_str().unwrap()],
+        &[
+            "--frames",
+            "2",
+            "--timeout-s",
+            "60",
+            "--record",
+            rx_rec.to_str().unwrap(),
+        ],
     );
     std::thread::sleep(Duration::from_millis(200));
     let file = |name: &str| scene.join(name).to_str().unwrap().to_string();
     let mut args = strings(&["send", "--link"]);
     args.push(format!("udp:127.0.0.1:{a}?peer=127.0.0.1:{b}"));
-    args.extend(strings(&["--max-disp", "23", "--focal-px", "128", "--baseline-m", "0.03"]));
-    args.extend(strings(&["--repeat", "2", "--record", tx_rec.to_str().unwrap()]));
-    args.extend(["--left".into(), file("left.png"), "--right".into(), file("right.png")]);
+    args.extend(strings(&[
+        "--max-disp",
+        "23",
+        "--focal-px",
+        "128",
+        "--baseline-m",
+        "0.03",
+    ]));
+    args.extend(strings(&[
+        "--repeat",
+        "2",
+        "--record",
+        tx_rec.to_str().unwrap(),
+    ]));
+    args.extend([
+        "--left".into(),
+        file("left.png"),
+        "--right".into(),
+        file("right.png"),
+    ]);
     finish(spawn(&args), "send");
     finish(rx, "receive");
-    let after_us = SystemTime::now().duration_since(UNIX_EPOCH).unwrap().as_micros() as u64;
+    let after_us = SystemTime::now()
+        .duration_since(UNIX_EPOCH)
+        .unwrap()
+        .as_micros() as u64;
 
     let (tx, rx) = (topics(&tx_rec), topics(&rx_rec));
     let types = [
@@ -106,7 +147,10 @@ fn send_and_receive_record_the_same_stamped_topics() {
     let frames = &tx["/stereo/left/image_rect_color"].1;
     assert_eq!(frames.len(), 2);
     for stamp in frames {
-        assert!((before_us * 1000..=after_us * 1000).contains(stamp), "{stamp}");
+        assert!(
+            (before_us * 1000..=after_us * 1000).contains(stamp),
+            "{stamp}"
+        );
     }
     for (topic, ty) in types {
         for (side, got) in [("send", &tx), ("receive", &rx)] {
@@ -132,7 +176,14 @@ fn an_unwritable_recording_fails_before_any_work() {
     let port = free_port();
     let link = format!("udp:127.0.0.1:{port}?peer=127.0.0.1:{}", free_port());
     let out = Command::new(env!("CARGO_BIN_EXE_stereolink"))
-        .args(["receive", "--link", &link, "--insecure", "--timeout-s", "30"])
+        .args([
+            "receive",
+            "--link",
+            &link,
+            "--insecure",
+            "--timeout-s",
+            "30",
+        ])
         .args(["--record", bad.to_str().unwrap()])
         .output()
         .unwrap();
