@@ -15,7 +15,7 @@
 
 use std::collections::BTreeMap;
 use std::fs::File;
-use std::io::BufWriter;
+use std::io::{BufWriter, Seek, Write};
 use std::path::{Path, PathBuf};
 
 use serde::Serialize;
@@ -83,11 +83,12 @@ struct Channels {
     diagnostics: u16,
 }
 
-/// An MCAP recording being written.
-pub struct Recorder {
+/// An MCAP recording being written, into a file (or, for the tests, any
+/// seekable sink).
+pub struct Recorder<W: Write + Seek = BufWriter<File>> {
     path: PathBuf,
     /// `None` once closed after a failure.
-    writer: Option<mcap::Writer<BufWriter<File>>>,
+    writer: Option<mcap::Writer<W>>,
     channels: Channels,
     on_error: OnError,
     /// Whether the baseline went on `/tf_static`.
@@ -126,17 +127,28 @@ impl Recorder {
     /// schemas and channels: a path that cannot be written fails here,
     /// before any work.
     pub fn create(path: &Path, on_error: OnError) -> Result<Recorder, RecordError> {
+        let file = File::create(path).map_err(|e| RecordError {
+            path: path.to_path_buf(),
+            what: "create",
+            source: e.into(),
+        })?;
+        Recorder::on(BufWriter::new(file), path, on_error)
+    }
+}
+
+impl<W: Write + Seek> Recorder<W> {
+    /// A recording written into `sink`, called `path` in its errors.
+    pub fn on(sink: W, path: &Path, on_error: OnError) -> Result<Recorder<W>, RecordError> {
         let fail = |what, source| RecordError {
             path: path.to_path_buf(),
             what,
             source,
         };
-        let file = File::create(path).map_err(|e| fail("create", e.into()))?;
         let mut w = mcap::WriteOptions::new()
             .profile("ros2")
             .library(concat!("stereolink ", env!("CARGO_PKG_VERSION")))
             .compression(None)
-            .create(BufWriter::new(file))
+            .create(sink)
             .map_err(|e| fail("create", e))?;
         let mut channel = |t: &MsgType, topic: &str, latched: bool| -> mcap::McapResult<u16> {
             let schema = w.add_schema(&t.name, "ros2msg", t.schema.as_bytes())?;
@@ -347,6 +359,65 @@ mod tests {
         }
         assert_eq!(seen[topic::TF_STATIC], vec![1_000_000_000]);
         assert_eq!(seen[topic::DIAGNOSTICS], vec![2_500_000_000]);
+    }
+
+    /// A sink that takes `room` bytes, then fails as a full disk does.
+    struct Full {
+        file: std::io::Cursor<Vec<u8>>,
+        room: u64,
+    }
+
+    impl Write for Full {
+        fn write(&mut self, buf: &[u8]) -> std::io::Result<usize> {
+            if self.file.position() + buf.len() as u64 > self.room {
+                return Err(std::io::ErrorKind::StorageFull.into());
+            }
+            self.file.write(buf)
+        }
+        fn flush(&mut self) -> std::io::Result<()> {
+            Ok(())
+        }
+    }
+
+    impl Seek for Full {
+        fn seek(&mut self, to: std::io::SeekFrom) -> std::io::Result<u64> {
+            self.file.seek(to)
+        }
+    }
+
+    /// Records 40 pairs of 100x100 views into a sink with room for 200 kB.
+    fn fill_a_full_disk(on_error: OnError) -> (Recorder<Full>, Result<(), RecordError>) {
+        let sink = Full {
+            file: Default::default(),
+            room: 200_000,
+        };
+        let mut r = Recorder::on(sink, Path::new("full.mcap"), on_error).unwrap();
+        let view = RgbImage::new(100, 100, [0; 3]);
+        let calib = Calibration {
+            focal_px: None,
+            baseline_m: None,
+            doffs: 0.0,
+            ndisp: 0,
+        };
+        let result = (1..=40).try_for_each(|i| r.views(i * 1000, (&view, &view), &calib));
+        (r, result)
+    }
+
+    #[test]
+    fn a_full_disk_closes_the_recording_and_the_run_goes_on() {
+        let (r, result) = fill_a_full_disk(OnError::Continue);
+        assert!(result.is_ok());
+        assert!(r.writer.is_none(), "the recording is closed");
+        // Closed already: finishing it again has nothing to do.
+        r.finish().unwrap();
+    }
+
+    #[test]
+    fn a_full_disk_stops_the_run_with_stop_naming_the_file() {
+        let (r, result) = fill_a_full_disk(OnError::Stop);
+        let e = result.unwrap_err().to_string();
+        assert!(e.starts_with("cannot write the recording full.mcap"), "{e}");
+        assert!(r.writer.is_none());
     }
 
     #[test]
