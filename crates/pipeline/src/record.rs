@@ -71,16 +71,59 @@ fn qos(transient_local: bool) -> BTreeMap<String, String> {
     BTreeMap::from([("offered_qos_profiles".to_string(), yaml)])
 }
 
-/// The channels, by topic.
-struct Channels {
+/// The schemas' ids.
+struct Schemas {
+    image: u16,
+    info: u16,
+    disparity: u16,
+    report: u16,
+    diagnostics: u16,
+}
+
+/// One station's topics (all of them, but for the shared `/tf_static`).
+struct Station {
     left: u16,
     right: u16,
     left_info: u16,
     right_info: u16,
     disparity: u16,
-    tf: u16,
     report: u16,
     diagnostics: u16,
+    /// Its cameras' frames.
+    frames: (String, String),
+    /// Whether its baseline went on `/tf_static`.
+    tf_written: bool,
+}
+
+impl Station {
+    /// Adds the topics of the station `name` (`""`: the topics as
+    /// [`topic`] names them; else under `/name`, frames `name/...`).
+    fn add<W: Write + Seek>(
+        w: &mut mcap::Writer<W>,
+        s: &Schemas,
+        name: &str,
+    ) -> mcap::McapResult<Station> {
+        let ns = |t: &str| match name {
+            "" => t.to_string(),
+            _ => format!("/{name}{t}"),
+        };
+        let mut add = |schema, t: &str| w.add_channel(schema, &ns(t), "cdr", &qos(false));
+        let frame = |f: &str| match name {
+            "" => f.to_string(),
+            _ => format!("{name}/{f}"),
+        };
+        Ok(Station {
+            left: add(s.image, topic::LEFT_IMAGE)?,
+            right: add(s.image, topic::RIGHT_IMAGE)?,
+            left_info: add(s.info, topic::LEFT_INFO)?,
+            right_info: add(s.info, topic::RIGHT_INFO)?,
+            disparity: add(s.disparity, topic::DISPARITY)?,
+            report: add(s.report, topic::DEPTH_REPORT)?,
+            diagnostics: add(s.diagnostics, topic::DIAGNOSTICS)?,
+            frames: (frame(topic::LEFT_FRAME), frame(topic::RIGHT_FRAME)),
+            tf_written: false,
+        })
+    }
 }
 
 /// An MCAP recording being written, into a file (or, for the tests, any
@@ -89,11 +132,20 @@ pub struct Recorder<W: Write + Seek = BufWriter<File>> {
     path: PathBuf,
     /// `None` once closed after a failure.
     writer: Option<mcap::Writer<W>>,
-    channels: Channels,
+    schemas: Schemas,
+    /// `/tf_static`'s channel, shared by the stations.
+    tf: u16,
+    /// The stations' topics, by name, and the one written to.
+    stations: BTreeMap<String, Station>,
+    current: String,
     on_error: OnError,
-    /// Whether the baseline went on `/tf_static`.
-    tf_written: bool,
     sequence: u32,
+}
+
+impl<W: Write + Seek> std::fmt::Debug for Recorder<W> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Recorder({})", self.path.display())
+    }
 }
 
 /// A recording that failed, naming its file.
@@ -150,33 +202,54 @@ impl<W: Write + Seek> Recorder<W> {
             .compression(None)
             .create(sink)
             .map_err(|e| fail("create", e))?;
-        let mut channel = |t: &MsgType, topic: &str, latched: bool| -> mcap::McapResult<u16> {
-            let schema = w.add_schema(&t.name, "ros2msg", t.schema.as_bytes())?;
-            w.add_channel(schema, topic, "cdr", &qos(latched))
-        };
-        let (image, info) = (rosmsg::image_type(), rosmsg::camera_info_type());
-        let channels = (|| {
-            Ok(Channels {
-                left: channel(&image, topic::LEFT_IMAGE, false)?,
-                right: channel(&image, topic::RIGHT_IMAGE, false)?,
-                left_info: channel(&info, topic::LEFT_INFO, false)?,
-                right_info: channel(&info, topic::RIGHT_INFO, false)?,
-                disparity: channel(&rosmsg::disparity_type(), topic::DISPARITY, false)?,
-                tf: channel(&rosmsg::tf_type(), topic::TF_STATIC, true)?,
-                report: channel(&rosmsg::depth_report_type(), topic::DEPTH_REPORT, false)?,
-                diagnostics: channel(&rosmsg::diagnostics_type(), topic::DIAGNOSTICS, false)?,
-            })
-        })()
-        .map_err(|e| fail("write", e))?;
+        let added = (|| {
+            let mut schema = |t: MsgType| w.add_schema(&t.name, "ros2msg", t.schema.as_bytes());
+            let schemas = Schemas {
+                image: schema(rosmsg::image_type())?,
+                info: schema(rosmsg::camera_info_type())?,
+                disparity: schema(rosmsg::disparity_type())?,
+                report: schema(rosmsg::depth_report_type())?,
+                diagnostics: schema(rosmsg::diagnostics_type())?,
+            };
+            let tf = schema(rosmsg::tf_type())?;
+            let tf = w.add_channel(tf, topic::TF_STATIC, "cdr", &qos(true))?;
+            let station = Station::add(&mut w, &schemas, "")?;
+            Ok((schemas, tf, station))
+        })();
+        let (schemas, tf, station) = added.map_err(|e| fail("write", e))?;
         w.flush().map_err(|e| fail("write", e))?;
         Ok(Recorder {
             path: path.to_path_buf(),
             writer: Some(w),
-            channels,
+            schemas,
+            tf,
+            stations: BTreeMap::from([(String::new(), station)]),
+            current: String::new(),
             on_error,
-            tf_written: false,
             sequence: 0,
         })
+    }
+
+    /// Records what follows as the station `name`'s: under `/name/...`
+    /// (a gateway's stations; `""`: the plain topics), its topics added
+    /// the first time. A name must be a ROS name's part (letters, digits, `_`).
+    pub fn station(&mut self, name: &str) -> Result<&mut Recorder<W>, RecordError> {
+        if !self.stations.contains_key(name) {
+            let Some(w) = self.writer.as_mut() else {
+                return Ok(self);
+            };
+            match Station::add(w, &self.schemas, name) {
+                Ok(s) => self.stations.insert(name.to_string(), s),
+                Err(e) => return self.failed(e).map(|()| self),
+            };
+        }
+        self.current = name.to_string();
+        Ok(self)
+    }
+
+    /// The station written to.
+    fn at(&self) -> &Station {
+        &self.stations[&self.current]
     }
 
     /// Writes one message, stamped `stamp_us`; a failure closes the
@@ -192,9 +265,15 @@ impl<W: Write + Seek> Recorder<W> {
             log_time: stamp_us * 1000,
             publish_time: stamp_us * 1000,
         };
-        let Err(source) = w.write_to_known_channel(&header, data) else {
-            return Ok(());
-        };
+        match w.write_to_known_channel(&header, data) {
+            Ok(()) => Ok(()),
+            Err(e) => self.failed(e),
+        }
+    }
+
+    /// Closes the recording after `source` and, by [`OnError`], returns it
+    /// or says it once on stderr.
+    fn failed(&mut self, source: mcap::McapError) -> Result<(), RecordError> {
         // Closing writes what it can of the summary (dropping finishes).
         drop(self.writer.take());
         let e = RecordError {
@@ -219,18 +298,21 @@ impl<W: Write + Seek> Recorder<W> {
         (left, right): (&RgbImage, &RgbImage),
         calib: &Calibration,
     ) -> Result<(), RecordError> {
-        use topic::{LEFT_FRAME, RIGHT_FRAME};
-        let c = &self.channels;
-        let (l, r, li, ri) = (c.left, c.right, c.left_info, c.right_info);
-        self.write(l, stamp_us, &rosmsg::image(stamp_us, LEFT_FRAME, left))?;
-        self.write(r, stamp_us, &rosmsg::image(stamp_us, RIGHT_FRAME, right))?;
+        let s = self.at();
+        let (l, r, li, ri) = (s.left, s.right, s.left_info, s.right_info);
+        let (lf, rf) = s.frames.clone();
+        let tf = (!s.tf_written).then_some(calib.baseline_m).flatten();
+        self.write(l, stamp_us, &rosmsg::image(stamp_us, &lf, left))?;
+        self.write(r, stamp_us, &rosmsg::image(stamp_us, &rf, right))?;
         let info = |frame, dims, right| rosmsg::camera_info(stamp_us, frame, dims, calib, right);
-        self.write(li, stamp_us, &info(LEFT_FRAME, left.dims(), false))?;
-        self.write(ri, stamp_us, &info(RIGHT_FRAME, right.dims(), true))?;
-        if let (false, Some(b)) = (self.tf_written, calib.baseline_m) {
-            let tf = rosmsg::baseline_tf(stamp_us, LEFT_FRAME, RIGHT_FRAME, b);
-            self.write(self.channels.tf, stamp_us, &tf)?;
-            self.tf_written = true;
+        self.write(li, stamp_us, &info(&lf, left.dims(), false))?;
+        self.write(ri, stamp_us, &info(&rf, right.dims(), true))?;
+        if let Some(b) = tf {
+            let tf = rosmsg::baseline_tf(stamp_us, &lf, &rf, b);
+            self.write(self.tf, stamp_us, &tf)?;
+            if let Some(s) = self.stations.get_mut(&self.current) {
+                s.tf_written = true;
+            }
         }
         Ok(())
     }
@@ -242,14 +324,16 @@ impl<W: Write + Seek> Recorder<W> {
         map: &DisparityMap,
         calib: &Calibration,
     ) -> Result<(), RecordError> {
-        let msg = rosmsg::disparity(stamp_us, topic::LEFT_FRAME, map, calib);
-        self.write(self.channels.disparity, stamp_us, &msg)
+        let s = self.at();
+        let msg = rosmsg::disparity(stamp_us, &s.frames.0, map, calib);
+        self.write(s.disparity, stamp_us, &msg)
     }
 
     /// A pair's depth report.
     pub fn report(&mut self, stamp_us: u64, report: &DepthReport) -> Result<(), RecordError> {
-        let msg = rosmsg::depth_report(stamp_us, topic::LEFT_FRAME, report);
-        self.write(self.channels.report, stamp_us, &msg)
+        let s = self.at();
+        let msg = rosmsg::depth_report(stamp_us, &s.frames.0, report);
+        self.write(s.report, stamp_us, &msg)
     }
 
     /// The link's statistics taken at `stamp_us`, as one diagnostic status
@@ -265,7 +349,7 @@ impl<W: Write + Seek> Recorder<W> {
             flatten("", &v, &mut values);
         }
         let msg = rosmsg::diagnostics(stamp_us, name, "stereolink", "link", &values);
-        self.write(self.channels.diagnostics, stamp_us, &msg)
+        self.write(self.at().diagnostics, stamp_us, &msg)
     }
 
     /// Writes the summary and closes the file.
@@ -359,6 +443,42 @@ mod tests {
         }
         assert_eq!(seen[topic::TF_STATIC], vec![1_000_000_000]);
         assert_eq!(seen[topic::DIAGNOSTICS], vec![2_500_000_000]);
+    }
+
+    /// A gateway's stations each get their topics under their name, and
+    /// their baselines (frames `name/...`) share `/tf_static`.
+    #[test]
+    fn stations_record_under_their_names() {
+        let mut r = Recorder::on(
+            std::io::Cursor::new(Vec::new()),
+            Path::new("m"),
+            OnError::Stop,
+        )
+        .unwrap();
+        let calib = Calibration {
+            focal_px: Some(100.0),
+            baseline_m: Some(0.1),
+            doffs: 0.0,
+            ndisp: 8,
+        };
+        let view = RgbImage::new(4, 2, [0; 3]);
+        for name in ["north", "south", "north"] {
+            r.station(name)
+                .unwrap()
+                .views(1, (&view, &view), &calib)
+                .unwrap();
+        }
+        let mut w = r.writer.take().unwrap();
+        w.finish().unwrap();
+        let bytes = w.into_inner().into_inner();
+        let mut seen: BTreeMap<String, usize> = BTreeMap::new();
+        for m in mcap::MessageStream::new(&bytes).unwrap() {
+            *seen.entry(m.unwrap().channel.topic.clone()).or_default() += 1;
+        }
+        assert_eq!(seen["/north/stereo/left/image_rect_color"], 2);
+        assert_eq!(seen["/south/stereo/right/camera_info"], 1);
+        assert_eq!(seen[topic::TF_STATIC], 2);
+        assert!(!seen.contains_key(topic::LEFT_IMAGE));
     }
 
     /// A sink that takes `room` bytes, then fails as a full disk does.
