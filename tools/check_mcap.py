@@ -7,7 +7,9 @@ encodings, the cameras and the disparity's conventions, the baseline on
 in order on each topic). Prints one JSON object (messages per topic, the
 baseline, each topic's last stamp); exits 1 naming the first problem.
 
-    python3 tools/check_mcap.py FILE.mcap --size 160x120 [--frames N]
+    python3 tools/check_mcap.py FILE.mcap --size 160x120 [--frames N] [--station NAME]
+
+A gateway's recording holds each station's topics under /NAME (--station).
 """
 
 import argparse
@@ -53,9 +55,12 @@ def main():
     ap.add_argument("file")
     ap.add_argument("--size", required=True, help="WxH of the views")
     ap.add_argument("--frames", type=int, default=1, help="least number of frames")
+    ap.add_argument("--station", help="a gateway's station: its topics are under /NAME")
     a = ap.parse_args()
+    ns = f"/{a.station}" if a.station else ""
+    types = {(t if t == "/tf_static" else ns + t): ty for t, ty in TYPES.items()}
     size = tuple(int(v) for v in a.size.split("x"))
-    counts = {t: 0 for t in TYPES}
+    counts = {t: 0 for t in types}
     last = {}
     info = {}
     with open(a.file, "rb") as f:
@@ -64,9 +69,9 @@ def main():
             fail(f"profile {reader.get_header().profile!r}, expected 'ros2'")
         for schema, channel, message, msg in reader.iter_decoded_messages():
             topic = channel.topic
-            if topic not in TYPES:
+            if topic not in types:
                 fail(f"unexpected topic {topic}")
-            if schema.name != TYPES[topic] or schema.encoding != "ros2msg":
+            if schema.name != types[topic] or schema.encoding != "ros2msg":
                 fail(f"{topic}: schema {schema.name} ({schema.encoding})")
             if channel.message_encoding != "cdr":
                 fail(f"{topic}: message encoding {channel.message_encoding}")
@@ -98,12 +103,12 @@ def main():
             elif topic == "/diagnostics":
                 if not msg.status or not msg.status[0].values:
                     fail(f"{topic}: no values")
-    for topic in TYPES:
-        if topic.startswith("/stereo/") and counts[topic] < a.frames:
+    for topic in types:
+        if topic.startswith(ns + "/stereo/") and counts[topic] < a.frames:
             fail(f"{topic}: {counts[topic]} messages, expected at least {a.frames}")
     if counts["/tf_static"] != 1:
         fail(f"/tf_static: {counts['/tf_static']} messages, expected 1")
-    left, right = info["/stereo/left/camera_info"], info["/stereo/right/camera_info"]
+    left, right = info[ns + "/stereo/left/camera_info"], info[ns + "/stereo/right/camera_info"]
     f, tx = right.p[0], right.p[3]
     if left.p[3] != 0.0 or not (f > 0 and tx < 0):
         fail(f"camera_info: left Tx {left.p[3]}, right f {f} Tx {tx}")

@@ -48,6 +48,15 @@ pub mod topic {
     pub const RIGHT_FRAME: &str = "stereo_right_optical";
 }
 
+/// The calibration of a frame that carries none: the cameras get zeros
+/// for K and P, and no baseline goes on `/tf_static`.
+pub const UNCALIBRATED: Calibration = Calibration {
+    focal_px: None,
+    baseline_m: None,
+    doffs: 0.0,
+    ndisp: 0,
+};
+
 /// What a failed write does to the run.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, clap::ValueEnum)]
 pub enum OnError {
@@ -213,17 +222,16 @@ impl<W: Write + Seek> Recorder<W> {
             };
             let tf = schema(rosmsg::tf_type())?;
             let tf = w.add_channel(tf, topic::TF_STATIC, "cdr", &qos(true))?;
-            let station = Station::add(&mut w, &schemas, "")?;
-            Ok((schemas, tf, station))
+            Ok((schemas, tf))
         })();
-        let (schemas, tf, station) = added.map_err(|e| fail("write", e))?;
+        let (schemas, tf) = added.map_err(|e| fail("write", e))?;
         w.flush().map_err(|e| fail("write", e))?;
         Ok(Recorder {
             path: path.to_path_buf(),
             writer: Some(w),
             schemas,
             tf,
-            stations: BTreeMap::from([(String::new(), station)]),
+            stations: BTreeMap::new(),
             current: String::new(),
             on_error,
             sequence: 0,
@@ -231,25 +239,35 @@ impl<W: Write + Seek> Recorder<W> {
     }
 
     /// Records what follows as the station `name`'s: under `/name/...`
-    /// (a gateway's stations; `""`: the plain topics), its topics added
-    /// the first time. A name must be a ROS name's part (letters, digits, `_`).
-    pub fn station(&mut self, name: &str) -> Result<&mut Recorder<W>, RecordError> {
-        if !self.stations.contains_key(name) {
-            let Some(w) = self.writer.as_mut() else {
-                return Ok(self);
-            };
-            match Station::add(w, &self.schemas, name) {
-                Ok(s) => self.stations.insert(name.to_string(), s),
-                Err(e) => return self.failed(e).map(|()| self),
-            };
+    /// (a gateway's stations; `""`, the first: the plain topics). A name
+    /// becomes a ROS name's part: each character but letters, digits and
+    /// `_` turns into `_`, and one starting with a digit gets a `_` first.
+    pub fn station(&mut self, name: &str) -> &mut Recorder<W> {
+        let mut name: String = name
+            .chars()
+            .map(|c| if c.is_ascii_alphanumeric() { c } else { '_' })
+            .collect();
+        if name.starts_with(|c: char| c.is_ascii_digit()) {
+            name.insert(0, '_');
         }
-        self.current = name.to_string();
-        Ok(self)
+        self.current = name;
+        self
     }
 
-    /// The station written to.
-    fn at(&self) -> &Station {
-        &self.stations[&self.current]
+    /// The topics of the station written to, added on its first message
+    /// (a station that records nothing leaves no empty topics); `None`
+    /// once the recording is closed.
+    fn at(&mut self) -> Result<Option<&mut Station>, RecordError> {
+        if !self.stations.contains_key(&self.current) {
+            let Some(w) = self.writer.as_mut() else {
+                return Ok(None);
+            };
+            match Station::add(w, &self.schemas, &self.current) {
+                Ok(s) => self.stations.insert(self.current.clone(), s),
+                Err(e) => return self.failed(e).map(|()| None),
+            };
+        }
+        Ok(self.stations.get_mut(&self.current))
     }
 
     /// Writes one message, stamped `stamp_us`; a failure closes the
@@ -298,10 +316,13 @@ impl<W: Write + Seek> Recorder<W> {
         (left, right): (&RgbImage, &RgbImage),
         calib: &Calibration,
     ) -> Result<(), RecordError> {
-        let s = self.at();
+        let Some(s) = self.at()? else {
+            return Ok(());
+        };
         let (l, r, li, ri) = (s.left, s.right, s.left_info, s.right_info);
         let (lf, rf) = s.frames.clone();
         let tf = (!s.tf_written).then_some(calib.baseline_m).flatten();
+        s.tf_written |= tf.is_some();
         self.write(l, stamp_us, &rosmsg::image(stamp_us, &lf, left))?;
         self.write(r, stamp_us, &rosmsg::image(stamp_us, &rf, right))?;
         let info = |frame, dims, right| rosmsg::camera_info(stamp_us, frame, dims, calib, right);
@@ -310,9 +331,6 @@ impl<W: Write + Seek> Recorder<W> {
         if let Some(b) = tf {
             let tf = rosmsg::baseline_tf(stamp_us, &lf, &rf, b);
             self.write(self.tf, stamp_us, &tf)?;
-            if let Some(s) = self.stations.get_mut(&self.current) {
-                s.tf_written = true;
-            }
         }
         Ok(())
     }
@@ -324,16 +342,22 @@ impl<W: Write + Seek> Recorder<W> {
         map: &DisparityMap,
         calib: &Calibration,
     ) -> Result<(), RecordError> {
-        let s = self.at();
+        let Some(s) = self.at()? else {
+            return Ok(());
+        };
         let msg = rosmsg::disparity(stamp_us, &s.frames.0, map, calib);
-        self.write(s.disparity, stamp_us, &msg)
+        let id = s.disparity;
+        self.write(id, stamp_us, &msg)
     }
 
     /// A pair's depth report.
     pub fn report(&mut self, stamp_us: u64, report: &DepthReport) -> Result<(), RecordError> {
-        let s = self.at();
+        let Some(s) = self.at()? else {
+            return Ok(());
+        };
         let msg = rosmsg::depth_report(stamp_us, &s.frames.0, report);
-        self.write(s.report, stamp_us, &msg)
+        let id = s.report;
+        self.write(id, stamp_us, &msg)
     }
 
     /// The link's statistics taken at `stamp_us`, as one diagnostic status
@@ -344,12 +368,15 @@ impl<W: Write + Seek> Recorder<W> {
         name: &str,
         stats: &impl Serialize,
     ) -> Result<(), RecordError> {
+        let Some(id) = self.at()?.map(|s| s.diagnostics) else {
+            return Ok(());
+        };
         let mut values = Vec::new();
         if let Ok(v) = serde_json::to_value(stats) {
             flatten("", &v, &mut values);
         }
         let msg = rosmsg::diagnostics(stamp_us, name, "stereolink", "link", &values);
-        self.write(self.at().diagnostics, stamp_us, &msg)
+        self.write(id, stamp_us, &msg)
     }
 
     /// Writes the summary and closes the file.
@@ -462,11 +489,8 @@ mod tests {
             ndisp: 8,
         };
         let view = RgbImage::new(4, 2, [0; 3]);
-        for name in ["north", "south", "north"] {
-            r.station(name)
-                .unwrap()
-                .views(1, (&view, &view), &calib)
-                .unwrap();
+        for name in ["north", "south-2", "north"] {
+            r.station(name).views(1, (&view, &view), &calib).unwrap();
         }
         let mut w = r.writer.take().unwrap();
         w.finish().unwrap();
@@ -476,7 +500,7 @@ mod tests {
             *seen.entry(m.unwrap().channel.topic.clone()).or_default() += 1;
         }
         assert_eq!(seen["/north/stereo/left/image_rect_color"], 2);
-        assert_eq!(seen["/south/stereo/right/camera_info"], 1);
+        assert_eq!(seen["/south_2/stereo/right/camera_info"], 1);
         assert_eq!(seen[topic::TF_STATIC], 2);
         assert!(!seen.contains_key(topic::LEFT_IMAGE));
     }
@@ -513,13 +537,7 @@ mod tests {
         };
         let mut r = Recorder::on(sink, Path::new("full.mcap"), on_error).unwrap();
         let view = RgbImage::new(100, 100, [0; 3]);
-        let calib = Calibration {
-            focal_px: None,
-            baseline_m: None,
-            doffs: 0.0,
-            ndisp: 0,
-        };
-        let result = (1..=40).try_for_each(|i| r.views(i * 1000, (&view, &view), &calib));
+        let result = (1..=40).try_for_each(|i| r.views(i * 1000, (&view, &view), &UNCALIBRATED));
         (r, result)
     }
 

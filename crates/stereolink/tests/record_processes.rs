@@ -1,6 +1,7 @@
-//! `send --record` and `receive --record` over UDP: both recordings hold
-//! each topic with its ROS 2 type, the views at the pair's size, and the
-//! same capture time stamps on both sides (the sender's). An outside
+//! `send --record` and `receive --record` over UDP, and `gateway --record`:
+//! the recordings hold each topic with its ROS 2 type, the views at the
+//! pair's size, and the same capture time stamps on both sides (the
+//! sender's); the gateway's under the station's name. An outside
 //! reader (tools/check_mcap.py: PyPI `mcap` + `mcap-ros2-support`) checks
 //! them too when it is installed, and must be under
 //! `STEREOLINK_REQUIRE_MCAP_CHECK=1`, as CI sets after installing it.
@@ -48,8 +49,8 @@ fn topics(path: &Path) -> BTreeMap<String, (String, Vec<u64>)> {
     out
 }
 
-/// Runs the outside reader on `path`, if it is installed.
-fn outside_check(path: &Path) {
+/// Runs the outside reader on `path` (with `args`), if it is installed.
+fn outside_check(path: &Path, args: &[&str]) {
     let required = std::env::var("STEREOLINK_REQUIRE_MCAP_CHECK").as_deref() == Ok("1");
     let have = Command::new("python3")
         .args(["-c", "import mcap_ros2.decoder"])
@@ -65,6 +66,7 @@ fn outside_check(path: &Path) {
         .arg(script)
         .arg(path)
         .args(["--size", "160x120", "--frames", "2"])
+        .args(args)
         .output()
         .unwrap();
     assert!(
@@ -165,8 +167,87 @@ fn send_and_receive_record_the_same_stamped_topics() {
         assert_eq!(got["/tf_static"].0, "tf2_msgs/msg/TFMessage");
         assert_eq!(got["/tf_static"].1, frames[..1]);
     }
-    outside_check(&tx_rec);
-    outside_check(&rx_rec);
+    outside_check(&tx_rec, &[]);
+    outside_check(&rx_rec, &[]);
+}
+
+/// The pair sent twice to a gateway's station `north-1` (no broker: the
+/// stations work on): the gateway's recording holds the station's topics
+/// under `/north_1`, stamped as the sender's.
+#[test]
+fn the_gateway_records_each_station_under_its_name() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("scene");
+    synth(&scene);
+    let (tx_rec, gw_rec) = (dir.path().join("tx.mcap"), dir.path().join("gw.mcap"));
+    let (a, b) = (free_port(), free_port());
+    let station = format!("north-1=udp:127.0.0.1:{b}?peer=127.0.0.1:{a}");
+    let mut args = strings(&[
+        "gateway",
+        "--link",
+        &station,
+        "--mqtt",
+        "mqtt://127.0.0.1:1",
+    ]);
+    args.extend(strings(&[
+        "--run-s",
+        "3",
+        "--images-every-s",
+        "0",
+        "--stats-every-s",
+        "1",
+    ]));
+    args.extend(strings(&[
+        "--max-disp",
+        "24",
+        "--record",
+        gw_rec.to_str().unwrap(),
+    ]));
+    let gw = spawn(&args);
+    std::thread::sleep(Duration::from_millis(200));
+    let file = |name: &str| scene.join(name).to_str().unwrap().to_string();
+    let mut args = strings(&["send", "--link"]);
+    args.push(format!("udp:127.0.0.1:{a}?peer=127.0.0.1:{b}"));
+    args.extend(strings(&[
+        "--max-disp",
+        "23",
+        "--focal-px",
+        "128",
+        "--baseline-m",
+        "0.03",
+    ]));
+    args.extend(strings(&[
+        "--repeat",
+        "2",
+        "--record",
+        tx_rec.to_str().unwrap(),
+    ]));
+    args.extend([
+        "--left".into(),
+        file("left.png"),
+        "--right".into(),
+        file("right.png"),
+    ]);
+    finish(spawn(&args), "send");
+    finish(gw, "gateway");
+
+    let (tx, gw) = (topics(&tx_rec), topics(&gw_rec));
+    let frames = &tx["/stereo/left/image_rect_color"].1;
+    for topic in [
+        "/stereo/left/image_rect_color",
+        "/stereo/right/camera_info",
+        "/stereo/disparity",
+        "/stereo/depth_report",
+    ] {
+        let (name, stamps) = &gw[&format!("/north_1{topic}")];
+        assert_eq!((name, stamps), (&tx[topic].0, frames), "{topic}");
+    }
+    assert_eq!(
+        gw["/north_1/diagnostics"].0,
+        "diagnostic_msgs/msg/DiagnosticArray"
+    );
+    assert!(!gw.contains_key("/stereo/depth_report"), "{:?}", gw.keys());
+    outside_check(&gw_rec, &["--station", "north_1"]);
 }
 
 #[test]

@@ -4,9 +4,8 @@ use std::path::PathBuf;
 
 use stereolink_codec::container::{self, Body};
 use stereolink_codec::Limits;
-use stereolink_image::Calibration;
 use stereolink_pipeline::receiver::{BoardReceiver, Event};
-use stereolink_pipeline::record::{OnError, Recorder};
+use stereolink_pipeline::record::{OnError, Recorder, UNCALIBRATED};
 
 /// The recording flags.
 #[derive(Debug, clap::Args)]
@@ -46,12 +45,7 @@ pub fn received(
     let limits = Limits::default();
     match (event, container::parse(msg, &limits)) {
         (Event::Frame { .. }, Ok((_, Body::StereoFrame(frame)))) => {
-            let calib = frame.calibration.unwrap_or(Calibration {
-                focal_px: None,
-                baseline_m: None,
-                doffs: 0.0,
-                ndisp: 0,
-            });
+            let calib = frame.calibration.unwrap_or(UNCALIBRATED);
             let disparity = board.disparity();
             if let Some(views) = board.pair() {
                 recorder.views(stamp_us, views, &calib)?;
