@@ -1,4 +1,5 @@
-//! Recordings: `--record FILE.mcap` on `send` and `receive`. An MCAP file
+//! Recordings: `--record FILE.mcap` on `send`, `receive` and `gateway`
+//! (each station under its name: [`Recorder::station`]). An MCAP file
 //! (profile `ros2`, schemas `ros2msg`, messages `cdr`: [`crate::rosmsg`])
 //! that `ros2 bag play`, Foxglove, Lichtblick and Rerun open as it is, with
 //! the topics of `stereo_image_proc` ([`topic`]): each pair's views and
