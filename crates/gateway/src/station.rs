@@ -6,7 +6,7 @@
 use std::collections::VecDeque;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::mpsc::{Receiver, Sender};
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
 use serde_json::{json, Value};
@@ -16,12 +16,13 @@ use stereolink_codec::Limits;
 use stereolink_display::{anaglyph_into, Anaglyph};
 use stereolink_image::colormap::colorize;
 use stereolink_image::io::encode_png_rgb;
-use stereolink_image::RgbImage;
+use stereolink_image::{Calibration, RgbImage};
 use stereolink_link::arq::Config;
 use stereolink_link::endpoint::{Endpoint, Lane, LinkError};
 use stereolink_link::secure::{Keys, SecureConfig};
 use stereolink_link::spec::{self, LinkSpec};
 use stereolink_pipeline::receiver::{BoardReceiver, Event};
+use stereolink_pipeline::record::{RecordError, Recorder, UNCALIBRATED};
 
 /// A station as the gateway knows it.
 #[derive(Clone, Debug)]
@@ -41,6 +42,26 @@ pub struct StationConfig {
     /// Rebuild and publish the images of at most one frame per this
     /// interval (metadata goes up for every frame).
     pub images_every: Duration,
+    /// `--record FILE.mcap`, shared by the stations: each records its
+    /// depth reports, the frames it rebuilds and its link statistics under
+    /// `/NAME/...`.
+    pub recorder: Option<Arc<Mutex<Recorder>>>,
+}
+
+/// Writes into the recording, if any, as station `cfg`'s; says why it
+/// could not.
+fn record(
+    cfg: &StationConfig,
+    write: impl FnOnce(&mut Recorder) -> Result<(), RecordError>,
+) -> Option<String> {
+    let mut recorder = cfg
+        .recorder
+        .as_ref()?
+        .lock()
+        .unwrap_or_else(|e| e.into_inner());
+    write(recorder.station(&cfg.name))
+        .err()
+        .map(|e| e.to_string())
 }
 
 /// What a station thread tells the bridge.
@@ -370,6 +391,7 @@ impl Station {
         match body {
             Body::DepthReport(r) => {
                 self.counters.depth_reports += 1;
+                self.said(record(&self.cfg, |rec| rec.report(header.timestamp_us, &r)));
                 let finite = |x: f32| (x.is_finite() && x > 0.0).then_some(x);
                 let payload = json!({
                     "frame_id": header.frame_id,
@@ -408,7 +430,7 @@ impl Station {
                     .is_none_or(|t| t.elapsed() >= self.cfg.images_every);
                 let images = if due {
                     self.last_images = Some(Instant::now());
-                    self.rebuild(msg, &mut meta)
+                    self.rebuild(msg, (header.timestamp_us, f.calibration), &mut meta)
                 } else {
                     None
                 };
@@ -423,14 +445,38 @@ impl Station {
         }
     }
 
-    /// Rebuilds the pair, matches it as the board does and encodes the PNGs.
-    fn rebuild(&mut self, msg: &[u8], meta: &mut Value) -> Option<FrameImages> {
+    /// Says why the recording could not be written, if it could not.
+    fn said(&self, why: Option<String>) {
+        if let Some(text) = why {
+            self.send(Up::Notice {
+                station: self.index,
+                text,
+            });
+        }
+    }
+
+    /// Rebuilds the pair, matches it as the board does and encodes the
+    /// PNGs; records the views and the disparity with the frame's capture
+    /// time stamp and calibration.
+    fn rebuild(
+        &mut self,
+        msg: &[u8],
+        (stamp_us, calib): (u64, Option<Calibration>),
+        meta: &mut Value,
+    ) -> Option<FrameImages> {
         match self.board.handle(msg) {
             Event::Frame { ms, .. } => {
-                let disparity = colorize(&self.board.disparity(), 0.0, self.cfg.max_disp as f32);
+                let map = self.board.disparity();
+                let disparity = colorize(&map, 0.0, self.cfg.max_disp as f32);
                 let (l, r) = self.board.pair()?;
+                let c = calib.unwrap_or(UNCALIBRATED);
+                let why = record(&self.cfg, |rec| {
+                    rec.views(stamp_us, (l, r), &c)?;
+                    rec.disparity(stamp_us, &map, &c)
+                });
                 anaglyph_into(l, r, Anaglyph::Dubois, &mut self.view3d);
                 let left = encode_png_rgb(l);
+                self.said(why);
                 meta["rebuild_ms"] = json!((ms * 10.0).round() / 10.0);
                 Some(FrameImages {
                     left,
@@ -478,6 +524,9 @@ impl Station {
             "commands": { "delivered": c.commands_sent, "failed": c.commands_failed },
             "link_description": ep.describe(),
         });
+        self.said(record(&self.cfg, |rec| {
+            rec.link(unix_us(), "stereolink gateway: link", &payload)
+        }));
         self.send(Up::Link {
             station: self.index,
             payload,

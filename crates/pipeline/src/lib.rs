@@ -7,7 +7,8 @@
 //! `P1`/`P2`), the sender's link in its own thread ([`uplink`]: reports
 //! ahead of frames) and its pair loop on that link ([`live`]: files, a
 //! camera folder or two cameras), and the segments of the plane matcher ([`planes`]) and
-//! its plane table over the radio ([`planetable`]). The sender and the board
+//! its plane table over the radio ([`planetable`]), and recordings in MCAP
+//! with ROS 2 messages ([`record`], [`rosmsg`], [`cdr`]). The sender and the board
 //! obey the commands that come over the link (the Control message,
 //! `stereolink_codec::control`) and reply to them.
 //!
@@ -20,6 +21,7 @@
 
 #![deny(missing_docs)]
 
+pub mod cdr;
 pub mod coding;
 pub mod demo;
 pub mod live;
@@ -29,6 +31,8 @@ pub mod planes;
 pub mod planetable;
 pub mod rates;
 pub mod receiver;
+pub mod record;
+pub mod rosmsg;
 pub mod sender;
 pub mod sensor;
 pub mod stream;

@@ -26,6 +26,7 @@ use stereolink_link::endpoint::SendStats;
 
 use crate::pairs::{Got, Next, Pairs};
 use crate::rates::{Figures, Rates};
+use crate::record::Recorder;
 use crate::sender::{measure_depth, prepare, report_message, Applied, SenderConfig};
 use crate::stream::StreamEncoder;
 use crate::uplink::{Ended, Kind, Outcome, Uplink};
@@ -189,6 +190,8 @@ pub struct SendLoop {
     /// With temporal prediction: the stream's references, and how often a
     /// key frame goes anyway.
     stream: Option<(StreamEncoder, Duration)>,
+    /// `--record FILE.mcap`.
+    recorder: Option<Recorder>,
 }
 
 /// Frames sized to the link: a frame's budget is the goodput measured on
@@ -252,6 +255,7 @@ impl SendLoop {
             link: String::new(),
             pace: None,
             stream: None,
+            recorder: None,
         }
     }
 
@@ -261,6 +265,13 @@ impl SendLoop {
     /// since the last one.
     pub fn temporal(mut self, key_every: Duration) -> SendLoop {
         self.stream = Some((StreamEncoder::new(SkipSpec::default()), key_every));
+        self
+    }
+
+    /// Records each frame's views, cameras and disparity, each depth
+    /// report and the link's statistics once a second in `recorder`.
+    pub fn record(mut self, recorder: Option<Recorder>) -> SendLoop {
+        self.recorder = recorder;
         self
     }
 
@@ -296,6 +307,9 @@ impl SendLoop {
             if now >= next_second {
                 let status = self.second.status(now, &self.link);
                 self.second = Counts::new(now);
+                if let Some(r) = &mut self.recorder {
+                    r.link(unix_us(), "stereolink send: link", &status)?;
+                }
                 on(Update::Second(&status));
                 next_second = now + Duration::from_secs(1);
             }
@@ -338,6 +352,9 @@ impl SendLoop {
         let rest = self.uplink.finish()?;
         self.collect(rest, &mut on)?;
         let status = self.total.status(Instant::now(), &self.link);
+        if let Some(r) = self.recorder.take() {
+            r.finish()?;
+        }
         Ok(Summary {
             frames: self.sent,
             status,
@@ -392,6 +409,9 @@ impl SendLoop {
         let (calib, cfg) = (self.calib, self.cfg.clone());
         let (views, _) = self.views(next, pair_id)?;
         let depth = measure_depth(views, None, &calib, &cfg)?;
+        if let Some(r) = &mut self.recorder {
+            r.report(next.captured_us, &depth.report)?;
+        }
         self.hand_report(&depth.report, (pair_id, next.captured_us), report_as)?;
         Ok(())
     }
@@ -408,8 +428,10 @@ impl SendLoop {
         if let Some(budget) = self.pace.and_then(|p| p.budget()) {
             cfg.coding.budget = Some(budget);
         }
-        // Out while the views borrow the loop.
+        // Out while the views borrow the loop (an error drops the recorder:
+        // closed).
         let mut stream = self.stream.take();
+        let mut recorder = self.recorder.take();
         let ((left, right), rectify_ms) = self.views(next, pair_id)?;
         let stamp = (pair_id, next.captured_us);
         let mut make = |cfg: &SenderConfig| match &mut stream {
@@ -431,8 +453,19 @@ impl SendLoop {
             }
             made => made,
         };
+        let recorded = match (&made, &mut recorder) {
+            (Ok((p, _)), Some(r)) => {
+                let captured_us = next.captured_us;
+                r.views(captured_us, (left, right), &calib)
+                    .and_then(|()| r.disparity(captured_us, &p.disparity, &calib))
+                    .and_then(|()| r.report(captured_us, &p.report))
+            }
+            _ => Ok(()),
+        };
         self.stream = stream;
+        self.recorder = recorder;
         let (p, frame_kind) = made?;
+        recorded?;
         if let Some(dir) = &self.save {
             std::fs::create_dir_all(dir)
                 .with_context(|| format!("cannot create {}", dir.display()))?;

@@ -2,13 +2,14 @@
 
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicBool, Ordering};
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 use std::time::Duration;
 
 use anyhow::Context;
 use stereolink_gateway::station::StationConfig;
 use stereolink_gateway::{self as gateway, Broker, GatewayConfig};
 use stereolink_link::secure::{keyfile, Keys};
+use stereolink_pipeline::record::{OnError, Recorder};
 
 /// Arguments of `stereolink gateway`.
 #[derive(Debug, clap::Args)]
@@ -65,6 +66,12 @@ pub struct Args {
     /// Stop after this many seconds (0: run until killed).
     #[arg(long, default_value_t = 0.0)]
     pub run_s: f64,
+    /// Record every station in FILE.mcap as ROS 2 messages, under
+    /// /STATION/... (docs/recording.md): its depth reports, the frames it
+    /// rebuilds and its link statistics. A write that fails closes the
+    /// recording; the gateway goes on.
+    #[arg(long, value_name = "FILE.mcap")]
+    pub record: Option<PathBuf>,
 }
 
 /// Bridges the stations to the broker until killed (or `--run-s`).
@@ -94,6 +101,13 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
             None
         }
     };
+    let recorder = match &args.record {
+        Some(path) => Some(Arc::new(Mutex::new(Recorder::create(
+            path,
+            OnError::Continue,
+        )?))),
+        None => None,
+    };
     let mut stations = Vec::new();
     for (i, text) in args.links.iter().enumerate() {
         let (name, spec) = match text.split_once('=') {
@@ -118,6 +132,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
             max_disp: args.max_disp,
             stats_every: secs(args.stats_every_s, "stats-every-s")?,
             images_every: secs(args.images_every_s, "images-every-s")?,
+            recorder: recorder.clone(),
         });
     }
     let cfg = GatewayConfig {
@@ -144,7 +159,12 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
             stop.store(true, Ordering::Relaxed);
         });
     }
-    let summary = gateway::run(cfg, stop)?;
+    let summary = gateway::run(cfg, stop);
+    // The stations' threads have ended: the recording is this one's alone.
+    if let Some(r) = recorder.and_then(Arc::into_inner) {
+        r.into_inner().unwrap_or_else(|e| e.into_inner()).finish()?;
+    }
+    let summary = summary?;
     out.emit(&summary, || {
         format!(
             "gateway: {} published, {} published again after a reconnect, {} dropped, {} reconnects, {} commands\n",

@@ -21,6 +21,7 @@ pub mod live_bench;
 pub mod matching;
 pub mod radio;
 pub mod receive;
+pub mod record;
 pub mod rectify;
 pub mod report;
 pub mod secure_bench;

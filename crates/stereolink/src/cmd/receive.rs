@@ -81,6 +81,8 @@ pub struct Args {
     pub max_speed: f64,
     #[command(flatten)]
     pub keys: KeyArgs,
+    #[command(flatten)]
+    pub record: super::record::RecordArgs,
 }
 
 /// Receives, shows and moves until done.
@@ -96,6 +98,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         args.watchdog_s
     );
     let keys = args.keys.load(args.robot.is_some())?;
+    let mut recorder = args.record.open()?;
     let mut eps = Vec::new();
     let links = std::iter::once(args.link.clone()).chain(args.report_link.clone().map(|r| vec![r]));
     for link in links {
@@ -135,7 +138,11 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         while args.frames == 0 || frames.counted < args.frames {
             if Instant::now() >= next_second {
                 let now = Instant::now();
-                eprintln!("received: {}", second.take(now));
+                let figures = second.take(now);
+                eprintln!("received: {figures}");
+                if let Some(r) = &mut recorder {
+                    r.link(unix_us(), "stereolink receive: link", &figures)?;
+                }
                 next_second = now + Duration::from_secs(1);
             }
             // The watchdog is checked whether or not anything arrives: a link
@@ -168,6 +175,9 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
             // frame has acknowledged it, and its next life is not sent it again).
             for ep in eps.iter_mut() {
                 ep.dealt_with().context("link")?;
+            }
+            if let Some(r) = &mut recorder {
+                super::record::received(r, &mut board, (&msg, stamp_us), &event)?;
             }
             if let (Some(dir), Event::Frame { .. }) = (&args.save, &event) {
                 let disparity = board.disparity();
@@ -243,6 +253,8 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         Ok(End::Frames)
     };
     let ended = receive();
+    // Closed whatever ended the loop; its error is said after the axis's.
+    let recorded = recorder.map(|r| r.finish()).transpose();
     // Answer late retransmissions (on a link still up).
     if ended.is_ok() {
         let share = Duration::from_millis(500) / eps.len() as u32;
@@ -300,6 +312,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     if let Some(Err(e)) = axis.position_mm {
         return Err(e).context("the axis after the last report");
     }
+    recorded?;
     ended.map(|_| ())
 }
 

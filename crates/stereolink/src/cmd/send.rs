@@ -159,6 +159,8 @@ pub struct Args {
     pub plane_implied_below: Option<u16>,
     #[command(flatten)]
     pub keys: KeyArgs,
+    #[command(flatten)]
+    pub record: super::record::RecordArgs,
 }
 
 impl Args {
@@ -232,6 +234,7 @@ pub fn sender_config(
 /// Prepares and sends the pair, or each pair of the watched folder.
 pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     let sensor = args.calib.sensor(args.max_disp + 1)?;
+    let recorder = args.record.open()?;
     if let Some(w) = sensor.range_warning() {
         eprintln!("warning: {w}");
     }
@@ -286,7 +289,8 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         sensor.rectifier()?,
         cfg,
         args.save.clone(),
-    );
+    )
+    .record(recorder);
     if let Some(s) = args.frame_interval_s {
         sender = sender.frame_interval(Duration::from_secs_f64(s));
     }
