@@ -388,6 +388,11 @@ impl<'a> Coded<'a> {
         })
     }
 
+    /// Whether any block changed.
+    pub(crate) fn any_changed(&self) -> bool {
+        self.mosaic.is_some()
+    }
+
     /// The changed flags into `out`.
     pub(crate) fn changed_into(&self, out: &mut Vec<bool>) {
         out.clear();

@@ -9,6 +9,12 @@
 //! and the disparities stay integers from the matcher to the screen (the
 //! board has no FPU).
 //!
+//! The board keeps its last frames as the references of predicted frames
+//! ([`stereolink_codec::temporal`]); one whose reference it lacks is
+//! rejected, and [`BoardReceiver::needs_key`] says a key frame is wanted.
+//! A still pair (predicted, no block changed) that repeats the pair on the
+//! screen is not matched again: it is that pair.
+//!
 //! With [`DisparitySource::Planes`] the board does not match: it rebuilds
 //! the map from the decoded left labels and the frame's plane table
 //! ([`crate::planetable`]); a frame without a table is rejected.
@@ -113,6 +119,8 @@ pub struct BoardReceiver {
     view: RgbImage,
     /// Whether a frame was shown (the decoder's views and `view` hold it).
     shown: bool,
+    /// The frame shown.
+    shown_id: Option<RefId>,
     /// The display, if any.
     pub sink: Option<Box<dyn Sink>>,
     /// The axis, if any.
@@ -162,6 +170,7 @@ impl BoardReceiver {
             limits: Limits::default(),
             view: RgbImage::default(),
             shown: false,
+            shown_id: None,
             sink: None,
             axis: None,
             policy: MotionPolicy::default(),
@@ -335,6 +344,36 @@ impl BoardReceiver {
         if key {
             self.needs_key = false;
         }
+        // A still pair (predicted, no block changed) from the pair on the
+        // screen is that pair: its disparity and its 3-D view stand.
+        let still = self.source == DisparitySource::Wta
+            && self.shown
+            && frame.unchanged().is_some_and(|r| Some(r) == self.shown_id);
+        if !still {
+            self.match_and_compose(frame)?;
+        }
+        self.shown = true;
+        self.shown_id = Some(id);
+        self.status.frame_id = frame_id;
+        self.status.message.clear();
+        // A lossy pair is named by its codec, a segmented one by its method.
+        let what = match frame.left.lossy_codec() {
+            _ if !key => "predicted",
+            Some(c) => c.name(),
+            None => frame.kind.name(),
+        };
+        let _ = write!(self.status.message, "{what} PAIR {w}X{h}");
+        if let Some(axis) = self.axis.as_mut() {
+            self.status.axis_mm = axis.position().ok();
+        }
+        self.refresh()
+            .map_err(|e| CodecError::Invalid(format!("display: {e}")))
+    }
+
+    /// Matches the decoded pair (or rebuilds its map from the plane table)
+    /// and composes its 3-D view.
+    fn match_and_compose(&mut self, frame: &FrameRef) -> Result<(), CodecError> {
+        let (w, h) = (frame.width, frame.height);
         // Indexed views (segmented: few colours) give their luma and their
         // anaglyph through the palettes, a lookup per pixel; other views
         // are matched and shown from their colours.
@@ -384,21 +423,7 @@ impl BoardReceiver {
             ),
             None => anaglyph_into(left, right, self.mode, &mut self.view),
         }
-        self.shown = true;
-        self.status.frame_id = frame_id;
-        self.status.message.clear();
-        // A lossy pair is named by its codec, a segmented one by its method.
-        let what = match frame.left.lossy_codec() {
-            _ if !key => "predicted",
-            Some(c) => c.name(),
-            None => frame.kind.name(),
-        };
-        let _ = write!(self.status.message, "{what} PAIR {w}X{h}");
-        if let Some(axis) = self.axis.as_mut() {
-            self.status.axis_mm = axis.position().ok();
-        }
-        self.refresh()
-            .map_err(|e| CodecError::Invalid(format!("display: {e}")))
+        Ok(())
     }
 
     /// Redraws the screen with the current status (distance, axis, link) and shows it.

@@ -485,6 +485,53 @@ mod tests {
         }
     }
 
+    /// A still pair predicted from the pair on the screen is not matched
+    /// again (it is that pair); one predicted from another pair is.
+    #[test]
+    fn a_still_pair_keeps_the_disparity_of_the_pair_it_repeats() {
+        let pairs = sequence();
+        let cfg = config(None);
+        let mut stream = StreamEncoder::new(SkipSpec::default());
+        let frame = |stream: &mut StreamEncoder, i: usize, id: u32| {
+            let (l, r) = &pairs[i];
+            let (p, _) = stream
+                .prepare((l, r), &calib(), &cfg, (id, u64::from(id)), false)
+                .unwrap();
+            p.frame_bytes
+        };
+        let key = frame(&mut stream, 0, 1);
+        stream.acknowledge(1);
+        // Frame 2 (the square in) is not acknowledged: frame 3, the still
+        // pair, is predicted from frame 1.
+        let moving = frame(&mut stream, 5, 2);
+        let still = frame(&mut stream, 1, 3);
+        let board = || BoardReceiver::new(15, 5, std::time::Duration::from_secs(10));
+        let shown = |b: &mut BoardReceiver, bytes: &[u8]| {
+            assert!(matches!(b.handle(bytes), Event::Frame { .. }));
+        };
+        let mut only_key = board();
+        shown(&mut only_key, &key);
+        let (mut repeated, mut after_moving) = (board(), board());
+        shown(&mut repeated, &key);
+        shown(&mut repeated, &still);
+        for bytes in [&key, &moving, &still] {
+            shown(&mut after_moving, bytes);
+        }
+        let mut moving_only = board();
+        shown(&mut moving_only, &key);
+        shown(&mut moving_only, &moving);
+        assert_ne!(
+            moving_only.disparity(),
+            only_key.disparity(),
+            "the square moves the map"
+        );
+        for b in [&repeated, &after_moving] {
+            assert_eq!(b.disparity(), only_key.disparity());
+        }
+        assert_eq!(repeated.pair(), only_key.pair());
+        assert_eq!(after_moving.pair(), only_key.pair());
+    }
+
     /// Segmented frames too: the board rebuilds each predicted label map
     /// as sent, a predicted pair costs under a quarter of the key pair at
     /// about its PSNR, and without the reference it is refused.

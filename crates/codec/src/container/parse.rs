@@ -128,6 +128,20 @@ impl FrameRef<'_> {
             .into_iter()
             .filter_map(|v| v.reference())
     }
+
+    /// The reference of a still pair: both views predicted from it, lossy,
+    /// with no block changed (the pair is the reference's).
+    pub fn unchanged(&self) -> Option<RefId> {
+        let still = |v: &ViewRef| {
+            if v.coding != coding::PREDICTED {
+                return None;
+            }
+            let coded = temporal::Coded::parse(v.payload, (self.width, self.height)).ok()?;
+            (!coded.any_changed()).then_some(coded.reference)
+        };
+        let left = still(&self.left)?;
+        (still(&self.right)? == left).then_some(left)
+    }
 }
 
 /// One coded view: how it is coded, its palette and its payload.
