@@ -119,6 +119,9 @@ pub struct Summary {
     pub status: Status,
 }
 
+/// How long live frames hold back after a report had to wait for the air.
+const STARVED_HOLD: Duration = Duration::from_secs(2);
+
 /// The smallest frame's size, when `e` says a budget was below it.
 fn smallest_frame(e: &anyhow::Error) -> Option<usize> {
     match e.downcast_ref::<CodecError>() {
@@ -190,6 +193,10 @@ pub struct SendLoop {
     /// With temporal prediction: the stream's references, and how often a
     /// key frame goes anyway.
     stream: Option<(StreamEncoder, Duration)>,
+    /// Until when no new live frame starts: a report had to be replaced
+    /// before it could go (the air carries fewer reports than the camera
+    /// makes).
+    starved_until: Option<Instant>,
     /// `--record FILE.mcap`.
     recorder: Option<Recorder>,
 }
@@ -256,6 +263,7 @@ impl SendLoop {
             pace: None,
             stream: None,
             recorder: None,
+            starved_until: None,
         }
     }
 
@@ -331,8 +339,10 @@ impl SendLoop {
                 }
             };
             pair_id += 1;
-            let frame =
-                wanted == Applied::FrameNow || !pairs.paced() || !self.uplink.frame_in_flight();
+            let starved = self.starved_until.is_some_and(|t| Instant::now() < t);
+            let frame = wanted == Applied::FrameNow
+                || !pairs.paced()
+                || (!starved && !self.uplink.frame_in_flight());
             if frame {
                 // The frame just ended counts as delivered (a reference).
                 let ended = self.uplink.outcomes();
@@ -569,7 +579,13 @@ impl SendLoop {
             self.link = o.link.to_string();
             let stats = match o.ended {
                 Ended::Failed(e) => return Err(e).context(what),
-                Ended::Superseded => None,
+                Ended::Superseded { sent } => {
+                    if !sent {
+                        // Reports wait for the air: frames give way.
+                        self.starved_until = Some(Instant::now() + STARVED_HOLD);
+                    }
+                    None
+                }
                 Ended::Delivered(stats) => Some(stats),
             };
             let handed = match o.kind {

@@ -11,7 +11,9 @@
 //! one report, so on a link too slow for every report the newest goes as
 //! fast as the air allows instead of queueing. A replaced report ends
 //! [`Ended::Superseded`], never counted delivered, though the peer may
-//! have had it. With
+//! have had it. A report replaced while still waiting says the air carries
+//! reports slower than the camera makes them: the send loop then starts no
+//! new frame, so that what air there is goes to depth. With
 //! a second link (the paper's two radio pairs, `send --report-link`) the
 //! reports go over that one instead.
 //!
@@ -64,8 +66,13 @@ pub struct Outcome {
 pub enum Ended {
     /// The peer acknowledged it, at this cost.
     Delivered(SendStats),
-    /// A newer report took its place before it was sent: never sent.
-    Superseded,
+    /// A newer report took its place before its acknowledgement: in flight
+    /// (`sent`: the peer may have it), or still waiting for the lane (the
+    /// air carries reports slower than they come).
+    Superseded {
+        /// It had gone on the link.
+        sent: bool,
+    },
     /// The link gave up on it.
     Failed(LinkError),
 }
@@ -284,7 +291,7 @@ fn run(
                         // The newest report wins over one still waiting.
                         if let Some(k) = queued[i].iter().position(|j| j.replaceable) {
                             if let Some(old) = queued[i].remove(k) {
-                                superseded(&done, old.frame_id, &eps[urgent_ep]);
+                                superseded(&done, (old.frame_id, false), &eps[urgent_ep]);
                             }
                         }
                     }
@@ -311,7 +318,7 @@ fn run(
             if report_sent.elapsed() >= overtake_after {
                 eps[urgent_ep].abandon(Lane::Urgent);
                 current[u] = None;
-                superseded(&done, id, &eps[urgent_ep]);
+                superseded(&done, (id, true), &eps[urgent_ep]);
             }
         }
         for (lane, e) in [(Lane::Urgent, urgent_ep), (Lane::Bulk, bulk_ep)] {
@@ -365,12 +372,13 @@ fn run(
     Ok(())
 }
 
-/// Says that the report of pair `frame_id` was overtaken by a newer one.
-fn superseded(done: &mpsc::Sender<Outcome>, frame_id: u32, ep: &Endpoint) {
+/// Says that the report of pair `frame_id` was overtaken by a newer one
+/// (`sent`: in flight).
+fn superseded(done: &mpsc::Sender<Outcome>, (frame_id, sent): (u32, bool), ep: &Endpoint) {
     let _ = done.send(Outcome {
         kind: Kind::Report,
         frame_id,
-        ended: Ended::Superseded,
+        ended: Ended::Superseded { sent },
         link: ep.link_stats(),
     });
 }
