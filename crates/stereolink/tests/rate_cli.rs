@@ -4,23 +4,11 @@
 //! that frame's size (the one `--json` reports for the lowest setting).
 
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
+use std::process::Output;
 
-use serde_json::Value;
+mod common;
 
-fn stereolink() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_stereolink"))
-}
-
-#[track_caller]
-fn json(out: &Output) -> Value {
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).unwrap()
-}
+use common::{json, stereolink};
 
 /// A 160x120 synthetic pair in `dir`.
 fn pair(dir: &Path) -> (PathBuf, PathBuf) {

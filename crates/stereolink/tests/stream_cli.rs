@@ -4,24 +4,12 @@
 //! a stream with a frame missing or cut is a clear error.
 
 use std::path::Path;
-use std::process::{Command, Output};
 
-use serde_json::Value;
 use stereolink_image::{io, RgbImage};
 
-fn stereolink() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_stereolink"))
-}
+mod common;
 
-#[track_caller]
-fn json(out: &Output) -> Value {
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).unwrap()
-}
+use common::{json, stereolink};
 
 /// `view` with seeded noise of a few grey levels.
 fn noisy(view: &RgbImage, seed: u32) -> RgbImage {

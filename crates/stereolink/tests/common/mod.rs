@@ -11,6 +11,22 @@ pub mod xbee;
 
 use std::process::{Child, Command, Stdio};
 
+/// The binary, as a command to add arguments to.
+pub fn stereolink() -> Command {
+    Command::new(env!("CARGO_BIN_EXE_stereolink"))
+}
+
+/// The JSON a successful run printed (its stderr in the failure message).
+#[track_caller]
+pub fn json(out: &std::process::Output) -> serde_json::Value {
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).unwrap()
+}
+
 /// Starts the binary with piped output.
 pub fn spawn<S: AsRef<std::ffi::OsStr>>(args: &[S]) -> Child {
     Command::new(env!("CARGO_BIN_EXE_stereolink"))
