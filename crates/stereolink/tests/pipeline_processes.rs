@@ -6,12 +6,13 @@
 
 mod common;
 
-use std::path::Path;
 use std::sync::atomic::Ordering;
 use std::time::Duration;
 
 use common::xbee::{Firmware, RadioLink, Timing};
-use common::{finish, finish_with_stderr, free_port, spawn, spawn_udp_receiver, strings, synth};
+use common::{
+    finish, finish_with_stderr, free_port, send_args, spawn, spawn_udp_receiver, strings, synth,
+};
 use stereolink_image::io;
 
 /// The number printed right after `word` in `text`.
@@ -31,21 +32,6 @@ enum Board {
     /// The sender's plane table (`send --algo planes`, `receive
     /// --disparity planes`): the board's map must be the sender's.
     Planes,
-}
-
-/// `send` of the synthetic pair in `scene` over `link`, for the synthetic
-/// rig (focal length 128 px, baseline 3 cm, 23 disparities).
-fn send_args(link: &str, scene: &Path) -> Vec<String> {
-    let file = |name: &str| scene.join(name).to_str().unwrap().to_string();
-    let mut args = strings(&["send", "--link", link, "--max-disp", "23"]);
-    args.extend(strings(&["--focal-px", "128", "--baseline-m", "0.03"]));
-    args.extend([
-        "--left".into(),
-        file("left.png"),
-        "--right".into(),
-        file("right.png"),
-    ]);
-    args
 }
 
 /// Runs one `receive` and one `send` of a synthetic pair; returns what the

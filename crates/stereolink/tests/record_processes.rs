@@ -13,7 +13,7 @@ use std::path::Path;
 use std::process::Command;
 use std::time::{Duration, SystemTime, UNIX_EPOCH};
 
-use common::{finish, free_port, spawn, spawn_udp_receiver, strings, synth};
+use common::{finish, free_port, send_args, spawn, spawn_udp_receiver, strings, synth};
 
 /// The log times of each topic's messages, and each topic's schema name.
 fn topics(path: &Path) -> BTreeMap<String, (String, Vec<u64>)> {
@@ -107,29 +107,13 @@ fn send_and_receive_record_the_same_stamped_topics() {
         ],
     );
     std::thread::sleep(Duration::from_millis(200));
-    let file = |name: &str| scene.join(name).to_str().unwrap().to_string();
-    let mut args = strings(&["send", "--link"]);
-    args.push(format!("udp:127.0.0.1:{a}?peer=127.0.0.1:{b}"));
-    args.extend(strings(&[
-        "--max-disp",
-        "23",
-        "--focal-px",
-        "128",
-        "--baseline-m",
-        "0.03",
-    ]));
+    let mut args = send_args(&format!("udp:127.0.0.1:{a}?peer=127.0.0.1:{b}"), &scene);
     args.extend(strings(&[
         "--repeat",
         "2",
         "--record",
         tx_rec.to_str().unwrap(),
     ]));
-    args.extend([
-        "--left".into(),
-        file("left.png"),
-        "--right".into(),
-        file("right.png"),
-    ]);
     finish(spawn(&args), "send");
     finish(rx, "receive");
     let after_us = SystemTime::now()
@@ -205,29 +189,13 @@ fn the_gateway_records_each_station_under_its_name() {
     ]));
     let gw = spawn(&args);
     std::thread::sleep(Duration::from_millis(200));
-    let file = |name: &str| scene.join(name).to_str().unwrap().to_string();
-    let mut args = strings(&["send", "--link"]);
-    args.push(format!("udp:127.0.0.1:{a}?peer=127.0.0.1:{b}"));
-    args.extend(strings(&[
-        "--max-disp",
-        "23",
-        "--focal-px",
-        "128",
-        "--baseline-m",
-        "0.03",
-    ]));
+    let mut args = send_args(&format!("udp:127.0.0.1:{a}?peer=127.0.0.1:{b}"), &scene);
     args.extend(strings(&[
         "--repeat",
         "2",
         "--record",
         tx_rec.to_str().unwrap(),
     ]));
-    args.extend([
-        "--left".into(),
-        file("left.png"),
-        "--right".into(),
-        file("right.png"),
-    ]);
     finish(spawn(&args), "send");
     finish(gw, "gateway");
 

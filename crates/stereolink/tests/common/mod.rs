@@ -106,3 +106,18 @@ pub fn free_port() -> u16 {
         .unwrap()
         .port()
 }
+
+/// `send` of the synthetic pair in `scene` over `link`, for the synthetic
+/// rig (focal length 128 px, baseline 3 cm, 23 disparities).
+pub fn send_args(link: &str, scene: &std::path::Path) -> Vec<String> {
+    let file = |name: &str| scene.join(name).to_str().unwrap().to_string();
+    let mut args = strings(&["send", "--link", link, "--max-disp", "23"]);
+    args.extend(strings(&["--focal-px", "128", "--baseline-m", "0.03"]));
+    args.extend([
+        "--left".into(),
+        file("left.png"),
+        "--right".into(),
+        file("right.png"),
+    ]);
+    args
+}
