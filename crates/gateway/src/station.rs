@@ -489,7 +489,7 @@ impl Station {
                 meta["rejected"] = json!(why);
                 None
             }
-            Event::Report { .. } | Event::Command { .. } => None,
+            Event::Report { .. } | Event::Command { .. } | Event::Answered { .. } => None,
         }
     }
 

@@ -186,6 +186,9 @@ pub fn run(cfg: DemoConfig, progress: &dyn Fn(&str)) -> anyhow::Result<DemoRepor
             Event::Command { command, .. } => {
                 anyhow::bail!("the demo sent no command, yet the receiver read {command}")
             }
+            Event::Answered { id, .. } => {
+                anyhow::bail!("the demo's receiver asked for no key frame, yet read answer {id}")
+            }
         }
     }
     let axis_final = match board.axis.as_mut() {

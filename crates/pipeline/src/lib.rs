@@ -24,6 +24,7 @@
 pub mod cdr;
 pub mod coding;
 pub mod demo;
+pub mod key_request;
 pub mod live;
 pub mod live_bench;
 pub mod pairs;

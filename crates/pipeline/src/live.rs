@@ -4,8 +4,9 @@
 //! its depth report goes at once on the urgent lane, whatever frame is in
 //! flight: the robot gets depth at the camera's rate. A live pair becomes a
 //! frame only when the link has finished the frame before (frames as fast
-//! as the link carries them, the newest pair winning); each pair of files
-//! is a frame. Between pairs the loop obeys the commands that came over the
+//! as the link carries them, the newest pair winning), and only while the
+//! reports leave the link most of its air: on a link too slow for both,
+//! depth goes alone. Each pair of files is a frame. Between pairs the loop obeys the commands that came over the
 //! link ([`SendLoop::run`]): new levels or method from the next pair, the
 //! last pair again at once on a frame request; each is answered on the
 //! link. Once a second, and at the end, it says what the link carried
@@ -90,6 +91,10 @@ pub struct Status {
     /// (waiting, or in flight: the peer may have had it, but it is not
     /// counted delivered).
     pub superseded: u64,
+    /// The share of the frames' link's air the depth reports take at the
+    /// camera's rate (over 0.5, live frames stop: depth goes alone); none
+    /// when unknown or the reports have a link of their own.
+    pub report_air_share: Option<f64>,
     /// Reports and frames the peer acknowledged; a report's latency runs
     /// from its pair's capture to that acknowledgement.
     #[serde(flatten)]
@@ -100,6 +105,15 @@ pub struct Status {
     pub retransmissions: u64,
     /// What the link measured so far.
     pub link: String,
+}
+
+impl Status {
+    /// Whether the reports took so much of the air that live frames
+    /// stopped (depth went alone).
+    pub fn depth_alone(&self) -> bool {
+        self.report_air_share
+            .is_some_and(|s| s > REPORTS_ALONE_ABOVE)
+    }
 }
 
 /// What the loop tells its caller as it goes.
@@ -121,6 +135,55 @@ pub struct Summary {
 
 /// How long live frames hold back after a report had to wait for the air.
 const STARVED_HOLD: Duration = Duration::from_secs(2);
+
+/// The most of the frames' air the reports may take with frames still
+/// starting: above it, a frame's fragments would hold up reports that
+/// already fill most of the air, so depth goes alone (a link that
+/// collapses to a few kb/s carries depth and no pictures).
+const REPORTS_ALONE_ABOVE: f64 = 0.5;
+
+/// How much of the frames' link the depth reports take: a report and its
+/// acknowledgement's air time (two packet times) over the time between
+/// pairs, averaged (a quarter of the weight on the last interval).
+#[derive(Clone, Copy, Debug)]
+struct ReportLoad {
+    /// A report's air on the frames' link; none on a link of its own.
+    air: Option<Duration>,
+    last: Option<Instant>,
+    interval_s: Option<f64>,
+}
+
+impl ReportLoad {
+    fn new(air: Option<Duration>) -> ReportLoad {
+        ReportLoad {
+            air,
+            last: None,
+            interval_s: None,
+        }
+    }
+
+    /// A pair was taken at `now`.
+    fn taken(&mut self, now: Instant) {
+        if let Some(last) = self.last {
+            let dt = now.duration_since(last).as_secs_f64();
+            self.interval_s = Some(self.interval_s.map_or(dt, |i| 0.75 * i + 0.25 * dt));
+        }
+        self.last = Some(now);
+    }
+
+    /// The share of the frames' air the reports take (may exceed 1: the
+    /// air carries fewer reports than the pairs come).
+    fn share(&self) -> Option<f64> {
+        Some(self.air?.as_secs_f64() / self.interval_s?.max(1e-6))
+    }
+
+    /// Whether depth needs the air to itself; so it is until the second
+    /// pair says how often reports come, when they share the frames' air
+    /// (a first frame on a collapsed link would hold it for many seconds).
+    fn holds_frames(&self) -> bool {
+        self.air.is_some() && self.share().is_none_or(|s| s > REPORTS_ALONE_ABOVE)
+    }
+}
 
 /// The smallest frame's size, when `e` says a budget was below it.
 fn smallest_frame(e: &anyhow::Error) -> Option<usize> {
@@ -151,12 +214,13 @@ impl Counts {
         }
     }
 
-    fn status(&self, now: Instant, link: &str) -> Status {
+    fn status(&self, now: Instant, link: &str, load: &ReportLoad) -> Status {
         let delivered = self.rates.figures(now);
         Status {
             pairs: self.pairs,
             skipped: self.skipped,
             superseded: self.superseded,
+            report_air_share: load.share(),
             goodput_bps: delivered.bytes as f64 * 8.0 / delivered.seconds.max(1e-9),
             delivered,
             retransmissions: self.retransmissions,
@@ -197,6 +261,8 @@ pub struct SendLoop {
     /// before it could go (the air carries fewer reports than the camera
     /// makes).
     starved_until: Option<Instant>,
+    /// How much of the frames' air the reports take.
+    load: ReportLoad,
     /// `--record FILE.mcap`.
     recorder: Option<Recorder>,
 }
@@ -264,6 +330,7 @@ impl SendLoop {
             stream: None,
             recorder: None,
             starved_until: None,
+            load: ReportLoad::new(None),
         }
     }
 
@@ -306,6 +373,8 @@ impl SendLoop {
         mut on: impl FnMut(Update),
     ) -> anyhow::Result<Summary> {
         let room = self.uplink.report_room()?;
+        self.load = ReportLoad::new(room.frames_air);
+        let room = room.bytes;
         let (mut pair_id, mut frames_sent) = (0, 0);
         let mut next_second = Instant::now() + Duration::from_secs(1);
         while frames.is_none_or(|n| frames_sent < n) {
@@ -313,7 +382,7 @@ impl SendLoop {
             self.collect(outcomes, &mut on)?;
             let now = Instant::now();
             if now >= next_second {
-                let status = self.second.status(now, &self.link);
+                let status = self.second.status(now, &self.link, &self.load);
                 self.second = Counts::new(now);
                 if let Some(r) = &mut self.recorder {
                     r.link(unix_us(), "stereolink send: link", &status)?;
@@ -339,7 +408,9 @@ impl SendLoop {
                 }
             };
             pair_id += 1;
-            let starved = self.starved_until.is_some_and(|t| Instant::now() < t);
+            self.load.taken(Instant::now());
+            let starved =
+                self.starved_until.is_some_and(|t| Instant::now() < t) || self.load.holds_frames();
             let frame = wanted == Applied::FrameNow
                 || !pairs.paced()
                 || (!starved && !self.uplink.frame_in_flight());
@@ -361,7 +432,7 @@ impl SendLoop {
         }
         let rest = self.uplink.finish()?;
         self.collect(rest, &mut on)?;
-        let status = self.total.status(Instant::now(), &self.link);
+        let status = self.total.status(Instant::now(), &self.link, &self.load);
         if let Some(r) = self.recorder.take() {
             r.finish()?;
         }
@@ -677,6 +748,33 @@ mod tests {
         // The link slows to 16 kb/s: the average halves the step.
         pace.delivered(&frame(2000, 1000));
         assert_eq!(pace.budget(), Some(1500));
+    }
+
+    #[test]
+    fn depth_takes_the_air_alone_when_reports_fill_half_of_it() {
+        let t0 = Instant::now();
+        let at = |ms| t0 + Duration::from_millis(ms);
+        // 10 pairs a second; a report and its acknowledgement take 40 ms.
+        let mut load = ReportLoad::new(Some(Duration::from_millis(40)));
+        load.taken(at(0));
+        assert!(load.holds_frames(), "before the rate is known");
+        for i in 1..10 {
+            load.taken(at(100 * i));
+        }
+        assert!((load.share().unwrap() - 0.4).abs() < 1e-3);
+        assert!(!load.holds_frames());
+        // The link collapses: 270 ms a report, 2.7 times the air there is.
+        let mut slow = ReportLoad::new(Some(Duration::from_millis(270)));
+        for i in 0..10 {
+            slow.taken(at(100 * i));
+        }
+        assert!(slow.holds_frames());
+        // Reports on a link of their own never hold frames back.
+        let mut own = ReportLoad::new(None);
+        own.taken(at(0));
+        own.taken(at(1));
+        assert_eq!(own.share(), None);
+        assert!(!own.holds_frames());
     }
 
     #[test]

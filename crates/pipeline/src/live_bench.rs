@@ -135,7 +135,7 @@ fn receive(
                 }
             }
             Event::Rejected(_) => refused += 1,
-            Event::Command { .. } => {}
+            Event::Command { .. } | Event::Answered { .. } => {}
         }
         ep.dealt_with().context("link")?;
     }

@@ -11,7 +11,8 @@
 //!
 //! The board keeps its last frames as the references of predicted frames
 //! ([`stereolink_codec::temporal`]); one whose reference it lacks is
-//! rejected, and [`BoardReceiver::needs_key`] says a key frame is wanted.
+//! rejected, and [`BoardReceiver::key_request`] asks the sender for a key
+//! frame ([`crate::key_request`]).
 //! A still pair (predicted, no block changed) that repeats the pair on the
 //! screen is not matched again: it is that pair.
 //!
@@ -38,6 +39,8 @@ use stereolink_display::{
 };
 use stereolink_image::synth::{synthesize, SynthSpec};
 use stereolink_image::{DisparityMap, RgbImage};
+
+use crate::key_request::KeyRequests;
 use stereolink_robot::policy::{MotionPolicy, ValidatedDistance, Watchdog};
 use stereolink_robot::{Axis, AxisError};
 use stereolink_segment::segment;
@@ -69,6 +72,13 @@ pub enum Event {
         commanded_mm: Option<f64>,
         /// The axis is held by a stop command: reports no longer move it.
         held: bool,
+    },
+    /// The sender answered the board's request for a key frame.
+    Answered {
+        /// The request's id.
+        id: u32,
+        /// Done (a key frame follows), or why not.
+        result: Result<(), String>,
     },
     /// A command from the link was obeyed or refused.
     Command {
@@ -102,6 +112,8 @@ pub struct BoardReceiver {
     /// A frame could not be decoded since the last key frame shown: the
     /// sender should send a key frame.
     needs_key: bool,
+    /// The board's requests for a key frame.
+    key_requests: KeyRequests,
     matcher: WtaMatcher,
     params: WtaParams,
     gray: (Samples, Samples),
@@ -149,6 +161,7 @@ impl BoardReceiver {
             decoder: FrameDecoder::default(),
             references: References::default(),
             needs_key: false,
+            key_requests: KeyRequests::default(),
             matcher: WtaMatcher::new(),
             params: WtaParams {
                 min_disp: 0,
@@ -278,6 +291,12 @@ impl BoardReceiver {
     fn obey(&mut self, body: &[u8]) -> Event {
         let (id, command) = match Control::decode(body) {
             Ok(Control::Command { id, command }) => (id, command),
+            Ok(Control::Reply(r)) if self.key_requests.answers(&r) => {
+                return Event::Answered {
+                    id: r.id,
+                    result: r.result,
+                }
+            }
             Ok(Control::Reply(r)) => {
                 return Event::Rejected(format!(
                     "a reply (to command {}) is not for the board",
@@ -314,6 +333,18 @@ impl BoardReceiver {
     /// sender should send a key frame next.
     pub fn needs_key(&self) -> bool {
         self.needs_key
+    }
+
+    /// A frame request for the sender (the whole message), when the board
+    /// needs a key frame and has not asked within
+    /// [`crate::key_request::ASK_AGAIN_AFTER`].
+    pub fn key_request(&mut self, now: Instant) -> Option<Vec<u8>> {
+        self.key_requests.due(self.needs_key, now)
+    }
+
+    /// Key frames asked of the sender so far.
+    pub fn key_requests(&self) -> u32 {
+        self.key_requests.made()
     }
 
     /// Forgets the frames kept as references (a new session: a restarted

@@ -95,9 +95,21 @@ pub struct Uplink {
     frames_in_flight: usize,
     /// Outcomes taken while waiting, not yet handed out.
     taken: VecDeque<Outcome>,
-    /// The largest message one radio packet carries, once the thread
-    /// has opened its endpoints.
-    room: Receiver<usize>,
+    /// What a report costs the link, once the thread has opened its
+    /// endpoints.
+    room: Receiver<ReportRoom>,
+}
+
+/// What one depth report costs the link.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct ReportRoom {
+    /// The largest report that crosses in one radio packet, with the
+    /// secure layer's overhead ([`Endpoint::one_packet_message`]).
+    pub bytes: usize,
+    /// The air a report and its acknowledgement take from the frames'
+    /// link: two packet times; none when the reports have a link of their
+    /// own, or the transport does not say its packet time.
+    pub frames_air: Option<Duration>,
 }
 
 /// How long the link thread answers the peer's late retransmissions after
@@ -121,7 +133,14 @@ impl Uplink {
         let (room_tx, room) = mpsc::sync_channel(1);
         let thread = std::thread::spawn(move || {
             let (frames, reports) = make()?;
-            let _ = room_tx.send(reports.as_ref().unwrap_or(&frames).one_packet_message());
+            let room = ReportRoom {
+                bytes: reports.as_ref().unwrap_or(&frames).one_packet_message(),
+                frames_air: match reports {
+                    Some(_) => None,
+                    None => frames.packet_time().map(|t| t * 2),
+                },
+            };
+            let _ = room_tx.send(room);
             run(frames, reports, job_rx, (done_tx, incoming_tx))
         });
         Uplink {
@@ -135,10 +154,9 @@ impl Uplink {
         }
     }
 
-    /// The largest report that crosses the link in one radio packet, with
-    /// the secure layer's overhead ([`Endpoint::one_packet_message`] of
-    /// the reports' link); waits for the link thread to open its links.
-    pub fn report_room(&mut self) -> anyhow::Result<usize> {
+    /// What a report costs the link (the reports' link for its size);
+    /// waits for the link thread to open its links.
+    pub fn report_room(&mut self) -> anyhow::Result<ReportRoom> {
         match self.room.recv() {
             Ok(room) => Ok(room),
             Err(_) => {

@@ -97,6 +97,11 @@ fn frame_ids(lines: &[String]) -> Vec<u32> {
 
 /// A sender of the scene's pair, `repeat` times.
 fn sender(link: &str, scene: &Path, repeat: u32) -> Proc {
+    Proc::spawn(&sender_args(link, scene, repeat))
+}
+
+/// The arguments of [`sender`].
+fn sender_args(link: &str, scene: &Path, repeat: u32) -> Vec<String> {
     let mut args = strings(&["send", "--link", link, "--max-disp", "23"]);
     args.extend(strings(&["--focal-px", "128", "--baseline-m", "0.03"]));
     args.extend(strings(&["--method", "kmeans", "--levels", "4"]));
@@ -108,13 +113,18 @@ fn sender(link: &str, scene: &Path, repeat: u32) -> Proc {
         "--repeat",
         &repeat.to_string(),
     ]));
-    Proc::spawn(&args)
+    args
 }
 
 /// A receiver that shows every frame as a PNG and stops after 4 s of silence.
 fn receiver(link: &str, screens: &Path) -> Proc {
+    Proc::spawn(&receiver_args(link, screens))
+}
+
+/// The arguments of [`receiver`].
+fn receiver_args(link: &str, screens: &Path) -> Vec<String> {
     let display = format!("png:{}", screens.display());
-    Proc::spawn(&strings(&[
+    strings(&[
         "receive",
         "--link",
         link,
@@ -124,7 +134,7 @@ fn receiver(link: &str, screens: &Path) -> Proc {
         "4",
         "--display",
         &display,
-    ]))
+    ])
 }
 
 /// A sender's frames as it reports them sent: it must have succeeded.
@@ -217,6 +227,62 @@ fn receiver_restart(rx_link: &str, tx_link: &str) {
     assert!(ok, "{err}");
     shown.extend(frame_ids(&lines));
     assert_eq!(shown, sent, "{lines:?}");
+}
+
+/// A receiver restarted in a `--temporal` stream lacks the reference of
+/// the next predicted frame: it shows no frame it cannot rebuild, asks the
+/// sender for a key frame, and shows the key frame that comes.
+#[test]
+fn a_restarted_receiver_asks_for_a_key_frame_over_udp() {
+    let (rx_link, tx_link) = udp_links();
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("scene");
+    synth(&scene);
+    let first = receiver(&rx_link, &dir.path().join("screens-1"));
+    std::thread::sleep(Duration::from_millis(200));
+    let mut args = sender_args(&tx_link, &scene, 10);
+    args.extend(strings(&["--temporal", "--json"]));
+    let tx = Proc::spawn(&args);
+    first.wait_for("frame 2:");
+    first.kill();
+    let mut args = strings(&["--json"]);
+    args.extend(receiver_args(&rx_link, &dir.path().join("screens-2")));
+    let second = Proc::spawn(&args);
+    let (ok, lines, err) = tx.finish();
+    assert!(ok, "sender failed: {lines:?} {err}");
+    let sent: serde_json::Value = serde_json::from_str(&lines.join("\n")).unwrap();
+    let (ok, lines, err) = second.finish();
+    assert!(ok, "{err}");
+    let got: serde_json::Value = serde_json::from_str(&lines.join("\n")).unwrap();
+    assert!(
+        got["summary"]["key_requests"].as_u64().unwrap() >= 1,
+        "{got}"
+    );
+    let events = got["events"].as_array().unwrap();
+    let answered = events
+        .iter()
+        .position(|e| e["Answered"]["result"].get("Ok").is_some())
+        .unwrap_or_else(|| panic!("no answer to a key frame request: {got}"));
+    // Every frame shown after the answer: the key frame and those
+    // predicted from it.
+    let shown_after = events[answered..]
+        .iter()
+        .filter(|e| e.get("Frame").is_some())
+        .count();
+    assert!(shown_after >= 1, "{got}");
+    // The sender sent a key frame after the first.
+    let keys = sent["frames"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|f| f["frame_kind"] == "key")
+        .count();
+    assert!(keys >= 2, "{sent}");
+    // Nothing was shown that the board could not rebuild: the frames it
+    // refused are the predicted ones before the key frame.
+    for e in &events[..answered] {
+        assert!(e.get("Frame").is_none(), "{got}");
+    }
 }
 
 /// What [`Relay`] does with the datagrams.

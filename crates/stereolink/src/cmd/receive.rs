@@ -7,7 +7,7 @@ use serde::Serialize;
 use stereolink_codec::container;
 use stereolink_codec::control::unix_us;
 use stereolink_display::open_sink;
-use stereolink_link::endpoint::{Endpoint, LinkError};
+use stereolink_link::endpoint::{Endpoint, Lane, LinkError};
 use stereolink_link::secure::{Rejections, SecureConfig};
 use stereolink_pipeline::rates::{since_stamp, Figures, Rates};
 use stereolink_pipeline::receiver::{BoardReceiver, DisparitySource, Event};
@@ -149,6 +149,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
             // that falls silent must stop the axis too. Short waits, so that it
             // and the screen follow the axis while the link is silent.
             check_watchdog(&mut board, args.watchdog_s);
+            ask_for_key(&mut board, &mut eps[0]);
             let msg = match next_message(&mut eps, POLL.min(timeout)) {
                 Ok(m) => m,
                 Err(LinkError::Timeout) if heard.elapsed() < timeout => {
@@ -229,6 +230,13 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
                         result: Err(why),
                     } => eprintln!("command {id} ({command}): refused: {why}"),
                     Event::Rejected(why) => eprintln!("{why}"),
+                    Event::Answered { id, result } => eprintln!(
+                        "key frame request {id}: {}",
+                        match result {
+                            Ok(()) => "taken".into(),
+                            Err(why) => format!("refused: {why}"),
+                        }
+                    ),
                 }
             }
             frames.count(&event);
@@ -293,6 +301,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
             .as_ref()
             .and_then(|p| p.as_ref().ok().copied()),
         axis_stopped: axis.stopped,
+        key_requests: board.key_requests(),
     };
     if !out.json {
         println!("{summary}");
@@ -314,6 +323,32 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     }
     recorded?;
     ended.map(|_| ())
+}
+
+/// Asks the sender for a key frame when the board needs one (a predicted
+/// frame's reference missing), on the frames' link's urgent lane, and
+/// drives that request's send.
+fn ask_for_key(board: &mut BoardReceiver, ep: &mut Endpoint) {
+    if ep.is_idle(Lane::Urgent) {
+        if let Some(request) = board.key_request(Instant::now()) {
+            match ep.submit(Lane::Urgent, &request) {
+                Ok(()) => eprintln!("a frame could not be shown: asked the sender for a key frame"),
+                Err(e) => eprintln!("could not ask the sender for a key frame: {e}"),
+            }
+        }
+    }
+    if !ep.is_idle(Lane::Urgent) {
+        match ep.poll_sends(Duration::ZERO) {
+            Ok(ended) => {
+                for (_, result) in ended {
+                    if let Err(e) = result {
+                        eprintln!("a key frame request was not delivered: {e}");
+                    }
+                }
+            }
+            Err(e) => eprintln!("link: {e}"),
+        }
+    }
 }
 
 /// Stops the axis if no valid depth report came for `secs`, and says so.
@@ -452,6 +487,9 @@ struct Summary {
     axis_mm: Option<f64>,
     /// The link went quiet or failed mid-move, so the axis was stopped.
     axis_stopped: bool,
+    /// Key frames asked of the sender (predicted frames that could not be
+    /// shown).
+    key_requests: u32,
 }
 
 impl std::fmt::Display for Summary {

@@ -318,8 +318,15 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
 
 /// A status line: pairs in and skipped, what was delivered, the link.
 pub fn status_line(s: &Status) -> String {
+    let depth_alone = match s.report_air_share {
+        Some(share) if s.depth_alone() => format!(
+            " (reports need {:.0} % of the air: depth goes alone, no frames)",
+            share * 100.0
+        ),
+        _ => String::new(),
+    };
     format!(
-        "pairs: {} in, {} skipped; acknowledged: {} ({} more reports overtaken before their acknowledgement); link: {:.1} kb/s, {} retransmissions; {}",
+        "pairs: {} in, {} skipped; acknowledged: {} ({} more reports overtaken before their acknowledgement){depth_alone}; link: {:.1} kb/s, {} retransmissions; {}",
         s.pairs,
         s.skipped,
         s.delivered,
