@@ -419,13 +419,9 @@ fn send_watches_a_camera_folder_newest_first() {
     assert!(shots.join("screen-00002.png").is_file());
 }
 
-/// `bench live` plays a sequence at 10 pairs/s over the calibrated ZigBee
-/// model: every pair is matched and its report reaches the board in order
-/// (none refused as stale), frames go as the link allows, and both ends'
-/// figures are in the JSON. The margins are wide: CI's two cores also run
-/// other tests.
-#[test]
-fn bench_live_delivers_a_report_per_pair_while_frames_stream() {
+/// `stereolink --json bench live` of 20 copies of the synthetic pair at
+/// 10 pairs/s over `link`.
+fn bench_live(link: &str) -> serde_json::Value {
     let dir = tempfile::tempdir().unwrap();
     let scene = dir.path().join("scene");
     synth(&scene);
@@ -451,7 +447,7 @@ fn bench_live_delivers_a_report_per_pair_while_frames_stream() {
             "--rate",
             "10",
             "--link",
-            "sim:?radio=zigbee",
+            link,
             "--calib",
             calib.to_str().unwrap(),
             "--max-disp",
@@ -461,7 +457,17 @@ fn bench_live_delivers_a_report_per_pair_while_frames_stream() {
         ])),
         "bench live",
     );
-    let r: serde_json::Value = serde_json::from_str(&out).unwrap();
+    serde_json::from_str(&out).unwrap()
+}
+
+/// `bench live` plays a sequence at 10 pairs/s over the calibrated ZigBee
+/// model: every pair is matched and its report reaches the board in order
+/// (none refused as stale), frames go as the link allows, and both ends'
+/// figures are in the JSON. The margins are wide: CI's two cores also run
+/// other tests.
+#[test]
+fn bench_live_delivers_a_report_per_pair_while_frames_stream() {
+    let r = bench_live("sim:?radio=zigbee");
     let (sender, receiver) = (&r["sender"], &r["receiver"]);
     let pairs = sender["pairs"].as_u64().unwrap();
     assert_eq!(pairs + sender["skipped"].as_u64().unwrap(), 20, "{r}");
@@ -478,6 +484,20 @@ fn bench_live_delivers_a_report_per_pair_while_frames_stream() {
         "{r}"
     );
     assert!(latency["p99"].as_f64().unwrap() < 2000.0, "{r}");
+}
+
+/// On a link that collapsed (ZigBee over 4 hops with encryption, about
+/// 5 kb/s), the reports of 10 pairs/s need more air than there is: depth
+/// takes it all and no frame starts, and reports keep coming, none stale.
+#[test]
+fn bench_live_on_a_collapsed_link_sends_depth_alone() {
+    let r = bench_live("sim:?radio=zigbee&hops=4&encrypted=1");
+    let (sender, receiver) = (&r["sender"], &r["receiver"]);
+    assert!(sender["report_air_share"].as_f64().unwrap() > 0.5, "{r}");
+    assert_eq!(receiver["frames"], 0, "{r}");
+    assert_eq!(r["refused"], 0, "{r}");
+    // About 3.6 reports a second fit the air; 2 s of pairs.
+    assert!(receiver["reports"].as_u64().unwrap() >= 3, "{r}");
 }
 
 /// A lossy pair sent within a byte budget over UDP: the frame fits, and
