@@ -3,6 +3,10 @@
 //! receiver both print these once a second and in their summaries
 //! (`send`, `receive`, `bench live`), so the two ends and the benchmark
 //! speak of the same figures in the same words.
+//!
+//! Latencies are kept as a histogram of fixed size ([`LatencyHistogram`]:
+//! 1 ms bins up to a second, 10 ms bins up to a minute), so a sender or
+//! receiver that runs for months counts in constant memory.
 
 use std::time::{Duration, Instant};
 
@@ -15,7 +19,72 @@ pub struct Rates {
     reports: u64,
     frames: u64,
     bytes: u64,
-    latency_ms: Vec<f64>,
+    latency: LatencyHistogram,
+}
+
+/// Latencies counted in bins: 1 ms wide below [`FINE_MS`], 10 ms wide up
+/// to [`LONGEST_MS`]; a longer one counts in the last bin.
+#[derive(Clone, Debug)]
+pub struct LatencyHistogram {
+    bins: Vec<u64>,
+    count: u64,
+}
+
+/// Where the bins widen from 1 to 10 ms.
+const FINE_MS: usize = 1_000;
+/// The longest latency told apart; longer ones count as this.
+const LONGEST_MS: usize = 60_000;
+const BINS: usize = FINE_MS + (LONGEST_MS - FINE_MS) / 10 + 1;
+
+impl Default for LatencyHistogram {
+    fn default() -> Self {
+        LatencyHistogram {
+            bins: vec![0; BINS],
+            count: 0,
+        }
+    }
+}
+
+impl LatencyHistogram {
+    /// Counts a latency of `ms` (rounded to its bin).
+    pub fn add(&mut self, ms: f64) {
+        let ms = ms.max(0.0).round().min(LONGEST_MS as f64) as usize;
+        let bin = match ms {
+            ms if ms < FINE_MS => ms,
+            ms => FINE_MS + (ms - FINE_MS) / 10,
+        };
+        self.bins[bin] += 1;
+        self.count += 1;
+    }
+
+    /// The latency at quantile `q` (0..1, nearest rank), ms: the bin's
+    /// lower edge; `None` when empty.
+    fn quantile(&self, q: f64) -> Option<f64> {
+        let rank = ((self.count.checked_sub(1)?) as f64 * q).round() as u64;
+        let mut seen = 0;
+        let bin = self.bins.iter().position(|&n| {
+            seen += n;
+            seen > rank
+        })?;
+        Some(match bin {
+            b if b < FINE_MS => b as f64,
+            b => (FINE_MS + (b - FINE_MS) * 10) as f64,
+        })
+    }
+
+    /// Empties it, keeping its bins (no allocation).
+    pub fn clear(&mut self) {
+        self.bins.fill(0);
+        self.count = 0;
+    }
+
+    /// The median and 99th percentile; `None` when empty.
+    pub fn latency(&self) -> Option<Latency> {
+        Some(Latency {
+            p50: self.quantile(0.5)?,
+            p99: self.quantile(0.99)?,
+        })
+    }
 }
 
 /// Latency percentiles, ms.
@@ -25,19 +94,6 @@ pub struct Latency {
     pub p50: f64,
     /// 99th percentile.
     pub p99: f64,
-}
-
-impl Latency {
-    /// The percentiles of `samples` (nearest rank); `None` when empty.
-    pub fn of(samples: &[f64]) -> Option<Latency> {
-        let mut sorted = samples.to_vec();
-        sorted.sort_by(f64::total_cmp);
-        let quantile = |q: f64| sorted[((sorted.len() - 1) as f64 * q).round() as usize];
-        (!sorted.is_empty()).then(|| Latency {
-            p50: quantile(0.5),
-            p99: quantile(0.99),
-        })
-    }
 }
 
 /// The figures of a span.
@@ -69,7 +125,7 @@ impl Rates {
             reports: 0,
             frames: 0,
             bytes: 0,
-            latency_ms: Vec::new(),
+            latency: LatencyHistogram::default(),
         }
     }
 
@@ -78,8 +134,9 @@ impl Rates {
     pub fn report(&mut self, bytes: usize, latency: Option<Duration>) {
         self.reports += 1;
         self.bytes += bytes as u64;
-        self.latency_ms
-            .extend(latency.map(|l| l.as_secs_f64() * 1e3));
+        if let Some(l) = latency {
+            self.latency.add(l.as_secs_f64() * 1e3);
+        }
     }
 
     /// A frame of `bytes`.
@@ -95,7 +152,7 @@ impl Rates {
         Figures {
             reports: self.reports,
             report_rate_hz: per_second(self.reports),
-            report_latency_ms: Latency::of(&self.latency_ms),
+            report_latency_ms: self.latency.latency(),
             frames: self.frames,
             frame_rate_hz: per_second(self.frames),
             bytes: self.bytes,
@@ -104,10 +161,11 @@ impl Rates {
     }
 
     /// The figures until `now`, and a fresh start from `now`: the last
-    /// second's status line.
+    /// second's status line (without allocating).
     pub fn take(&mut self, now: Instant) -> Figures {
         let figures = self.figures(now);
-        *self = Rates::new(now);
+        (self.since, self.reports, self.frames, self.bytes) = (now, 0, 0, 0);
+        self.latency.clear();
         figures
     }
 }
@@ -158,6 +216,19 @@ mod tests {
         let second = r.take(t0 + Duration::from_secs(2));
         assert_eq!(second.reports, 101);
         assert_eq!(r.figures(t0 + Duration::from_secs(3)).reports, 0);
+    }
+
+    #[test]
+    fn latencies_count_in_constant_memory_to_their_bin() {
+        let mut h = LatencyHistogram::default();
+        assert_eq!(h.latency(), None);
+        h.add(-3.0);
+        h.add(2_345.6);
+        h.add(3_600_000.0);
+        assert_eq!(h.bins.len(), BINS);
+        assert_eq!(h.quantile(0.0), Some(0.0));
+        assert_eq!(h.quantile(0.5), Some(2_340.0));
+        assert_eq!(h.quantile(1.0), Some(LONGEST_MS as f64));
     }
 
     #[test]
