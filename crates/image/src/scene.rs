@@ -163,6 +163,20 @@ fn manifest_entry(dir: &Path) -> Result<Option<(f32, usize)>> {
         .map(|(s, n)| (s as f32, n as usize)))
 }
 
+/// The disparity levels (`0..ndisp`) a scene folder states, and the file
+/// that states them: its entry in `../manifest.json`, or its `calib.txt`
+/// (Middlebury's `ndisp=`); `None` when it states none (or is no scene).
+pub fn stated_ndisp(dir: &Path) -> Option<(usize, PathBuf)> {
+    let layout = detect(dir).ok()?;
+    if let (Some(n), Some(parent)) = (layout.ndisp, dir.parent()) {
+        return Some((n, parent.join("manifest.json")));
+    }
+    let path = layout.calib?;
+    let text = std::fs::read_to_string(&path).ok()?;
+    let calib = Calibration::parse_middlebury(&text).ok()?;
+    Some((calib.ndisp, path))
+}
+
 fn detect(dir: &Path) -> Result<Layout> {
     let f = |n: &str| dir.join(n);
     if let Some(left) = existing(dir, &["left.png", "left.ppm"]) {

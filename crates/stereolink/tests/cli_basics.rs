@@ -324,3 +324,54 @@ fn planes_beat_sgm_on_eight_of_the_ten_2014_scenes() {
     let wins = rows.iter().filter(|(_, sgm, planes)| planes < sgm).count();
     assert!(wins >= 8, "planes beat SGM on {wins} of 10: {rows:?}");
 }
+
+/// `match` without `--max-disp` searches the range the scene folder states
+/// (its calib.txt's `ndisp`), or, for images with no scene beside them,
+/// the documented default; and says which.
+#[test]
+fn match_takes_the_scenes_range_or_says_its_default() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("s");
+    let out = stereolink()
+        .args(["synth", scene.to_str().unwrap(), "--width", "160"])
+        .args(["--height", "120", "--max-disp", "24"])
+        .output()
+        .unwrap();
+    assert_success(&out);
+    let calib = std::fs::read_to_string(scene.join("calib.txt")).unwrap();
+    let ndisp: usize = calib
+        .lines()
+        .find_map(|l| l.strip_prefix("ndisp="))
+        .unwrap()
+        .parse()
+        .unwrap();
+    let bare = dir.path().join("bare");
+    std::fs::create_dir(&bare).unwrap();
+    for (from, to) in [("left.png", "a.png"), ("right.png", "b.png")] {
+        std::fs::copy(scene.join(from), bare.join(to)).unwrap();
+    }
+    let run = |left: std::path::PathBuf, right: std::path::PathBuf| {
+        let out = stereolink()
+            .args(["--json", "match"])
+            .arg(left)
+            .arg(right)
+            .args(["-o", dir.path().join("d.pfm").to_str().unwrap()])
+            .output()
+            .unwrap();
+        assert_success(&out);
+        serde_json::from_slice::<serde_json::Value>(&out.stdout).unwrap()
+    };
+    let m = run(scene.join("left.png"), scene.join("right.png"));
+    assert_eq!(m["max_disp"], ndisp - 1, "{m}");
+    assert!(
+        m["max_disp_from"].as_str().unwrap().contains("calib.txt"),
+        "{m}"
+    );
+    // 160 px: a sixteenth multiple of about an eighth of the width, 32 levels.
+    let m = run(bare.join("a.png"), bare.join("b.png"));
+    assert_eq!(m["max_disp"], 31, "{m}");
+    assert!(
+        m["max_disp_from"].as_str().unwrap().contains("160 px"),
+        "{m}"
+    );
+}

@@ -288,9 +288,13 @@ pub struct Args {
     /// Output disparity map (PFM, `inf` = invalid).
     #[arg(short, long)]
     pub output: PathBuf,
-    /// Largest disparity searched.
+    /// Largest disparity searched. Without it: the range the left image's
+    /// scene folder states (its `calib.txt` `ndisp`, or its entry in the
+    /// folder's `../manifest.json`), less one; otherwise OpenCV's sample
+    /// default, a sixteenth multiple of about an eighth of the width, less
+    /// one. `match` says which it used.
     #[arg(long)]
-    pub max_disp: usize,
+    pub max_disp: Option<usize>,
     /// Smallest disparity searched.
     #[arg(long, default_value_t = 0)]
     pub min_disp: usize,
@@ -310,6 +314,9 @@ pub struct Args {
 struct Matched {
     output: PathBuf,
     algorithm: Algorithm,
+    /// The largest disparity searched, and where it came from.
+    max_disp: usize,
+    max_disp_from: String,
     width: usize,
     height: usize,
     time_ms: f64,
@@ -322,18 +329,46 @@ struct Matched {
     distance_m: Option<f64>,
 }
 
+/// The largest disparity to search: `--max-disp`, the range the left
+/// image's scene folder states, or a default for a `width` px view; and
+/// where it came from.
+fn max_disparity(args: &Args, width: usize) -> (usize, String) {
+    if let Some(d) = args.max_disp {
+        return (d, "--max-disp".into());
+    }
+    let folder = args.left.parent().unwrap_or(std::path::Path::new("."));
+    match stereolink_image::scene::stated_ndisp(folder) {
+        Some((n, from)) => (
+            n.saturating_sub(1),
+            format!("ndisp {n} of {}", from.display()),
+        ),
+        None => {
+            let n = ((width / 8).div_ceil(16) * 16).max(16);
+            (
+                n - 1,
+                format!("no range stated beside the images: {n} levels for {width} px"),
+            )
+        }
+    }
+}
+
 /// Matches a pair and writes the disparity map.
 pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
-    let sensor = args.calib.sensor(args.max_disp + 1)?;
+    let (left, right) = (io::read_rgb(&args.left)?, io::read_rgb(&args.right)?);
+    let (max_disp, range_from) = max_disparity(&args, left.width());
+    if args.max_disp.is_none() {
+        eprintln!("disparities {}..={max_disp} ({range_from})", args.min_disp);
+    }
+    let sensor = args.calib.sensor(max_disp + 1)?;
     if let Some(w) = sensor.range_warning() {
         eprintln!("warning: {w}");
     }
     let (left, right) = sensor.rectify(
-        io::read_rgb(&args.left)?,
-        io::read_rgb(&args.right)?,
+        left,
+        right,
         &format!("{} and {}", args.left.display(), args.right.display()),
     )?;
-    let spec = args.matcher.spec(args.min_disp, args.max_disp)?;
+    let spec = args.matcher.spec(args.min_disp, max_disp)?;
     let segments = args.matcher.segments()?;
     let start = Instant::now();
     let disp =
@@ -349,7 +384,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     if let Some(png) = &args.png {
         io::write_rgb(
             png,
-            &colormap::colorize_with_bar(&disp, args.min_disp as f32, args.max_disp as f32),
+            &colormap::colorize_with_bar(&disp, args.min_disp as f32, max_disp as f32),
         )?;
     }
     let valid =
@@ -359,6 +394,8 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     let m = Matched {
         output: args.output.clone(),
         algorithm: spec.algorithm,
+        max_disp,
+        max_disp_from: range_from,
         width: left.width(),
         height: left.height(),
         time_ms,
