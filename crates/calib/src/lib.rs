@@ -33,8 +33,6 @@
 //! square size: give the square in metres and the baseline comes out in
 //! metres.
 
-#![deny(missing_docs)]
-
 pub mod board;
 pub mod camera;
 pub mod chessboard;

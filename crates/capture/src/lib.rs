@@ -18,8 +18,6 @@
 //! Every wait has a timeout: a camera that stops mid-stream is an error
 //! naming it ([`Error::Stopped`]), never a hang.
 
-#![deny(missing_docs)]
-
 mod capture;
 mod error;
 #[cfg(feature = "gstreamer")]

@@ -1,6 +1,9 @@
 //! Label-map coding speed: a 480x272 segmented pair (the board's size),
 //! left alone and right conditioned on the left, encode and decode.
 
+// criterion_group! and criterion_main! define undocumented public items.
+#![allow(missing_docs)]
+
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use std::hint::black_box;
 use stereolink_codec::labels::{self, Mode};

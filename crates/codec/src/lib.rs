@@ -41,8 +41,6 @@
 //! assert_eq!(msg, Message::DepthReport(report));
 //! ```
 
-#![deny(missing_docs)]
-
 pub mod channels;
 pub mod container;
 pub mod control;

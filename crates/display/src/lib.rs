@@ -4,8 +4,6 @@
 //! where it shows it: the Linux framebuffer, PNG snapshots, or a local web
 //! viewer.
 
-#![deny(missing_docs)]
-
 pub mod anaglyph;
 pub mod font;
 pub mod screen;

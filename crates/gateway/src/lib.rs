@@ -22,8 +22,6 @@
 //! link and codec, and on image, display and robot for the frames it
 //! rebuilds and the simulated station's axis.
 
-#![deny(missing_docs)]
-
 mod bridge;
 pub mod command;
 pub mod mqtt;

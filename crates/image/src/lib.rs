@@ -34,8 +34,6 @@
 //! assert!(psnr_rgb(&scene.left, &scene.left).unwrap().overall.is_infinite());
 //! ```
 
-#![deny(missing_docs)]
-
 mod calib_yaml;
 pub mod color;
 pub mod colormap;

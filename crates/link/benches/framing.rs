@@ -1,6 +1,9 @@
 //! Framing throughput: XBee API encode/parse (mode 2), SLIP, and ARQ
 //! segmentation of a 30 kB message.
 
+// criterion_group! and criterion_main! define undocumented public items.
+#![allow(missing_docs)]
+
 use criterion::{criterion_group, criterion_main, Criterion, Throughput};
 use std::hint::black_box;
 use stereolink_link::arq::{Config, Sender, SessionId};

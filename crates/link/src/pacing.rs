@@ -106,12 +106,18 @@ pub enum StatusAction {
     Settled,
     /// Failed with `status`: send `packet` again as frame `frame_id`.
     Resend {
+        /// The failed transmit status.
         status: u8,
+        /// The API frame id to send it under.
         frame_id: u8,
+        /// The transmit request to send again.
         packet: Vec<u8>,
     },
     /// The radio refused the payload as too large (0x74): `len` bytes.
-    TooLarge { len: usize },
+    TooLarge {
+        /// The payload's length.
+        len: usize,
+    },
     /// No request with this frame id is outstanding.
     Stray,
 }

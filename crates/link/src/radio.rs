@@ -175,11 +175,26 @@ pub struct RadioInfo {
 #[derive(Debug)]
 pub enum RadioError {
     /// No 0x88 came back for `command` within `waited`.
-    NoAnswer { command: [u8; 2], waited: Duration },
+    NoAnswer {
+        /// The AT command asked.
+        command: [u8; 2],
+        /// How long the answer was waited for.
+        waited: Duration,
+    },
     /// The radio's `AP` differs from the link spec's `api=`.
-    ApiMismatch { radio: u8, spec: u8 },
+    ApiMismatch {
+        /// The radio's `AP`.
+        radio: u8,
+        /// The link spec's `api=`.
+        spec: u8,
+    },
     /// A required query answered with an error status.
-    Refused { command: [u8; 2], status: u8 },
+    Refused {
+        /// The AT command asked.
+        command: [u8; 2],
+        /// Its status (see `xbee::at_status_text`).
+        status: u8,
+    },
     /// Reading or writing the port failed.
     Io(io::Error),
 }

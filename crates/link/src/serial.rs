@@ -28,8 +28,11 @@ pub enum SerialFraming {
     /// XBee API frames: packets go out as the transmit request `firmware`
     /// takes ([`radio::transmit_request`]) to `dest`, and come in as RX frames.
     Api {
+        /// API mode 1, or 2 with escaped bytes.
         mode: ApiMode,
+        /// The radio's firmware: which transmit request it takes.
         firmware: Firmware,
+        /// The peer radio's address.
         dest: Address,
     },
     /// Transparent (AT) mode or a plain USB cable: SLIP frames with a CRC-16.

@@ -54,25 +54,40 @@ pub struct ApiSpec {
 pub enum LinkSpec {
     /// A serial port: an XBee in API mode, or (`api: None`) SLIP frames.
     Serial {
+        /// The port's device path.
         path: String,
+        /// Its baud rate.
         baud: u32,
+        /// The XBee API mode and firmware, or `None` for SLIP.
         api: Option<ApiSpec>,
+        /// The largest packet.
         mtu: usize,
         /// `flow=rtscts`: RTS/CTS hardware flow control (the radio's D6/D7).
         rtscts: bool,
     },
     /// A UDP socket.
     Udp {
+        /// The local address.
         bind: SocketAddr,
+        /// The peer's address (`None`: the first sender's).
         peer: Option<SocketAddr>,
+        /// The largest datagram.
         mtu: usize,
     },
     /// The simulated channel, real time sped up by `speedup`.
-    Sim { config: SimConfig, speedup: f64 },
+    Sim {
+        /// The channel model.
+        config: SimConfig,
+        /// How much faster than real time it runs.
+        speedup: f64,
+    },
     /// Primary and secondary.
     Fallback {
+        /// The link used while it works.
         primary: Box<LinkSpec>,
+        /// The link used when the primary falls silent.
         secondary: Box<LinkSpec>,
+        /// How long a silence moves the traffic over.
         silence: Duration,
     },
 }

@@ -100,22 +100,49 @@ impl fmt::Display for LinkStats {
 pub enum Notice {
     /// The radio reset (modem status 0x8A) and `resent` fragments it held
     /// were sent again.
-    RadioReset { status: u8, resent: usize },
+    RadioReset {
+        /// The modem status.
+        status: u8,
+        /// Fragments sent again.
+        resent: usize,
+    },
     /// Another modem status (joined, disassociated, ...).
-    ModemStatus { status: u8 },
+    ModemStatus {
+        /// The modem status (see `xbee::modem_status_text`).
+        status: u8,
+    },
     /// The first delivery failure with this status code.
-    DeliveryFailed { status: u8 },
+    DeliveryFailed {
+        /// The delivery status (see `xbee::delivery_status_text`).
+        status: u8,
+    },
     /// The first transmit status for a frame id with nothing outstanding.
-    StrayStatus { frame_id: u8 },
+    StrayStatus {
+        /// The API frame id the status named.
+        frame_id: u8,
+    },
     /// The first transmit request whose status never came.
-    NoStatus { timeout: Duration },
+    NoStatus {
+        /// How long the status was waited for.
+        timeout: Duration,
+    },
     /// XBee transmit requests arrived: the other end writes API frames
     /// meant for its radio, so there is no radio between the two.
     ForeignRequests,
     /// A fallback link moved its traffic from one link to the other.
-    Switched { from: String, to: String },
+    Switched {
+        /// The link left.
+        from: String,
+        /// The link taken.
+        to: String,
+    },
     /// A bond dropped one of its links ([`crate::bond`]).
-    MemberDown { member: String, reason: String },
+    MemberDown {
+        /// The link dropped.
+        member: String,
+        /// Why.
+        reason: String,
+    },
 }
 
 impl fmt::Display for Notice {

@@ -42,77 +42,128 @@ pub enum ApiMode {
 pub enum Frame {
     /// 0x00: TX request, 64-bit destination.
     Tx64 {
+        /// Frame id of the transmit status (0: none wanted).
         frame_id: u8,
+        /// The destination's 64-bit address.
         dest: u64,
+        /// Transmit options.
         options: u8,
+        /// The RF payload.
         data: Vec<u8>,
     },
     /// 0x01: TX request, 16-bit destination.
     Tx16 {
+        /// Frame id of the transmit status (0: none wanted).
         frame_id: u8,
+        /// The destination's 16-bit address.
         dest: u16,
+        /// Transmit options.
         options: u8,
+        /// The RF payload.
         data: Vec<u8>,
     },
     /// 0x08: AT command (e.g. `NP`, the maximum payload).
     AtCommand {
+        /// Frame id of the response (0: none wanted).
         frame_id: u8,
+        /// The two-letter command.
         command: [u8; 2],
+        /// Its parameter (empty: a query).
         parameter: Vec<u8>,
     },
     /// 0x10: ZigBee transmit request.
     ZbTx {
+        /// Frame id of the transmit status (0: none wanted).
         frame_id: u8,
+        /// The destination's 64-bit address.
         dest64: u64,
+        /// Its 16-bit network address (0xFFFE: unknown).
         dest16: u16,
+        /// The most hops (0: the network's maximum).
         radius: u8,
+        /// Transmit options.
         options: u8,
+        /// The RF payload.
         data: Vec<u8>,
     },
     /// 0x80: RX packet, 64-bit source.
     Rx64 {
+        /// The sender's 64-bit address.
         source: u64,
+        /// Received signal strength, -dBm.
         rssi: u8,
+        /// Receive options.
         options: u8,
+        /// The RF payload.
         data: Vec<u8>,
     },
     /// 0x81: RX packet, 16-bit source.
     Rx16 {
+        /// The sender's 16-bit address.
         source: u16,
+        /// Received signal strength, -dBm.
         rssi: u8,
+        /// Receive options.
         options: u8,
+        /// The RF payload.
         data: Vec<u8>,
     },
     /// 0x88: AT command response (`status` as in [`at_status_text`]).
     AtResponse {
+        /// The command's frame id.
         frame_id: u8,
+        /// The two-letter command.
         command: [u8; 2],
+        /// Its status.
         status: u8,
+        /// The value read, if any.
         data: Vec<u8>,
     },
     /// 0x89: 802.15.4 TX status (see [`delivery_status_text`]).
-    TxStatus { frame_id: u8, status: u8 },
+    TxStatus {
+        /// The transmit request's frame id.
+        frame_id: u8,
+        /// The delivery status.
+        status: u8,
+    },
     /// 0x8B: ZigBee/DigiMesh transmit status (`delivery` as in
     /// [`delivery_status_text`]).
     ZbTxStatus {
+        /// The transmit request's frame id.
         frame_id: u8,
+        /// The destination's 16-bit network address.
         dest16: u16,
+        /// Transmit retries the radio made.
         retries: u8,
+        /// The delivery status.
         delivery: u8,
+        /// The discovery status (route or address discovery made).
         discovery: u8,
     },
     /// 0x8A: modem status (the radio reset, joined or left a network; see
     /// [`modem_status_text`]).
-    ModemStatus { status: u8 },
+    ModemStatus {
+        /// The modem status.
+        status: u8,
+    },
     /// 0x90: ZigBee receive packet.
     ZbRx {
+        /// The sender's 64-bit address.
         source64: u64,
+        /// The sender's 16-bit network address.
         source16: u16,
+        /// Receive options.
         options: u8,
+        /// The RF payload.
         data: Vec<u8>,
     },
     /// Any other API id, kept so every frame round-trips.
-    Unknown { api_id: u8, data: Vec<u8> },
+    Unknown {
+        /// The frame's API id.
+        api_id: u8,
+        /// The frame data after the API id.
+        data: Vec<u8>,
+    },
 }
 
 /// Why bytes were not a frame.

@@ -19,8 +19,6 @@
 //! It depends on the crates it joins: image, segment, stereo, codec, link
 //! (with `std`), display, robot, calib and capture; nothing above it.
 
-#![deny(missing_docs)]
-
 pub mod cdr;
 pub mod coding;
 pub mod demo;

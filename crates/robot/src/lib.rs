@@ -9,8 +9,6 @@
 //!
 //! This crate knows nothing of images: distances come in metres.
 
-#![deny(missing_docs)]
-
 pub mod grbl;
 pub mod policy;
 pub mod sim;

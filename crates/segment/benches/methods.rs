@@ -1,5 +1,8 @@
 //! One benchmark per segmentation method on a deterministic synthetic 320x240 view.
 
+// criterion_group! and criterion_main! define undocumented public items.
+#![allow(missing_docs)]
+
 use criterion::{criterion_group, criterion_main, Criterion};
 use std::hint::black_box;
 use stereolink_image::synth::{synthesize, SynthSpec};

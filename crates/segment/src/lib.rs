@@ -18,7 +18,6 @@
 //! assert_eq!(seg.to_rgb().dims(), (64, 48));
 //! ```
 
-#![deny(missing_docs)]
 // Numeric kernels index several parallel arrays by the same bin or channel.
 #![allow(clippy::needless_range_loop)]
 

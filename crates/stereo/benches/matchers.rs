@@ -3,6 +3,9 @@
 //! runs it, frame after frame), and one per refinement step on its
 //! LR-checked WTA map.
 
+// criterion_group! and criterion_main! define undocumented public items.
+#![allow(missing_docs)]
+
 use criterion::{criterion_group, criterion_main, Criterion};
 use std::hint::black_box;
 use stereolink_image::synth::{synthesize, SynthSpec};

@@ -2,6 +2,9 @@
 //! disparities, segmented by a 8×8 grid of the ground truth's regions (the
 //! segmentation itself is timed by `stereolink bench segment`).
 
+// criterion_group! and criterion_main! define undocumented public items.
+#![allow(missing_docs)]
+
 use criterion::{criterion_group, criterion_main, Criterion};
 use std::hint::black_box;
 use stereolink_image::color::rgb_to_gray;

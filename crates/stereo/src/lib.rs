@@ -31,8 +31,6 @@
 //! assert_eq!(disparity.dims(), (96, 64));
 //! ```
 
-#![deny(missing_docs)]
-
 pub mod census;
 pub mod depth;
 mod lanes;

@@ -49,26 +49,42 @@ pub enum Segment<'a> {
     /// Fragment `index` of a message of the sender's `session`; `last`
     /// marks the message's final fragment (so its count is `index + 1`).
     Data {
+        /// The sender's session.
         session: SessionId,
+        /// The message's id within the session (wraps).
         msg_id: u8,
+        /// The fragment's index in the message.
         index: u16,
+        /// Whether this is the message's final fragment.
         last: bool,
+        /// The fragment's bytes.
         fragment: &'a [u8],
     },
     /// Acknowledgement state of message `msg_id` of `session`, from the
     /// receiver whose own session is `receiver`; `count` is the message's
     /// fragment count where the receiver knows it, else 0.
     Ack {
+        /// The sender's session the message belongs to.
         session: SessionId,
+        /// The acknowledging receiver's own session.
         receiver: SessionId,
+        /// The message acknowledged.
         msg_id: u8,
+        /// The message's fragment count, 0 when not yet known.
         count: u16,
+        /// The first fragment not yet received.
         next: u16,
+        /// Which of the 32 fragments after `next` arrived (bit i: `next + 1 + i`).
         bitmap: u32,
     },
     /// Message `msg_id` of `session` is given up (by its sender, or by the
     /// receiver when it arrived corrupt).
-    Fail { session: SessionId, msg_id: u8 },
+    Fail {
+        /// The sender's session.
+        session: SessionId,
+        /// The message given up.
+        msg_id: u8,
+    },
 }
 
 fn u24_at(b: &[u8], i: usize) -> u32 {

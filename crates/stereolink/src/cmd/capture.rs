@@ -35,6 +35,7 @@ nothing for --frame-timeout-s, or whose stream ends, stops the capture with an
 error naming it. Needs a build with `--features camera` (GStreamer).")]
 pub struct Args {
     #[command(flatten)]
+    /// The two cameras (live capture).
     pub camera: CameraArgs,
     /// Folder to write the pairs into (created if missing).
     #[arg(long, value_name = "DIR")]

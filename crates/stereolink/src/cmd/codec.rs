@@ -45,8 +45,10 @@ pub struct Args {
     #[arg(long, default_value = "fast")]
     pub mode: labels::Mode,
     #[command(flatten)]
+    /// How the views are coded, and the frame's byte budget.
     pub coding: CodingArgs,
     #[command(flatten)]
+    /// The segmentation method and its parameters.
     pub segment: SegmentArgs,
 }
 
@@ -338,6 +340,7 @@ pub struct BenchArgs {
     #[arg(long, default_value = "fast")]
     pub mode: labels::Mode,
     #[command(flatten)]
+    /// The segmentation method and its parameters.
     pub segment: SegmentArgs,
 }
 

@@ -55,8 +55,10 @@ pub struct Args {
     #[arg(long)]
     pub insecure: bool,
     #[command(flatten)]
+    /// The segmentation method and its parameters.
     pub segment: SegmentArgs,
     #[command(flatten)]
+    /// The matcher and its parameters.
     pub matcher: MatcherArgs,
 }
 

@@ -18,6 +18,7 @@ pub struct Args {
     /// Disparity map (PFM, `inf` = invalid).
     pub disparity: PathBuf,
     #[command(flatten)]
+    /// The rig's calibration: focal length, baseline and doffs, or a stereo calibration file.
     pub calib: CalibArgs,
     /// Write the depth map (metres, PFM).
     #[arg(short, long)]

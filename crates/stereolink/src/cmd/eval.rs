@@ -24,6 +24,7 @@ pub struct Args {
     #[arg(long = "algos", value_delimiter = ',')]
     pub algos: Vec<String>,
     #[command(flatten)]
+    /// The matcher and its parameters.
     pub matcher: MatcherArgs,
 }
 

@@ -54,14 +54,19 @@ pub struct Args {
     #[arg(long, default_value_t = 0.5)]
     pub watchdog_s: f64,
     #[command(flatten)]
+    /// The rig's calibration: focal length, baseline and doffs, or a stereo calibration file.
     pub calib: CalibArgs,
     #[command(flatten)]
+    /// The segmentation method and its parameters.
     pub segment: SegmentArgs,
     #[command(flatten)]
+    /// The matcher and its parameters.
     pub matcher: MatcherArgs,
     #[command(flatten)]
+    /// How the views are coded, and the frame's byte budget.
     pub coding: CodingArgs,
     #[command(flatten)]
+    /// Temporal prediction of the frames.
     pub temporal: super::send::TemporalArgs,
 }
 

@@ -305,8 +305,10 @@ pub struct Args {
     /// region; with a stereo calibration YAML (`--calib stereo.yml`) the
     /// raw pair is rectified first and depth comes from P1/P2.
     #[command(flatten)]
+    /// The rig's calibration: focal length, baseline and doffs, or a stereo calibration file.
     pub calib: CalibArgs,
     #[command(flatten)]
+    /// The matcher and its parameters.
     pub matcher: MatcherArgs,
 }
 
@@ -448,6 +450,7 @@ pub struct BenchArgs {
     #[arg(long)]
     pub threads: Option<usize>,
     #[command(flatten)]
+    /// The matcher and its parameters.
     pub matcher: MatcherArgs,
 }
 

@@ -80,8 +80,10 @@ pub struct Args {
     #[arg(long, default_value_t = 50.0)]
     pub max_speed: f64,
     #[command(flatten)]
+    /// The pairing keys of the secure link.
     pub keys: KeyArgs,
     #[command(flatten)]
+    /// `--record FILE.mcap`.
     pub record: super::record::RecordArgs,
 }
 

@@ -155,6 +155,7 @@ pub struct Args {
     #[arg(long)]
     pub right_output: Option<PathBuf>,
     #[command(flatten)]
+    /// The segmentation method and its parameters.
     pub segment: SegmentArgs,
 }
 
@@ -269,6 +270,7 @@ pub struct BenchArgs {
     #[arg(long, default_value_t = 5)]
     pub iters: usize,
     #[command(flatten)]
+    /// The segmentation method and its parameters.
     pub segment: SegmentArgs,
 }
 

@@ -108,11 +108,13 @@ pub struct Args {
     #[arg(long, conflicts_with = "left")]
     pub frames: Option<u32>,
     #[command(flatten)]
+    /// The two cameras (live capture).
     pub camera: CameraArgs,
     /// Largest disparity searched for the depth report.
     #[arg(long, default_value_t = 64)]
     pub max_disp: usize,
     #[command(flatten)]
+    /// The rig's calibration: focal length, baseline and doffs, or a stereo calibration file.
     pub calib: CalibArgs,
     /// Target region x,y,w,h (default: the central ninth of the image).
     #[arg(long)]
@@ -128,6 +130,7 @@ pub struct Args {
     #[arg(long, value_name = "SECONDS", value_parser = positive_seconds)]
     pub frame_interval_s: Option<f64>,
     #[command(flatten)]
+    /// Temporal prediction of the frames.
     pub temporal: TemporalArgs,
     /// Give up on a message (and stop) when it is not acknowledged within
     /// this many seconds.
@@ -137,10 +140,13 @@ pub struct Args {
     #[arg(long, default_value_t = 1, conflicts_with_all = ["watch", "left_camera"])]
     pub repeat: u32,
     #[command(flatten)]
+    /// How the views are coded, and the frame's byte budget.
     pub coding: CodingArgs,
     #[command(flatten)]
+    /// The segmentation method and its parameters.
     pub segment: SegmentArgs,
     #[command(flatten)]
+    /// The matcher and its parameters.
     pub matcher: MatcherArgs,
     /// With --algo planes: fraction bits of the plane table's slants (0–16;
     /// default 12, a slant to 1/4096 px per px). Fewer bits, fewer bytes;
@@ -158,8 +164,10 @@ pub struct Args {
     #[arg(long)]
     pub plane_implied_below: Option<u16>,
     #[command(flatten)]
+    /// The pairing keys of the secure link.
     pub keys: KeyArgs,
     #[command(flatten)]
+    /// `--record FILE.mcap`.
     pub record: super::record::RecordArgs,
 }
 
