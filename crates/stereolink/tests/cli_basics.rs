@@ -375,3 +375,34 @@ fn match_takes_the_scenes_range_or_says_its_default() {
         "{m}"
     );
 }
+
+/// Completions and man pages come from the same definitions as `--help`:
+/// every command is in them.
+#[test]
+fn completions_and_man_pages_cover_every_command() {
+    let out = stereolink().args(["completions", "bash"]).output().unwrap();
+    assert_success(&out);
+    let script = String::from_utf8(out.stdout).unwrap();
+    for command in ["send", "receive", "match", "calibrate", "completions"] {
+        assert!(script.contains(command), "{command} missing");
+    }
+    let dir = tempfile::tempdir().unwrap();
+    let out = stereolink()
+        .args(["--json", "man", "--out"])
+        .arg(dir.path())
+        .output()
+        .unwrap();
+    assert_success(&out);
+    let m: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let pages: Vec<&str> = m["pages"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|p| p.as_str().unwrap())
+        .collect();
+    for page in ["stereolink.1", "stereolink-send.1", "stereolink-receive.1"] {
+        assert!(pages.contains(&page), "{page} missing: {pages:?}");
+        let text = std::fs::read_to_string(dir.path().join(page)).unwrap();
+        assert!(text.starts_with(".ie") || text.contains(".TH"), "{page}");
+    }
+}

@@ -27,6 +27,7 @@ pub mod report;
 pub mod secure_bench;
 pub mod segment;
 pub mod send;
+pub mod shell;
 pub mod stream;
 pub mod synth;
 
@@ -179,6 +180,10 @@ pub enum Command {
     /// Time one stage alone (for comparing with other tools in one run).
     #[command(subcommand)]
     Bench(bench::Target),
+    /// Print the shell completion script (bash, zsh, fish, elvish, powershell).
+    Completions(shell::CompletionArgs),
+    /// Print the man page, or write one per command with --out DIR.
+    Man(shell::ManArgs),
 }
 
 impl Command {
@@ -206,6 +211,8 @@ impl Command {
             Command::Gateway(args) => gateway::run(args, out),
             Command::Report(args) => report::run(args, out),
             Command::Bench(target) => bench::run(target, out),
+            Command::Completions(args) => shell::completions(args),
+            Command::Man(args) => shell::man(args, out),
         }
     }
 }
