@@ -406,3 +406,47 @@ fn completions_and_man_pages_cover_every_command() {
         assert!(text.starts_with(".ie") || text.contains(".TH"), "{page}");
     }
 }
+
+/// The systemd units in `deploy/systemd` verify (`systemd-analyze
+/// verify`, with ExecStart pointed at this build): no error, no warning.
+/// Without systemd-analyze the test is skipped, but not under CI=true.
+#[test]
+fn the_shipped_systemd_units_verify() {
+    let Ok(probe) = Command::new("systemd-analyze").arg("--version").output() else {
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "systemd-analyze is needed under CI"
+        );
+        eprintln!("skipped: no systemd-analyze");
+        return;
+    };
+    assert!(probe.status.success());
+    let units = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../deploy/systemd");
+    let dir = tempfile::tempdir().unwrap();
+    let mut checked = 0;
+    for entry in std::fs::read_dir(&units).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_none_or(|e| e != "service") {
+            continue;
+        }
+        let unit = std::fs::read_to_string(&path).unwrap().replace(
+            "/usr/local/bin/stereolink",
+            env!("CARGO_BIN_EXE_stereolink"),
+        );
+        let copy = dir.path().join(path.file_name().unwrap());
+        std::fs::write(&copy, unit).unwrap();
+        let out = Command::new("systemd-analyze")
+            .arg("verify")
+            .arg(&copy)
+            .output()
+            .unwrap();
+        let said = String::from_utf8_lossy(&out.stderr);
+        assert!(
+            out.status.success() && said.trim().is_empty(),
+            "{}: {said}",
+            path.display()
+        );
+        checked += 1;
+    }
+    assert!(checked >= 1);
+}

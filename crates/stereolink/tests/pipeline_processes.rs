@@ -603,3 +603,43 @@ fn predicted_frames_over_udp_rebuild_the_senders_reconstruction() {
         assert_eq!(a, b, "{side} view differs");
     }
 }
+
+/// Under systemd (`Type=notify`, `WatchdogSec=`): `receive` says it is
+/// ready once its link is open, pings the watchdog while its loop turns
+/// (here with nothing arriving), and says it is stopping, on the socket
+/// systemd names.
+#[test]
+fn receive_tells_systemd_it_is_ready_and_alive() {
+    use std::os::unix::net::UnixDatagram;
+    let dir = tempfile::tempdir().unwrap();
+    let socket = dir.path().join("notify");
+    let systemd = UnixDatagram::bind(&socket).unwrap();
+    systemd
+        .set_read_timeout(Some(Duration::from_secs(20)))
+        .unwrap();
+    let (a, b) = (free_port(), free_port());
+    let link = format!("udp:127.0.0.1:{b}?peer=127.0.0.1:{a}");
+    // As systemd starts it: WATCHDOG_PID is the service's own pid.
+    let child = std::process::Command::new("sh")
+        .args(["-c", "WATCHDOG_PID=$$ exec \"$0\" \"$@\""])
+        .arg(env!("CARGO_BIN_EXE_stereolink"))
+        .args(["receive", "--link", &link, "--timeout-s", "2"])
+        .env("NOTIFY_SOCKET", &socket)
+        .env("WATCHDOG_USEC", "200000")
+        .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut said = Vec::new();
+    let mut buf = [0u8; 512];
+    while !said.iter().any(|s: &String| s.contains("STOPPING=1")) {
+        let n = systemd.recv(&mut buf).expect("a notification from receive");
+        said.push(String::from_utf8_lossy(&buf[..n]).into_owned());
+    }
+    finish(child, "receive");
+    assert!(said[0].contains("READY=1"), "{said:?}");
+    let pings = said.iter().filter(|s| s.contains("WATCHDOG=1")).count();
+    // 2 s of a quiet link, a ping at most every 100 ms, the loop turning
+    // every 200 ms.
+    assert!(pings >= 3, "{said:?}");
+}

@@ -27,6 +27,7 @@ pub mod report;
 pub mod secure_bench;
 pub mod segment;
 pub mod send;
+pub mod service;
 pub mod shell;
 pub mod stream;
 pub mod synth;

@@ -128,6 +128,8 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     if let Some(r) = &args.robot {
         board.axis = Some(open_axis(r).with_context(|| format!("cannot open axis {r}"))?);
     }
+    let mut service = super::service::Service::new();
+    service.ready(&format!("receiving on {}", super::links_name(&args.link)));
     let mut frames = FrameCount::default();
     let mut events = Vec::new();
     let started = Instant::now();
@@ -151,6 +153,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
             // that falls silent must stop the axis too. Short waits, so that it
             // and the screen follow the axis while the link is silent.
             check_watchdog(&mut board, args.watchdog_s);
+            service.alive();
             ask_for_key(&mut board, &mut eps[0]);
             let msg = match next_message(&mut eps, POLL.min(timeout)) {
                 Ok(m) => m,
@@ -263,6 +266,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         Ok(End::Frames)
     };
     let ended = receive();
+    service.stopping();
     // Closed whatever ended the loop; its error is said after the axis's.
     let recorded = recorder.map(|r| r.finish()).transpose();
     // Answer late retransmissions (on a link still up).
