@@ -411,6 +411,13 @@ impl SendLoop {
             self.load.taken(Instant::now());
             let starved =
                 self.starved_until.is_some_and(|t| Instant::now() < t) || self.load.holds_frames();
+            if starved && pairs.paced() {
+                tracing::debug!(
+                    pair = pair_id,
+                    report_air_share = self.load.share(),
+                    "no frame: depth takes the air"
+                );
+            }
             let frame = wanted == Applied::FrameNow
                 || !pairs.paced()
                 || (!starved && !self.uplink.frame_in_flight());
@@ -599,11 +606,11 @@ impl SendLoop {
             let (id, command) = match incoming {
                 Ok(Control::Command { id, command }) => (id, command),
                 Ok(Control::Reply(r)) => {
-                    eprintln!("ignored a reply from the peer (to command {})", r.id);
+                    tracing::warn!("ignored a reply from the peer (to command {})", r.id);
                     continue;
                 }
                 Err(e) => {
-                    eprintln!("refused a message from the peer: {e}");
+                    tracing::warn!("refused a message from the peer: {e}");
                     continue;
                 }
             };
@@ -620,8 +627,8 @@ impl SendLoop {
                 Err(e) => Err(e),
             };
             match &result {
-                Ok(()) => eprintln!("command {id} ({}): done", command.name()),
-                Err(why) => eprintln!("command {id} ({}): refused: {why}", command.name()),
+                Ok(()) => tracing::info!("command {id} ({}): done", command.name()),
+                Err(why) => tracing::warn!("command {id} ({}): refused: {why}", command.name()),
             }
             self.uplink.reply(&Reply { id, result })?;
         }
@@ -642,7 +649,10 @@ impl SendLoop {
                 Kind::Report => format!("sending the depth report of pair {}", o.frame_id),
                 Kind::Reply => {
                     if let Ended::Failed(e) = o.ended {
-                        eprintln!("the reply to command {} was not delivered: {e}", o.frame_id);
+                        tracing::warn!(
+                            "the reply to command {} was not delivered: {e}",
+                            o.frame_id
+                        );
                     }
                     continue;
                 }

@@ -309,6 +309,11 @@ fn run(
                         // The newest report wins over one still waiting.
                         if let Some(k) = queued[i].iter().position(|j| j.replaceable) {
                             if let Some(old) = queued[i].remove(k) {
+                                tracing::debug!(
+                                    report = old.frame_id,
+                                    by = job.frame_id,
+                                    "a waiting report replaced by a newer one"
+                                );
                                 superseded(&done, (old.frame_id, false), &eps[urgent_ep]);
                             }
                         }
@@ -334,6 +339,11 @@ fn run(
         ) = (current[u], queued[u].front())
         {
             if report_sent.elapsed() >= overtake_after {
+                tracing::debug!(
+                    report = id,
+                    after_ms = report_sent.elapsed().as_millis() as u64,
+                    "the report in flight overtaken by a newer one"
+                );
                 eps[urgent_ep].abandon(Lane::Urgent);
                 current[u] = None;
                 superseded(&done, (id, true), &eps[urgent_ep]);
@@ -416,7 +426,7 @@ fn take_messages(
                 wait = Duration::ZERO;
             }
             Err(LinkError::Timeout) => return Ok(()),
-            Err(LinkError::Arq(e)) => eprintln!("link: a message from the peer was lost: {e}"),
+            Err(LinkError::Arq(e)) => tracing::warn!("a message from the peer was lost: {e}"),
             Err(e) => return Err(e).context("link"),
         }
     }

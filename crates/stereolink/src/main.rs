@@ -9,7 +9,27 @@ use clap::Parser;
 
 use stereolink::cmd::{Cli, Output};
 
+/// Diagnostics (`tracing`) go to stderr, filtered by `RUST_LOG` (default
+/// `info`; `RUST_LOG=debug` shows the link's decisions); under systemd
+/// (`JOURNAL_STREAM` set) without time stamps, which journald adds itself;
+/// coloured only on a terminal. A command's own output stays on stdout.
+fn init_logging() {
+    use std::io::IsTerminal;
+    use tracing_subscriber::EnvFilter;
+    let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info"));
+    let fmt = tracing_subscriber::fmt()
+        .with_env_filter(filter)
+        .with_writer(std::io::stderr)
+        .with_ansi(std::io::stderr().is_terminal());
+    if std::env::var_os("JOURNAL_STREAM").is_some() {
+        fmt.without_time().init();
+    } else {
+        fmt.init();
+    }
+}
+
 fn main() -> ExitCode {
+    init_logging();
     let cli = Cli::parse();
     let out = Output { json: cli.json };
     match cli.command.run(&out) {

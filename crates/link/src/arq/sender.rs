@@ -189,6 +189,10 @@ impl Sender {
             return None;
         }
         if now >= self.deadline {
+            tracing::warn!(
+                msg_id = self.msg_id,
+                "message given up: its deadline passed"
+            );
             self.state = SendState::Failed(ArqError::Deadline);
             return Some(
                 Segment::Fail {
@@ -203,6 +207,12 @@ impl Sender {
                 continue;
             };
             if !self.acked[i] && now >= self.timer.expires_at(sent) && !self.queue.contains(&i) {
+                tracing::debug!(
+                    msg_id = self.msg_id,
+                    fragment = i,
+                    rto_us = self.timer.rto(),
+                    "no ACK within the RTO: resend, back off"
+                );
                 self.timer.on_expired(sent, now);
                 self.queue.push_back(i);
                 self.sent_at[i] = None; // counted as lost until resent
@@ -313,6 +323,12 @@ impl Sender {
                     && !self.queue.contains(&i)
                     && self.sent_at[i].is_some_and(|t| Some(t) < h_sent)
                 {
+                    tracing::debug!(
+                        msg_id = self.msg_id,
+                        fragment = i,
+                        acked_later = h,
+                        "a gap below an acknowledged fragment: resend"
+                    );
                     self.sent_at[i] = None;
                     self.queue.push_back(i);
                 }
@@ -331,6 +347,10 @@ impl Sender {
             return false;
         }
         if let Some(old) = self.peer.replace(receiver) {
+            tracing::debug!(
+                msg_id = self.msg_id,
+                "a new receiver session: what the old one acknowledged goes again"
+            );
             if self.retired.len() == REMEMBERED_SESSIONS {
                 self.retired.pop_front();
             }

@@ -338,7 +338,9 @@ fn ask_for_key(board: &mut BoardReceiver, ep: &mut Endpoint) {
     if ep.is_idle(Lane::Urgent) {
         if let Some(request) = board.key_request(Instant::now()) {
             match ep.submit(Lane::Urgent, &request) {
-                Ok(()) => eprintln!("a frame could not be shown: asked the sender for a key frame"),
+                Ok(()) => {
+                    tracing::info!("a frame could not be shown: asked the sender for a key frame")
+                }
                 Err(e) => eprintln!("could not ask the sender for a key frame: {e}"),
             }
         }
