@@ -151,6 +151,16 @@ impl Command {
     }
 }
 
+impl Control {
+    /// The Control body: what [`Control::decode`] reads back.
+    pub fn encode(&self) -> Vec<u8> {
+        match self {
+            Control::Command { id, command } => command.encode(*id),
+            Control::Reply(reply) => reply.encode(),
+        }
+    }
+}
+
 impl Reply {
     /// The Control body of this reply; a reason longer than
     /// [`MAX_REASON`] is cut at a character boundary.
@@ -217,15 +227,15 @@ impl Control {
                 Command::SetMethod(m.into())
             }
             (op::SET_METHOD, _) => return Err(bad("method name longer than 32 bytes")),
-            (op::REPLY, [status @ (0 | 1), why @ ..]) if why.len() <= MAX_REASON => {
+            (op::REPLY, [0]) => return Ok(Control::Reply(Reply { id, result: Ok(()) })),
+            (op::REPLY, [1, why @ ..]) if why.len() <= MAX_REASON => {
                 let why = std::str::from_utf8(why).map_err(|_| bad("reason not UTF-8"))?;
-                let result = match status {
-                    0 => Ok(()),
-                    _ => Err(why.to_string()),
-                };
+                let result = Err(why.to_string());
                 return Ok(Control::Reply(Reply { id, result }));
             }
-            (op::REPLY, _) => return Err(bad("status 0 or 1, then a short reason")),
+            (op::REPLY, _) => {
+                return Err(bad("status 0 alone, or status 1 and a short reason"));
+            }
             (code, _) => return Err(ControlError::Operation(code)),
         };
         Ok(Control::Command { id, command })
@@ -303,6 +313,8 @@ mod tests {
             &[1, 5, 0, 0, 0, 0],
             &[1, 5, 0, 0, 0, 0, 2],
             &[1, 5, 0, 0, 0, 0, 1, 0xff],
+            // Done carries no reason (it would not come back in the reply).
+            &[1, 5, 0, 0, 0, 0, 0, b'n', b'o'],
         ] {
             let e = Control::decode(bad).expect_err("must be refused");
             assert!(matches!(e, ControlError::Argument { .. }), "{bad:?}: {e}");

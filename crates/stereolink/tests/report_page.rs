@@ -56,6 +56,30 @@ fn report_on_synthetic_scenes_opens_in_chromium() {
     let km = segment(&scene.left, &"kmeans".parse().unwrap(), 3, 1).unwrap();
     let psnr = psnr_rgb(&scene.left, &km.to_rgb()).unwrap().overall;
     assert!((sr["segmentation"]["kmeans"]["psnr_db"].as_f64().unwrap() - psnr).abs() < 1e-9);
+    // Table IV's lossy columns: the original pair fitted to each method's
+    // bytes. More bytes never give WebP less PSNR, and WebP beats JPEG.
+    let mut lossy: Vec<(u64, f64, f64)> = sr["segmentation"]
+        .as_object()
+        .unwrap()
+        .values()
+        .map(|m| {
+            let db = |codec: &str| m["lossy_psnr_db"][codec].as_f64().expect("the codec fits");
+            (m["coded_bytes"].as_u64().unwrap(), db("webp"), db("jpeg"))
+        })
+        .collect();
+    lossy.sort_by(|a, b| a.partial_cmp(b).unwrap());
+    for w in lossy.windows(2) {
+        assert!(
+            w[1].1 >= w[0].1,
+            "WebP PSNR fell with more bytes: {lossy:?}"
+        );
+    }
+    assert!(
+        lossy
+            .iter()
+            .all(|&(_, webp, jpeg)| webp > jpeg && jpeg > 15.0),
+        "{lossy:?}"
+    );
     let sgm_bad = sr["matching"]["original"]["sgm"]["bad1_nonocc"]
         .as_f64()
         .unwrap();

@@ -86,6 +86,21 @@ pub(super) fn page(r: &Report) -> String {
         mean(r.scenes.iter().filter_map(|s| s.segmentation.get(m)).map(f))
     };
     let paper_psnr = |m: &str| mean(r.scenes.iter().filter_map(|s| paper::psnr(&s.name, m)));
+    // A lossy codec's mean PSNR in the method's bytes, over the scenes
+    // where its smallest pair fits them (how many, when not all).
+    let lossy = |m: &str, codec: &str| {
+        let v: Vec<f64> = r
+            .scenes
+            .iter()
+            .filter_map(|s| s.segmentation.get(m)?.lossy_psnr_db.get(codec).copied())
+            .collect();
+        let n = r.scenes.len();
+        match mean(v.iter().copied()) {
+            Some(db) if v.len() == n => format!("{db:.2}"),
+            Some(db) => format!("{db:.2} ({} of {n})", v.len()),
+            None => "–".into(),
+        }
+    };
     let mut page = String::from(
         "<!doctype html><html><head><meta charset=utf-8><title>stereolink report</title><style>\
          body{font-family:sans-serif;margin:24px;max-width:1400px;color:#222}table{border-collapse:collapse;margin:8px 0 20px}\
@@ -123,6 +138,8 @@ pub(super) fn page(r: &Report) -> String {
                 f(seg(m, |s| s.reduction_percent), 2),
                 ci.map_or("–".into(), |(a, b)| format!("{a}–{b}")),
                 f(seg(m, |s| s.coded_bytes as f64), 0),
+                lossy(m, "webp"),
+                lossy(m, "jpeg"),
                 f(seg(m, |s| s.time_ms), 1),
             ]
         })
@@ -138,6 +155,8 @@ pub(super) fn page(r: &Report) -> String {
             "reduction %",
             "paper 95 % CI",
             "coded pair B",
+            "WebP PSNR dB in those bytes",
+            "JPEG PSNR dB in those bytes",
             "time ms",
         ],
         &rows,
@@ -150,6 +169,8 @@ pub(super) fn page(r: &Report) -> String {
             Some(false),
             None,
             Some(true),
+            None,
+            None,
             Some(true),
         ],
     );

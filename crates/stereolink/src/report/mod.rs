@@ -2,7 +2,8 @@
 //! writes an HTML page (`index.html`, images in `img/`) and `report.json`.
 //!
 //! Per scene: each segmentation method (the paper's five and the exact
-//! multilevel Otsu) with PSNR (Table IV), coded size and reduction against the
+//! multilevel Otsu) with PSNR (Table IV, and beside it the PSNR WebP and
+//! JPEG give the original pair in the same bytes), coded size and reduction against the
 //! original PNG files (Fig. 12), and time (Fig. 26); then WTA, line growing
 //! and SGM on the original pair and on every segmented pair, scored against
 //! the ground truth (bad > 1 px, non-occluded) with their depth-level counts
@@ -26,9 +27,12 @@ use std::time::Instant;
 
 use anyhow::Context;
 use serde::Serialize;
-use stereolink_codec::{container, Message, SegmentationKind, StereoFrame, View};
+use stereolink_codec::labels::Mode;
+use stereolink_codec::lossy::LossyCodec;
+use stereolink_codec::{container, CodecError, Message, SegmentationKind, StereoFrame, View};
 use stereolink_display::{anaglyph, Anaglyph};
 use stereolink_image::{colormap, io, metrics, DisparityMap, LabelMap, RgbImage, Scene};
+use stereolink_pipeline::coding::{encode_fitted, lossy_views};
 use stereolink_pipeline::planes::{left_segments, Segments};
 use stereolink_segment::{segment, Method};
 use stereolink_stereo::depth::{depth_levels, LevelSpec};
@@ -54,6 +58,10 @@ pub struct SegResult {
     pub time_ms: f64,
     /// Classes in the left view's palette.
     pub classes: usize,
+    /// PSNR of the left view when the original pair is sent lossy in the
+    /// same bytes instead, per codec ("webp", "jpeg"), dB; absent where the
+    /// codec's smallest pair is larger.
+    pub lossy_psnr_db: BTreeMap<String, f64>,
 }
 
 /// One matcher on one input pair of one scene.
@@ -109,6 +117,40 @@ fn img_name(scene: &str, what: &str) -> String {
     format!("img/{scene}-{what}.png")
 }
 
+/// The left view's PSNR when the original pair is coded by each lossy
+/// codec in at most `bytes` (the whole frame, as `encode --bytes` fits it),
+/// for the codecs whose smallest pair fits.
+fn lossy_at(scene: &Scene, bytes: usize) -> anyhow::Result<BTreeMap<String, f64>> {
+    let mut psnr = BTreeMap::new();
+    for codec in [LossyCodec::Webp, LossyCodec::Jpeg] {
+        let fitted = encode_fitted(codec.qualities(), Some(bytes), (0, 0, Mode::Fast), |q| {
+            let (left, right) = lossy_views((&scene.left, &scene.right), codec, q)?;
+            Ok(StereoFrame {
+                kind: SegmentationKind::None,
+                levels: 0,
+                params: String::new(),
+                thresholds: None,
+                calibration: None,
+                left,
+                right,
+                planes: None,
+            })
+        });
+        match fitted {
+            Ok(coded) => {
+                let left = coded.frame.left.to_rgb();
+                psnr.insert(
+                    codec.name().into(),
+                    metrics::psnr_rgb(&scene.left, &left)?.overall,
+                );
+            }
+            Err(e) if matches!(e.downcast_ref(), Some(CodecError::BudgetTooSmall { .. })) => {}
+            Err(e) => return Err(e),
+        }
+    }
+    Ok(psnr)
+}
+
 /// Computes one scene, writing its images under `out/img/`.
 pub fn scene_report(scene: &Scene, dir: &Path, out: &Path) -> anyhow::Result<SceneReport> {
     let (w, h) = scene.left.dims();
@@ -157,6 +199,7 @@ pub fn scene_report(scene: &Scene, dir: &Path, out: &Path) -> anyhow::Result<Sce
             planes: None,
         };
         let coded_bytes = container::encode(&Message::StereoFrame(Box::new(frame)), 0, 0).len();
+        let lossy_psnr_db = lossy_at(scene, coded_bytes)?;
         save(&format!("seg-{}", method.name()), &l)?;
         segmentation.insert(
             method.name().to_string(),
@@ -167,6 +210,7 @@ pub fn scene_report(scene: &Scene, dir: &Path, out: &Path) -> anyhow::Result<Sce
                 reduction_percent: metrics::reduction_percent(original_bytes as usize, coded_bytes),
                 time_ms,
                 classes,
+                lossy_psnr_db,
             },
         );
         pairs.push((method.name().to_string(), l, r));
