@@ -251,7 +251,9 @@ pub fn decode_into(
             use zune_jpeg::zune_core::{
                 bytestream::ZCursor, colorspace::ColorSpace, options::DecoderOptions,
             };
+            // Strict: more corrupt streams are errors, not pictures.
             let options = DecoderOptions::default()
+                .set_strict_mode(true)
                 .set_max_width(width)
                 .set_max_height(height)
                 .jpeg_set_out_colorspace(ColorSpace::RGB);
@@ -288,12 +290,14 @@ pub fn decode_into(
     }
 }
 
-/// Sizes `out` to the view without clearing it when it has the size: the
-/// decoders write every pixel.
+/// Sizes and clears `out`. The decoders do not always write every pixel: on
+/// some corrupt scans zune-jpeg ends early without an error, even in strict
+/// mode, and a view reused from frame to frame would then keep the last
+/// frame's pixels there (found by the `frame_decoder` fuzz target). Cleared,
+/// a view decodes to the same pixels whatever the buffer held; the clearing
+/// costs a few thousandths of the decoding.
 fn fit(out: &mut RgbImage, (width, height): (usize, usize)) {
-    if out.dims() != (width, height) {
-        out.reset(width, height, [0; 3]);
-    }
+    out.reset(width, height, [0; 3]);
 }
 
 fn jpeg_error(e: &zune_jpeg::errors::DecodeErrors) -> CodecError {

@@ -240,7 +240,7 @@ impl CodedPlaneTable {
     /// Parses a section's content (after tag, version and length) for a
     /// view of `pixels` pixels: at most one segment per pixel and at most
     /// one plane per segment. Allocates the content's length.
-    pub(crate) fn parse(content: &[u8], pixels: usize) -> Result<Self, CodecError> {
+    pub fn parse(content: &[u8], pixels: usize) -> Result<Self, CodecError> {
         let mut r = Reader {
             data: content,
             pos: 0,

@@ -5,7 +5,7 @@
 //!
 //! Lossy views (JPEG, WebP bitstreams) are out of a blind fuzzer's reach;
 //! seed it with the two lossy frames of the board's budget example:
-//! `cargo fuzz run decode fuzz/corpus/decode ../pipeline/examples/lossy`.
+//! `tools/fuzz/run-ci` does (`fuzz/seeds/decode` holds them).
 #![no_main]
 
 use libfuzzer_sys::fuzz_target;
