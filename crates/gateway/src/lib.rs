@@ -7,7 +7,8 @@
 //! frames and sends its commands down; the bridge thread ([`run`]) owns
 //! the broker connection ([`mqtt`]'s outbox): its state (`bridge`) turns
 //! the stations' events into publishes, tracks availability, and hands
-//! commands from `set` topics ([`command`]) to the stations. Commands reach
+//! commands from `set` topics ([`command`]) to the stations; over TLS
+//! (`mqtts://`) through rustls ([`tls`]). Commands reach
 //! a station only over its own link, sealed when keys are given, as a
 //! versioned Control message ([`stereolink_codec::control`]).
 //!
@@ -27,6 +28,7 @@ pub mod command;
 pub mod mqtt;
 pub mod sim;
 pub mod station;
+pub mod tls;
 
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -34,10 +36,13 @@ use std::sync::mpsc::{self, RecvTimeoutError};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use rumqttc::{Client, Event, Packet, QoS};
+use anyhow::Context;
+
+use rumqttc::{Client, Event, Packet, QoS, TlsConfiguration, Transport};
 
 use bridge::Bridge;
 use station::{Request, StationConfig, Up};
+use tls::TlsFiles;
 
 /// Where the broker is and who the gateway is there.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -50,16 +55,30 @@ pub struct Broker {
     pub login: Option<(String, String)>,
     /// The gateway's MQTT client id.
     pub client_id: String,
+    /// TLS (`mqtts://`) and its files; `None`: plain TCP.
+    pub tls: Option<TlsFiles>,
 }
 
 impl Broker {
     /// Reads `mqtt://[USER[:PASSWORD]@]HOST[:PORT]` (`tcp://` too; port
-    /// 1883 by default). TLS (`mqtts://`) is not built in.
+    /// 1883 by default) or, over TLS, `mqtts://...` (`ssl://` too; port
+    /// 8883 by default), with no TLS files yet (the system's CAs).
     pub fn parse(url: &str) -> Result<Broker, String> {
-        let rest = url
+        let plain = url
             .strip_prefix("mqtt://")
-            .or_else(|| url.strip_prefix("tcp://"))
-            .ok_or_else(|| format!("broker {url:?}: use mqtt://HOST:PORT (no TLS here)"))?;
+            .or_else(|| url.strip_prefix("tcp://"));
+        let secure = url
+            .strip_prefix("mqtts://")
+            .or_else(|| url.strip_prefix("ssl://"));
+        let (rest, tls) = match (plain, secure) {
+            (Some(rest), _) => (rest, None),
+            (None, Some(rest)) => (rest, Some(TlsFiles::default())),
+            (None, None) => {
+                return Err(format!(
+                    "broker {url:?}: use mqtt://HOST:PORT, or mqtts://HOST:PORT for TLS"
+                ))
+            }
+        };
         let rest = rest.trim_end_matches('/');
         let (login, hostport) = match rest.rsplit_once('@') {
             Some((user, hp)) => {
@@ -74,7 +93,7 @@ impl Broker {
                 p.parse()
                     .map_err(|_| format!("broker {url:?}: port {p:?} is not a number"))?,
             ),
-            None => (hostport, 1883),
+            None => (hostport, if tls.is_some() { 8883 } else { 1883 }),
         };
         if host.is_empty() {
             return Err(format!("broker {url:?}: no host"));
@@ -84,7 +103,16 @@ impl Broker {
             port,
             login,
             client_id: "stereolink-gateway".into(),
+            tls,
         })
+    }
+}
+
+/// `mqtts://HOST:PORT` or `mqtt://HOST:PORT`: the broker without its login.
+impl std::fmt::Display for Broker {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let scheme = if self.tls.is_some() { "mqtts" } else { "mqtt" };
+        write!(f, "{scheme}://{}:{}", self.host, self.port)
     }
 }
 
@@ -145,6 +173,13 @@ pub fn run(cfg: GatewayConfig, stop: Arc<AtomicBool>) -> anyhow::Result<Summary>
         );
         anyhow::ensure!(names.insert(&s.name), "station {:?} is named twice", s.name);
     }
+    // Bad TLS files are an error before any station starts.
+    let transport = match &cfg.broker.tls {
+        Some(files) => Transport::tls_with_config(TlsConfiguration::Rustls(
+            tls::client_config(files).with_context(|| format!("broker {}", cfg.broker))?,
+        )),
+        None => Transport::tcp(),
+    };
     let (up_tx, up) = mpsc::channel::<Up>();
     let mut downs = Vec::new();
     let mut threads = Vec::new();
@@ -160,7 +195,9 @@ pub fn run(cfg: GatewayConfig, stop: Arc<AtomicBool>) -> anyhow::Result<Summary>
     }
     drop(up_tx);
     let mut bridge = Bridge::new(&cfg);
-    let (client, mut connection) = Client::new(bridge.options(), 256);
+    let mut options = bridge.options();
+    options.set_transport(transport);
+    let (client, mut connection) = Client::new(options, 256);
     let mut connected = false;
     let (mut backoff, mut next_attempt) = (BACKOFF.0, Instant::now());
     let mut last_health = Instant::now();
@@ -218,6 +255,20 @@ pub fn run(cfg: GatewayConfig, stop: Arc<AtomicBool>) -> anyhow::Result<Summary>
                     Ok(Event::Outgoing(o)) => bridge.outbox.on_outgoing(&o),
                     Ok(Event::Incoming(_)) => {}
                     Err(e) => {
+                        // TLS that fails before the first connection is
+                        // a setting to fix, not a broker to wait for.
+                        if bridge.connections == 0 && cfg.broker.tls.is_some() {
+                            if let Some(cause) = tls::failure(&e) {
+                                stop.store(true, Ordering::Relaxed);
+                                for t in threads {
+                                    let _ = t.join();
+                                }
+                                anyhow::bail!(
+                                    "cannot connect to the broker {} over TLS: {cause}",
+                                    cfg.broker
+                                );
+                            }
+                        }
                         if connected {
                             eprintln!("gateway: lost the broker ({e}); reconnecting");
                             bridge.reconnects += 1;
@@ -301,7 +352,13 @@ mod tests {
         assert_eq!((b.host.as_str(), b.port), ("127.0.0.1", 18830));
         assert_eq!(b.login, Some(("gw".into(), "s3cret".into())));
         assert_eq!(Broker::parse("tcp://broker").unwrap().port, 1883);
-        assert!(Broker::parse("mqtts://broker").is_err());
+        let b = Broker::parse("mqtts://broker").unwrap();
+        assert_eq!((b.port, b.tls.is_some()), (8883, true));
+        let b = Broker::parse("ssl://gw:pw@10.0.0.2:18883").unwrap();
+        assert_eq!((b.port, b.tls.is_some()), (18883, true));
+        assert_eq!(b.to_string(), "mqtts://10.0.0.2:18883");
+        assert!(Broker::parse("tcp://broker").unwrap().tls.is_none());
+        assert!(Broker::parse("http://broker").is_err());
         assert!(Broker::parse("mqtt://:1883").is_err());
     }
 }

@@ -18,9 +18,21 @@ pub struct Args {
     /// station1, station2, ... in order). One UDP peer or radio address each.
     #[arg(long = "link", value_name = "[NAME=]SPEC", required = true)]
     pub links: Vec<String>,
-    /// The broker: mqtt://[USER[:PASSWORD]@]HOST[:PORT].
+    /// The broker: mqtt://[USER[:PASSWORD]@]HOST[:PORT] (port 1883), or
+    /// over TLS mqtts://... (ssl:// too; port 8883).
     #[arg(long, default_value = "mqtt://127.0.0.1:1883")]
     pub mqtt: String,
+    /// The CA certificates (PEM) the broker's certificate must chain to,
+    /// for mqtts:// (default: the system's CAs).
+    #[arg(long, value_name = "FILE")]
+    pub mqtt_ca: Option<PathBuf>,
+    /// The gateway's client certificate (PEM), for a broker that asks for
+    /// one (mutual TLS); with --mqtt-key.
+    #[arg(long, value_name = "FILE", requires = "mqtt_key")]
+    pub mqtt_cert: Option<PathBuf>,
+    /// The private key (PEM) of --mqtt-cert.
+    #[arg(long, value_name = "FILE", requires = "mqtt_cert")]
+    pub mqtt_key: Option<PathBuf>,
     /// A file holding the broker password (instead of putting it in --mqtt).
     #[arg(long, value_name = "FILE")]
     pub mqtt_password_file: Option<PathBuf>,
@@ -85,6 +97,17 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     };
     let mut broker = Broker::parse(&args.mqtt).map_err(|e| anyhow::anyhow!(e))?;
     broker.client_id = args.client_id.clone();
+    let client = args.mqtt_cert.clone().zip(args.mqtt_key.clone());
+    match &mut broker.tls {
+        Some(tls) => {
+            tls.ca = args.mqtt_ca.clone();
+            tls.client = client;
+        }
+        None => anyhow::ensure!(
+            args.mqtt_ca.is_none() && client.is_none(),
+            "--mqtt-ca, --mqtt-cert and --mqtt-key are for TLS: give the broker as mqtts://HOST:PORT"
+        ),
+    }
     if let Some(f) = &args.mqtt_password_file {
         let pw = std::fs::read_to_string(f)
             .with_context(|| format!("cannot read the broker password from {}", f.display()))?;
@@ -145,10 +168,9 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         discovery: args.homeassistant.clone(),
     };
     eprintln!(
-        "gateway: {} station(s) to mqtt://{}:{} under {}/",
+        "gateway: {} station(s) to {} under {}/",
         cfg.stations.len(),
-        cfg.broker.host,
-        cfg.broker.port,
+        cfg.broker,
         cfg.prefix
     );
     let stop = Arc::new(AtomicBool::new(false));
