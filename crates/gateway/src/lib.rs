@@ -8,7 +8,7 @@
 //! the broker connection ([`mqtt`]'s outbox): its state (`bridge`) turns
 //! the stations' events into publishes, tracks availability, and hands
 //! commands from `set` topics ([`command`]) to the stations; over TLS
-//! (`mqtts://`) through rustls ([`tls`]). Commands reach
+//! (`mqtts://`) through rustls ([`tls`]), in MQTT 5 or 3.1.1 ([`session`]). Commands reach
 //! a station only over its own link, sealed when keys are given, as a
 //! versioned Control message ([`stereolink_codec::control`]).
 //!
@@ -26,6 +26,7 @@
 mod bridge;
 pub mod command;
 pub mod mqtt;
+pub mod session;
 pub mod sim;
 pub mod station;
 pub mod tls;
@@ -38,9 +39,10 @@ use std::time::{Duration, Instant};
 
 use anyhow::Context;
 
-use rumqttc::{Client, Event, Packet, QoS, TlsConfiguration, Transport};
+use rumqttc::{TlsConfiguration, Transport};
 
 use bridge::Bridge;
+use session::{Ev, Recv, Session, Version};
 use station::{Request, StationConfig, Up};
 use tls::TlsFiles;
 
@@ -134,6 +136,10 @@ pub struct GatewayConfig {
     /// Home Assistant's discovery prefix (`homeassistant`), if the
     /// stations are to be announced to it.
     pub discovery: Option<String>,
+    /// The MQTT version spoken.
+    pub version: Version,
+    /// MQTT 5: depth reports expire after this many seconds undelivered.
+    pub depth_expiry_s: Option<u32>,
 }
 
 /// What a gateway run did.
@@ -195,9 +201,7 @@ pub fn run(cfg: GatewayConfig, stop: Arc<AtomicBool>) -> anyhow::Result<Summary>
     }
     drop(up_tx);
     let mut bridge = Bridge::new(&cfg);
-    let mut options = bridge.options();
-    options.set_transport(transport);
-    let (client, mut connection) = Client::new(options, 256);
+    let mut session = Session::new(&cfg.broker, cfg.version, bridge.will_topic(), transport);
     let mut connected = false;
     let (mut backoff, mut next_attempt) = (BACKOFF.0, Instant::now());
     let mut last_health = Instant::now();
@@ -218,23 +222,15 @@ pub fn run(cfg: GatewayConfig, stop: Arc<AtomicBool>) -> anyhow::Result<Summary>
         if connected || Instant::now() >= next_attempt {
             let mut wait = ROUND;
             for _ in 0..256 {
-                let ev = match connection.recv_timeout(wait) {
-                    Ok(ev) => ev,
-                    Err(rumqttc::RecvTimeoutError::Timeout) => break,
-                    Err(rumqttc::RecvTimeoutError::Disconnected) => {
-                        anyhow::bail!("the MQTT client stopped")
-                    }
+                let ev = match session.recv_timeout(wait) {
+                    Recv::Ev(ev) => ev,
+                    Recv::Timeout => break,
+                    Recv::Closed => anyhow::bail!("the MQTT client stopped"),
                 };
                 wait = Duration::ZERO;
                 match ev {
-                    Ok(Event::Incoming(Packet::ConnAck(ack))) => {
-                        if ack.code != rumqttc::ConnectReturnCode::Success {
-                            eprintln!("gateway: the broker refused the connection: {:?}", ack.code);
-                            connected = false;
-                            next_attempt = Instant::now() + backoff;
-                            backoff = (backoff * 2).min(BACKOFF.1);
-                            break;
-                        }
+                    // Both clients report a refused CONNACK as an error.
+                    Ev::ConnAck => {
                         if bridge.connections > 0 {
                             eprintln!("gateway: reconnected to the broker");
                         }
@@ -243,37 +239,36 @@ pub fn run(cfg: GatewayConfig, stop: Arc<AtomicBool>) -> anyhow::Result<Summary>
                         backoff = BACKOFF.0;
                         bridge.outbox.on_connack();
                         let p = &bridge.prefix;
-                        let _ = client.try_subscribe(format!("{p}/+/set"), QoS::AtLeastOnce);
-                        let _ =
-                            client.try_subscribe(format!("{p}/bridge/request/+"), QoS::AtLeastOnce);
+                        session.try_subscribe(format!("{p}/+/set"));
+                        session.try_subscribe(format!("{p}/bridge/request/+"));
                         bridge.health(connected);
                     }
-                    Ok(Event::Incoming(Packet::PubAck(a))) => bridge.outbox.on_puback(a.pkid),
-                    Ok(Event::Incoming(Packet::Publish(p))) => {
-                        bridge.on_request(&p.topic, &p.payload, &downs, connected)
-                    }
-                    Ok(Event::Outgoing(o)) => bridge.outbox.on_outgoing(&o),
-                    Ok(Event::Incoming(_)) => {}
-                    Err(e) => {
+                    Ev::PubAck(pkid) => bridge.outbox.on_puback(pkid),
+                    Ev::Publish {
+                        topic,
+                        payload,
+                        reply,
+                    } => bridge.on_request(&topic, &payload, reply, &downs, connected),
+                    Ev::Outgoing(o) => bridge.outbox.on_outgoing(&o),
+                    Ev::Other => {}
+                    Ev::Lost { error, tls } => {
                         // TLS that fails before the first connection is
                         // a setting to fix, not a broker to wait for.
-                        if bridge.connections == 0 && cfg.broker.tls.is_some() {
-                            if let Some(cause) = tls::failure(&e) {
-                                stop.store(true, Ordering::Relaxed);
-                                for t in threads {
-                                    let _ = t.join();
-                                }
-                                anyhow::bail!(
-                                    "cannot connect to the broker {} over TLS: {cause}",
-                                    cfg.broker
-                                );
+                        if let (0, Some(cause)) = (bridge.connections, tls) {
+                            stop.store(true, Ordering::Relaxed);
+                            for t in threads {
+                                let _ = t.join();
                             }
+                            anyhow::bail!(
+                                "cannot connect to the broker {} over TLS: {cause}",
+                                cfg.broker
+                            );
                         }
                         if connected {
-                            eprintln!("gateway: lost the broker ({e}); reconnecting");
+                            eprintln!("gateway: lost the broker ({error}); reconnecting");
                             bridge.reconnects += 1;
                         } else if bridge.connections == 0 && backoff == BACKOFF.0 {
-                            eprintln!("gateway: cannot reach the broker ({e}); retrying");
+                            eprintln!("gateway: cannot reach the broker ({error}); retrying");
                         }
                         connected = false;
                         bridge.outbox.on_disconnect();
@@ -312,16 +307,14 @@ pub fn run(cfg: GatewayConfig, stop: Arc<AtomicBool>) -> anyhow::Result<Summary>
         }
         if connected {
             while let Some(p) = bridge.outbox.next() {
-                let p = p.clone();
-                match client.try_publish(p.topic, p.qos, p.retain, p.payload) {
-                    Ok(()) => bridge.outbox.handed(),
-                    Err(_) => break, // the client's channel is full: next round
+                if !session.try_publish(p) {
+                    break; // the client's channel is full: next round
                 }
+                bridge.outbox.handed();
             }
         }
     }
-    let _ = client.try_disconnect();
-    let _ = connection.recv_timeout(Duration::from_millis(100));
+    session.disconnect();
     for t in threads {
         let _ = t.join();
     }

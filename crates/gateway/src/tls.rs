@@ -95,22 +95,23 @@ fn certificates(path: &Path, flag: &str) -> anyhow::Result<Vec<CertificateDer<'s
 /// The cause of a failed connection when TLS is what failed (the
 /// handshake, the broker's certificate, a client certificate the broker
 /// wanted), in a few words; `None` for anything else (a refused or lost
-/// TCP connection, a refused login).
-pub fn failure(e: &rumqttc::ConnectionError) -> Option<String> {
+/// TCP connection, a refused login). `handshake`: the error's TLS variant,
+/// if it is one (either protocol version's client has one).
+pub fn failure(
+    e: &(dyn std::error::Error + 'static),
+    handshake: Option<&rumqttc::TlsError>,
+) -> Option<String> {
     if let Some(r) = rustls_error(e) {
         return Some(explain(r));
     }
-    match e {
-        rumqttc::ConnectionError::Tls(t) => Some(match t {
-            // Only the handshake reports I/O as TLS errors: the TCP
-            // connection was made, and then cut (a plaintext port resets it).
-            rumqttc::TlsError::Io(io) => {
-                format!("the TLS handshake was cut off: is that port a TLS listener? ({io})")
-            }
-            other => other.to_string(),
-        }),
-        _ => None,
-    }
+    handshake.map(|t| match t {
+        // Only the handshake reports I/O as TLS errors: the TCP
+        // connection was made, and then cut (a plaintext port resets it).
+        rumqttc::TlsError::Io(io) => {
+            format!("the TLS handshake was cut off: is that port a TLS listener? ({io})")
+        }
+        other => other.to_string(),
+    })
 }
 
 /// The rustls error at the root of `e`, if any: rustls's errors travel

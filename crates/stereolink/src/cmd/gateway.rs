@@ -33,6 +33,15 @@ pub struct Args {
     /// The private key (PEM) of --mqtt-cert.
     #[arg(long, value_name = "FILE", requires = "mqtt_cert")]
     pub mqtt_key: Option<PathBuf>,
+    /// The MQTT version: 5, or 3.1.1 for an older broker (no message
+    /// expiry, no response topics: the `transaction` field correlates).
+    #[arg(long, value_name = "5|3.1.1", default_value = "5")]
+    pub mqtt_version: gateway::session::Version,
+    /// MQTT 5: the broker drops a depth report not delivered within this
+    /// many seconds (so a late subscriber never gets a stale distance);
+    /// 0: never. Default 1.
+    #[arg(long, value_name = "S")]
+    pub depth_expiry_s: Option<u32>,
     /// A file holding the broker password (instead of putting it in --mqtt).
     #[arg(long, value_name = "FILE")]
     pub mqtt_password_file: Option<PathBuf>,
@@ -114,6 +123,13 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         let user = broker.login.map(|l| l.0).unwrap_or_default();
         broker.login = Some((user, pw.trim_end().to_string()));
     }
+    let depth_expiry_s = match (args.mqtt_version, args.depth_expiry_s) {
+        (gateway::session::Version::V311, Some(_)) => {
+            anyhow::bail!("--depth-expiry-s needs MQTT 5 (--mqtt-version 5)")
+        }
+        (gateway::session::Version::V311, None) | (_, Some(0)) => None,
+        (_, s) => Some(s.unwrap_or(1)),
+    };
     let private = match &args.key {
         Some(k) => Some(keyfile::read_key(k).context("cannot load the gateway's key")?),
         None => {
@@ -166,11 +182,14 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         queue: args.queue,
         health_every: secs(args.health_every_s, "health-every-s")?,
         discovery: args.homeassistant.clone(),
+        version: args.mqtt_version,
+        depth_expiry_s,
     };
     eprintln!(
-        "gateway: {} station(s) to {} under {}/",
+        "gateway: {} station(s) to {} (MQTT {}) under {}/",
         cfg.stations.len(),
         cfg.broker,
+        cfg.version,
         cfg.prefix
     );
     let stop = Arc::new(AtomicBool::new(false));
