@@ -109,8 +109,8 @@ def main():
     with lock:
         state["phase"] = "after"
     time.sleep(a.away_s)
-    c = client()
     subscribed.clear()
+    c = client()
     if not subscribed.wait(10):
         sys.exit("probe: no SUBACK after coming back")
     props = Properties(PacketTypes.PUBLISH)
