@@ -4,14 +4,15 @@
 use std::sync::mpsc;
 use std::time::{Duration, Instant};
 
-use rumqttc::{LastWill, MqttOptions, QoS};
+use rumqttc::QoS;
 use serde_json::{json, Value};
 use stereolink_codec::control::unix_us;
 
 use crate::command;
 use crate::mqtt::{Outbox, Pub};
+use crate::session::Reply;
 use crate::station::{Request, Up};
-use crate::{Broker, GatewayConfig};
+use crate::GatewayConfig;
 
 /// A station's state on the bridge side.
 #[derive(Default)]
@@ -27,7 +28,6 @@ pub(super) struct Seen {
 /// The bridge's state: the stations as seen, the outbox, the counters.
 pub(super) struct Bridge {
     pub(super) prefix: String,
-    pub(super) broker: Broker,
     pub(super) names: Vec<String>,
     pub(super) links: Vec<String>,
     pub(super) secured: Vec<bool>,
@@ -39,13 +39,14 @@ pub(super) struct Bridge {
     pub(super) reconnects: u64,
     pub(super) commands: u64,
     pub(super) started_us: u64,
+    /// MQTT 5 message expiry of the depth reports, seconds.
+    depth_expiry_s: Option<u32>,
 }
 
 impl Bridge {
     pub(super) fn new(cfg: &GatewayConfig) -> Self {
         let mut b = Bridge {
             prefix: cfg.prefix.trim_end_matches('/').to_string(),
-            broker: cfg.broker.clone(),
             names: cfg.stations.iter().map(|s| s.name.clone()).collect(),
             links: cfg.stations.iter().map(|s| s.link_text.clone()).collect(),
             secured: cfg.stations.iter().map(|s| s.keys.is_some()).collect(),
@@ -57,6 +58,7 @@ impl Bridge {
             reconnects: 0,
             commands: 0,
             started_us: unix_us(),
+            depth_expiry_s: cfg.depth_expiry_s,
         };
         // The retained state the first CONNACK publishes.
         b.retain(b.topic("bridge/state"), b"online".to_vec(), false);
@@ -129,26 +131,9 @@ impl Bridge {
         ]
     }
 
-    pub(super) fn options(&self) -> MqttOptions {
-        let mut o = MqttOptions::new(
-            self.broker.client_id.clone(),
-            self.broker.host.clone(),
-            self.broker.port,
-        );
-        o.set_keep_alive(Duration::from_secs(5))
-            .set_clean_session(true)
-            .set_max_packet_size(64 * 1024, 16 * 1024 * 1024)
-            .set_inflight(100)
-            .set_last_will(LastWill::new(
-                self.topic("bridge/state"),
-                "offline",
-                QoS::AtLeastOnce,
-                true,
-            ));
-        if let Some((u, p)) = &self.broker.login {
-            o.set_credentials(u.clone(), p.clone());
-        }
-        o
+    /// The last will's topic: the bridge's state.
+    pub(super) fn will_topic(&self) -> String {
+        self.topic("bridge/state")
     }
 
     fn topic(&self, rest: &str) -> String {
@@ -167,15 +152,38 @@ impl Bridge {
                 qos: QoS::AtLeastOnce,
                 retain: false,
                 kind,
+                expiry_s: None,
+                correlation: None,
             },
             connected,
         );
     }
 
-    /// Answers a command on `P/S/response`.
-    fn respond(&mut self, station: usize, r: &Value, connected: bool) {
-        let topic = self.station_topic(station, "response");
-        self.push(topic, Self::json(r), "response", connected);
+    /// Answers a request on its default topic `to` or, under MQTT 5, on
+    /// the response topic it gave, with its correlation data. A response
+    /// topic is taken only at or below `to` (`P/S/response/...`), so that
+    /// a client who may command cannot make the gateway publish on the
+    /// stations' own topics; elsewhere the answer goes to `to`, still
+    /// correlated.
+    fn answer(&mut self, to: String, r: &Value, reply: Option<&Reply>, connected: bool) {
+        self.outbox.push(
+            Pub {
+                topic: response_topic(to, reply),
+                payload: Self::json(r),
+                qos: QoS::AtLeastOnce,
+                retain: false,
+                kind: "response",
+                expiry_s: None,
+                correlation: reply.and_then(|rp| rp.correlation.clone()),
+            },
+            connected,
+        );
+    }
+
+    /// Answers a command on `P/S/response` (or its response topic).
+    fn respond(&mut self, station: usize, r: &Value, reply: Option<&Reply>, connected: bool) {
+        let to = self.station_topic(station, "response");
+        self.answer(to, r, reply, connected);
     }
 
     fn retain(&mut self, topic: String, payload: Vec<u8>, connected: bool) {
@@ -186,6 +194,8 @@ impl Bridge {
                 qos: QoS::AtLeastOnce,
                 retain: true,
                 kind: "retained",
+                expiry_s: None,
+                correlation: None,
             },
             connected,
         );
@@ -221,10 +231,18 @@ impl Bridge {
                 s.last_frame_id = Some(frame_id);
                 s.last_distance_m = payload["distance_m"].as_f64();
                 self.stations_dirty = true;
-                self.push(
-                    self.station_topic(station, "depth"),
-                    Self::json(&payload),
-                    "depth",
+                // A stale distance is worse than none: the broker drops it
+                // for a subscriber that comes too late (MQTT 5).
+                self.outbox.push(
+                    Pub {
+                        topic: self.station_topic(station, "depth"),
+                        payload: Self::json(&payload),
+                        qos: QoS::AtLeastOnce,
+                        retain: false,
+                        kind: "depth",
+                        expiry_s: self.depth_expiry_s,
+                        correlation: None,
+                    },
                     connected,
                 );
             }
@@ -279,7 +297,7 @@ impl Bridge {
                         r["error"] = json!(e);
                     }
                 }
-                self.respond(station, &r, connected);
+                self.respond(station, &r, request.reply.as_ref(), connected);
             }
             Up::Acted {
                 station,
@@ -298,7 +316,7 @@ impl Bridge {
                         r["error"] = json!(e);
                     }
                 }
-                self.respond(station, &r, connected);
+                self.respond(station, &r, request.reply.as_ref(), connected);
             }
             Up::Notice { station, text } => {
                 eprintln!("gateway: station {}: {text}", self.names[station])
@@ -311,6 +329,7 @@ impl Bridge {
         &mut self,
         topic: &str,
         payload: &[u8],
+        reply: Option<Reply>,
         downs: &[mpsc::Sender<Request>],
         connected: bool,
     ) {
@@ -342,7 +361,7 @@ impl Bridge {
                     json!({"status": "error", "error": format!("unknown request {other:?}"), "transaction": transaction})
                 }
             };
-            return self.push(response, Self::json(&r), "response", connected);
+            return self.answer(response, &r, reply.as_ref(), connected);
         }
         let Some(name) = rest.strip_suffix("/set") else {
             return;
@@ -356,22 +375,23 @@ impl Bridge {
             // A command waits for no station that cannot take it now.
             Ok(_) if !self.seen[i].online => {
                 let r = json!({"status": "error", "error": "the station is offline", "transaction": transaction});
-                self.respond(i, &r, connected);
+                self.respond(i, &r, reply.as_ref(), connected);
             }
             Ok(command) => {
                 let req = Request {
                     command,
                     transaction,
+                    reply: reply.clone(),
                     at: Instant::now(),
                 };
                 if downs[i].send(req).is_err() {
                     let r = json!({"status": "error", "error": "the station's link is closed"});
-                    self.respond(i, &r, connected);
+                    self.respond(i, &r, reply.as_ref(), connected);
                 }
             }
             Err(e) => {
                 let r = json!({"status": "error", "error": e, "transaction": transaction});
-                self.respond(i, &r, connected);
+                self.respond(i, &r, reply.as_ref(), connected);
             }
         }
     }
@@ -453,5 +473,38 @@ impl Bridge {
         }
         self.health(connected);
         self.retain(self.topic("bridge/state"), b"offline".to_vec(), connected);
+    }
+}
+
+/// Where an answer goes: the request's response topic if it is `to` or
+/// below it, else `to`.
+fn response_topic(to: String, reply: Option<&Reply>) -> String {
+    match reply {
+        Some(rp) if rp.topic == to || rp.topic.starts_with(&format!("{to}/")) => rp.topic.clone(),
+        _ => to,
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_response_topic_is_taken_only_below_the_default() {
+        let to = || "p/cam1/response".to_string();
+        let reply = |t: &str| Reply {
+            topic: t.into(),
+            correlation: None,
+        };
+        for (asked, goes) in [
+            ("p/cam1/response/op1", "p/cam1/response/op1"),
+            ("p/cam1/response", "p/cam1/response"),
+            ("p/cam1/depth", "p/cam1/response"),
+            ("p/cam1/responses", "p/cam1/response"),
+            ("p/bridge/state", "p/cam1/response"),
+        ] {
+            assert_eq!(response_topic(to(), Some(&reply(asked))), goes, "{asked}");
+        }
+        assert_eq!(response_topic(to(), None), "p/cam1/response");
     }
 }

@@ -7,7 +7,8 @@
 //! frames and sends its commands down; the bridge thread ([`run`]) owns
 //! the broker connection ([`mqtt`]'s outbox): its state (`bridge`) turns
 //! the stations' events into publishes, tracks availability, and hands
-//! commands from `set` topics ([`command`]) to the stations. Commands reach
+//! commands from `set` topics ([`command`]) to the stations; over TLS
+//! (`mqtts://`) through rustls ([`tls`]), in MQTT 5 or 3.1.1 ([`session`]). Commands reach
 //! a station only over its own link, sealed when keys are given, as a
 //! versioned Control message ([`stereolink_codec::control`]).
 //!
@@ -25,8 +26,10 @@
 mod bridge;
 pub mod command;
 pub mod mqtt;
+pub mod session;
 pub mod sim;
 pub mod station;
+pub mod tls;
 
 use std::collections::BTreeMap;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -34,10 +37,14 @@ use std::sync::mpsc::{self, RecvTimeoutError};
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use rumqttc::{Client, Event, Packet, QoS};
+use anyhow::Context;
+
+use rumqttc::{TlsConfiguration, Transport};
 
 use bridge::Bridge;
+use session::{Ev, Recv, Session, Version};
 use station::{Request, StationConfig, Up};
+use tls::TlsFiles;
 
 /// Where the broker is and who the gateway is there.
 #[derive(Clone, Debug, PartialEq, Eq)]
@@ -50,16 +57,30 @@ pub struct Broker {
     pub login: Option<(String, String)>,
     /// The gateway's MQTT client id.
     pub client_id: String,
+    /// TLS (`mqtts://`) and its files; `None`: plain TCP.
+    pub tls: Option<TlsFiles>,
 }
 
 impl Broker {
     /// Reads `mqtt://[USER[:PASSWORD]@]HOST[:PORT]` (`tcp://` too; port
-    /// 1883 by default). TLS (`mqtts://`) is not built in.
+    /// 1883 by default) or, over TLS, `mqtts://...` (`ssl://` too; port
+    /// 8883 by default), with no TLS files yet (the system's CAs).
     pub fn parse(url: &str) -> Result<Broker, String> {
-        let rest = url
+        let plain = url
             .strip_prefix("mqtt://")
-            .or_else(|| url.strip_prefix("tcp://"))
-            .ok_or_else(|| format!("broker {url:?}: use mqtt://HOST:PORT (no TLS here)"))?;
+            .or_else(|| url.strip_prefix("tcp://"));
+        let secure = url
+            .strip_prefix("mqtts://")
+            .or_else(|| url.strip_prefix("ssl://"));
+        let (rest, tls) = match (plain, secure) {
+            (Some(rest), _) => (rest, None),
+            (None, Some(rest)) => (rest, Some(TlsFiles::default())),
+            (None, None) => {
+                return Err(format!(
+                    "broker {url:?}: use mqtt://HOST:PORT, or mqtts://HOST:PORT for TLS"
+                ))
+            }
+        };
         let rest = rest.trim_end_matches('/');
         let (login, hostport) = match rest.rsplit_once('@') {
             Some((user, hp)) => {
@@ -74,7 +95,7 @@ impl Broker {
                 p.parse()
                     .map_err(|_| format!("broker {url:?}: port {p:?} is not a number"))?,
             ),
-            None => (hostport, 1883),
+            None => (hostport, if tls.is_some() { 8883 } else { 1883 }),
         };
         if host.is_empty() {
             return Err(format!("broker {url:?}: no host"));
@@ -84,7 +105,16 @@ impl Broker {
             port,
             login,
             client_id: "stereolink-gateway".into(),
+            tls,
         })
+    }
+}
+
+/// `mqtts://HOST:PORT` or `mqtt://HOST:PORT`: the broker without its login.
+impl std::fmt::Display for Broker {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let scheme = if self.tls.is_some() { "mqtts" } else { "mqtt" };
+        write!(f, "{scheme}://{}:{}", self.host, self.port)
     }
 }
 
@@ -106,6 +136,10 @@ pub struct GatewayConfig {
     /// Home Assistant's discovery prefix (`homeassistant`), if the
     /// stations are to be announced to it.
     pub discovery: Option<String>,
+    /// The MQTT version spoken.
+    pub version: Version,
+    /// MQTT 5: depth reports expire after this many seconds undelivered.
+    pub depth_expiry_s: Option<u32>,
 }
 
 /// What a gateway run did.
@@ -145,6 +179,13 @@ pub fn run(cfg: GatewayConfig, stop: Arc<AtomicBool>) -> anyhow::Result<Summary>
         );
         anyhow::ensure!(names.insert(&s.name), "station {:?} is named twice", s.name);
     }
+    // Bad TLS files are an error before any station starts.
+    let transport = match &cfg.broker.tls {
+        Some(files) => Transport::tls_with_config(TlsConfiguration::Rustls(
+            tls::client_config(files).with_context(|| format!("broker {}", cfg.broker))?,
+        )),
+        None => Transport::tcp(),
+    };
     let (up_tx, up) = mpsc::channel::<Up>();
     let mut downs = Vec::new();
     let mut threads = Vec::new();
@@ -160,7 +201,7 @@ pub fn run(cfg: GatewayConfig, stop: Arc<AtomicBool>) -> anyhow::Result<Summary>
     }
     drop(up_tx);
     let mut bridge = Bridge::new(&cfg);
-    let (client, mut connection) = Client::new(bridge.options(), 256);
+    let mut session = Session::new(&cfg.broker, cfg.version, bridge.will_topic(), transport);
     let mut connected = false;
     let (mut backoff, mut next_attempt) = (BACKOFF.0, Instant::now());
     let mut last_health = Instant::now();
@@ -181,23 +222,15 @@ pub fn run(cfg: GatewayConfig, stop: Arc<AtomicBool>) -> anyhow::Result<Summary>
         if connected || Instant::now() >= next_attempt {
             let mut wait = ROUND;
             for _ in 0..256 {
-                let ev = match connection.recv_timeout(wait) {
-                    Ok(ev) => ev,
-                    Err(rumqttc::RecvTimeoutError::Timeout) => break,
-                    Err(rumqttc::RecvTimeoutError::Disconnected) => {
-                        anyhow::bail!("the MQTT client stopped")
-                    }
+                let ev = match session.recv_timeout(wait) {
+                    Recv::Ev(ev) => ev,
+                    Recv::Timeout => break,
+                    Recv::Closed => anyhow::bail!("the MQTT client stopped"),
                 };
                 wait = Duration::ZERO;
                 match ev {
-                    Ok(Event::Incoming(Packet::ConnAck(ack))) => {
-                        if ack.code != rumqttc::ConnectReturnCode::Success {
-                            eprintln!("gateway: the broker refused the connection: {:?}", ack.code);
-                            connected = false;
-                            next_attempt = Instant::now() + backoff;
-                            backoff = (backoff * 2).min(BACKOFF.1);
-                            break;
-                        }
+                    // Both clients report a refused CONNACK as an error.
+                    Ev::ConnAck => {
                         if bridge.connections > 0 {
                             eprintln!("gateway: reconnected to the broker");
                         }
@@ -206,23 +239,36 @@ pub fn run(cfg: GatewayConfig, stop: Arc<AtomicBool>) -> anyhow::Result<Summary>
                         backoff = BACKOFF.0;
                         bridge.outbox.on_connack();
                         let p = &bridge.prefix;
-                        let _ = client.try_subscribe(format!("{p}/+/set"), QoS::AtLeastOnce);
-                        let _ =
-                            client.try_subscribe(format!("{p}/bridge/request/+"), QoS::AtLeastOnce);
+                        session.try_subscribe(format!("{p}/+/set"));
+                        session.try_subscribe(format!("{p}/bridge/request/+"));
                         bridge.health(connected);
                     }
-                    Ok(Event::Incoming(Packet::PubAck(a))) => bridge.outbox.on_puback(a.pkid),
-                    Ok(Event::Incoming(Packet::Publish(p))) => {
-                        bridge.on_request(&p.topic, &p.payload, &downs, connected)
-                    }
-                    Ok(Event::Outgoing(o)) => bridge.outbox.on_outgoing(&o),
-                    Ok(Event::Incoming(_)) => {}
-                    Err(e) => {
+                    Ev::PubAck(pkid) => bridge.outbox.on_puback(pkid),
+                    Ev::Publish {
+                        topic,
+                        payload,
+                        reply,
+                    } => bridge.on_request(&topic, &payload, reply, &downs, connected),
+                    Ev::Outgoing(o) => bridge.outbox.on_outgoing(&o),
+                    Ev::Other => {}
+                    Ev::Lost { error, tls } => {
+                        // TLS that fails before the first connection is
+                        // a setting to fix, not a broker to wait for.
+                        if let (0, Some(cause)) = (bridge.connections, tls) {
+                            stop.store(true, Ordering::Relaxed);
+                            for t in threads {
+                                let _ = t.join();
+                            }
+                            anyhow::bail!(
+                                "cannot connect to the broker {} over TLS: {cause}",
+                                cfg.broker
+                            );
+                        }
                         if connected {
-                            eprintln!("gateway: lost the broker ({e}); reconnecting");
+                            eprintln!("gateway: lost the broker ({error}); reconnecting");
                             bridge.reconnects += 1;
                         } else if bridge.connections == 0 && backoff == BACKOFF.0 {
-                            eprintln!("gateway: cannot reach the broker ({e}); retrying");
+                            eprintln!("gateway: cannot reach the broker ({error}); retrying");
                         }
                         connected = false;
                         bridge.outbox.on_disconnect();
@@ -261,16 +307,14 @@ pub fn run(cfg: GatewayConfig, stop: Arc<AtomicBool>) -> anyhow::Result<Summary>
         }
         if connected {
             while let Some(p) = bridge.outbox.next() {
-                let p = p.clone();
-                match client.try_publish(p.topic, p.qos, p.retain, p.payload) {
-                    Ok(()) => bridge.outbox.handed(),
-                    Err(_) => break, // the client's channel is full: next round
+                if !session.try_publish(p) {
+                    break; // the client's channel is full: next round
                 }
+                bridge.outbox.handed();
             }
         }
     }
-    let _ = client.try_disconnect();
-    let _ = connection.recv_timeout(Duration::from_millis(100));
+    session.disconnect();
     for t in threads {
         let _ = t.join();
     }
@@ -301,7 +345,13 @@ mod tests {
         assert_eq!((b.host.as_str(), b.port), ("127.0.0.1", 18830));
         assert_eq!(b.login, Some(("gw".into(), "s3cret".into())));
         assert_eq!(Broker::parse("tcp://broker").unwrap().port, 1883);
-        assert!(Broker::parse("mqtts://broker").is_err());
+        let b = Broker::parse("mqtts://broker").unwrap();
+        assert_eq!((b.port, b.tls.is_some()), (8883, true));
+        let b = Broker::parse("ssl://gw:pw@10.0.0.2:18883").unwrap();
+        assert_eq!((b.port, b.tls.is_some()), (18883, true));
+        assert_eq!(b.to_string(), "mqtts://10.0.0.2:18883");
+        assert!(Broker::parse("tcp://broker").unwrap().tls.is_none());
+        assert!(Broker::parse("http://broker").is_err());
         assert!(Broker::parse("mqtt://:1883").is_err());
     }
 }

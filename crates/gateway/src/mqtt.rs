@@ -27,6 +27,10 @@ pub struct Pub {
     pub retain: bool,
     /// What it is, for the drop counts (`depth`, `link`, `response`, ...).
     pub kind: &'static str,
+    /// MQTT 5: the broker drops it after this many seconds undelivered.
+    pub expiry_s: Option<u32>,
+    /// MQTT 5: the correlation data of the request it answers.
+    pub correlation: Option<Vec<u8>>,
 }
 
 /// A publish handed to the client: its packet id once written.
@@ -187,6 +191,8 @@ mod tests {
             qos: QoS::AtLeastOnce,
             retain,
             kind: "depth",
+            expiry_s: None,
+            correlation: None,
         }
     }
 

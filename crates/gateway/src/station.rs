@@ -139,6 +139,8 @@ pub struct Request {
     pub command: Command,
     /// The client's `transaction` field, if any.
     pub transaction: Option<Value>,
+    /// MQTT 5: the response topic and correlation data it came with.
+    pub reply: Option<crate::session::Reply>,
     /// When the gateway took it.
     pub at: Instant,
 }

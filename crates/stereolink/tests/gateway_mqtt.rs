@@ -143,16 +143,7 @@ fn broker_restart_mid_soak_loses_no_report() {
     broker.run();
     wait_finished(&sims, Duration::from_secs(30));
     sub.wait_for("400 depth reports", Duration::from_secs(15), |g| {
-        depth_ids(g)
-            .values()
-            .map(|v| {
-                let mut v = v.clone();
-                v.sort_unstable();
-                v.dedup();
-                v.len()
-            })
-            .sum::<usize>()
-            >= 400
+        distinct_reports(g) >= 400
     });
     std::thread::sleep(Duration::from_millis(500));
     // Retained state after the restart, as a new client sees it.

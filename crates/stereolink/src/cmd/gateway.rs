@@ -18,9 +18,30 @@ pub struct Args {
     /// station1, station2, ... in order). One UDP peer or radio address each.
     #[arg(long = "link", value_name = "[NAME=]SPEC", required = true)]
     pub links: Vec<String>,
-    /// The broker: mqtt://[USER[:PASSWORD]@]HOST[:PORT].
+    /// The broker: mqtt://[USER[:PASSWORD]@]HOST[:PORT] (port 1883), or
+    /// over TLS mqtts://... (ssl:// too; port 8883).
     #[arg(long, default_value = "mqtt://127.0.0.1:1883")]
     pub mqtt: String,
+    /// The CA certificates (PEM) the broker's certificate must chain to,
+    /// for mqtts:// (default: the system's CAs).
+    #[arg(long, value_name = "FILE")]
+    pub mqtt_ca: Option<PathBuf>,
+    /// The gateway's client certificate (PEM), for a broker that asks for
+    /// one (mutual TLS); with --mqtt-key.
+    #[arg(long, value_name = "FILE", requires = "mqtt_key")]
+    pub mqtt_cert: Option<PathBuf>,
+    /// The private key (PEM) of --mqtt-cert.
+    #[arg(long, value_name = "FILE", requires = "mqtt_cert")]
+    pub mqtt_key: Option<PathBuf>,
+    /// The MQTT version: 5, or 3.1.1 for an older broker (no message
+    /// expiry, no response topics: the `transaction` field correlates).
+    #[arg(long, value_name = "5|3.1.1", default_value = "5")]
+    pub mqtt_version: gateway::session::Version,
+    /// MQTT 5: the broker drops a depth report not delivered within this
+    /// many seconds (so a late subscriber never gets a stale distance);
+    /// 0: never. Default 1.
+    #[arg(long, value_name = "S")]
+    pub depth_expiry_s: Option<u32>,
     /// A file holding the broker password (instead of putting it in --mqtt).
     #[arg(long, value_name = "FILE")]
     pub mqtt_password_file: Option<PathBuf>,
@@ -85,12 +106,30 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
     };
     let mut broker = Broker::parse(&args.mqtt).map_err(|e| anyhow::anyhow!(e))?;
     broker.client_id = args.client_id.clone();
+    let client = args.mqtt_cert.clone().zip(args.mqtt_key.clone());
+    match &mut broker.tls {
+        Some(tls) => {
+            tls.ca = args.mqtt_ca.clone();
+            tls.client = client;
+        }
+        None => anyhow::ensure!(
+            args.mqtt_ca.is_none() && client.is_none(),
+            "--mqtt-ca, --mqtt-cert and --mqtt-key are for TLS: give the broker as mqtts://HOST:PORT"
+        ),
+    }
     if let Some(f) = &args.mqtt_password_file {
         let pw = std::fs::read_to_string(f)
             .with_context(|| format!("cannot read the broker password from {}", f.display()))?;
         let user = broker.login.map(|l| l.0).unwrap_or_default();
         broker.login = Some((user, pw.trim_end().to_string()));
     }
+    let depth_expiry_s = match (args.mqtt_version, args.depth_expiry_s) {
+        (gateway::session::Version::V311, Some(_)) => {
+            anyhow::bail!("--depth-expiry-s needs MQTT 5 (--mqtt-version 5)")
+        }
+        (gateway::session::Version::V311, None) | (_, Some(0)) => None,
+        (_, s) => Some(s.unwrap_or(1)),
+    };
     let private = match &args.key {
         Some(k) => Some(keyfile::read_key(k).context("cannot load the gateway's key")?),
         None => {
@@ -143,12 +182,14 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         queue: args.queue,
         health_every: secs(args.health_every_s, "health-every-s")?,
         discovery: args.homeassistant.clone(),
+        version: args.mqtt_version,
+        depth_expiry_s,
     };
     eprintln!(
-        "gateway: {} station(s) to mqtt://{}:{} under {}/",
+        "gateway: {} station(s) to {} (MQTT {}) under {}/",
         cfg.stations.len(),
-        cfg.broker.host,
-        cfg.broker.port,
+        cfg.broker,
+        cfg.version,
         cfg.prefix
     );
     let stop = Arc::new(AtomicBool::new(false));

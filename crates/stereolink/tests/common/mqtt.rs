@@ -1,5 +1,6 @@
 //! The MQTT gateway's test harness: a Mosquitto of the test's own (the
-//! shipped ACL, a fresh password file, a free port), a subscriber in a
+//! shipped ACL, a fresh password file, a free port; with a TLS listener
+//! too, its certificates made by `openssl` in the test), a subscriber in a
 //! thread of its own, the `stereolink gateway` process, and the checks on
 //! what the broker delivered.
 
@@ -29,18 +30,129 @@ pub fn free_tcp() -> u16 {
         .port()
 }
 
+/// A test PKI made by `openssl`: a CA, the broker's certificate (for
+/// 127.0.0.1 and localhost) and a client certificate, each with its key.
+pub struct Pki {
+    pub ca: PathBuf,
+    pub server: (PathBuf, PathBuf),
+    pub client: (PathBuf, PathBuf),
+}
+
+/// Runs `openssl ARGS` in `dir`; fails the test with its words if it fails.
+fn openssl(dir: &Path, args: &[&str]) {
+    let out = Command::new("openssl")
+        .current_dir(dir)
+        .args(args)
+        .output()
+        .expect("openssl runs (Debian's openssl; .ci/run installs it)");
+    assert!(
+        out.status.success(),
+        "openssl {args:?}: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+}
+
+/// Makes a PKI in `dir` (created): an EC P-256 CA valid 2 days, and the
+/// broker's and a client's certificates it signs. With `expired_server`
+/// the broker's certificate is valid for no time at all (`-days 0`: its
+/// notAfter is the second it was made), so it has expired once that
+/// second has passed (this waits for it).
+pub fn make_pki(dir: &Path, expired_server: bool) -> Pki {
+    std::fs::create_dir_all(dir).unwrap();
+    let ec = [
+        "-newkey",
+        "ec",
+        "-pkeyopt",
+        "ec_paramgen_curve:prime256v1",
+        "-nodes",
+    ];
+    let ca = ["-keyout", "ca.key", "-out", "ca.crt", "-days", "2"];
+    // Each PKI's CA has a name of its own (its folder's).
+    let name = dir.file_name().unwrap().to_str().unwrap();
+    let subj = ["-subj", &format!("/CN=stereolink-test-ca-{name}")];
+    openssl(dir, &[&["req", "-x509"][..], &ec, &ca, &subj].concat());
+    let sign = |name: &str, ext: &str, days: &str| {
+        std::fs::write(dir.join(format!("{name}.ext")), ext).unwrap();
+        let (key, csr, crt) = (
+            format!("{name}.key"),
+            format!("{name}.csr"),
+            format!("{name}.crt"),
+        );
+        let subj = format!("/CN=stereolink-test-{name}");
+        openssl(
+            dir,
+            &[
+                &["req"][..],
+                &ec,
+                &["-keyout", &key, "-out", &csr, "-subj", &subj],
+            ]
+            .concat(),
+        );
+        openssl(
+            dir,
+            &[
+                "x509", "-req", "-in", &csr, "-CA", "ca.crt", "-CAkey", "ca.key",
+            ]
+            .into_iter()
+            .chain(["-CAcreateserial", "-days", days, "-extfile"])
+            .chain([format!("{name}.ext").as_str(), "-out", &crt])
+            .collect::<Vec<&str>>(),
+        );
+        (dir.join(crt), dir.join(key))
+    };
+    let server = sign(
+        "server",
+        "subjectAltName=IP:127.0.0.1,DNS:localhost\nextendedKeyUsage=serverAuth\n",
+        if expired_server { "0" } else { "2" },
+    );
+    let client = sign("client", "extendedKeyUsage=clientAuth\n", "2");
+    // Mosquitto reads them after it dropped to its own user.
+    for f in std::fs::read_dir(dir).unwrap() {
+        use std::os::unix::fs::PermissionsExt;
+        let f = f.unwrap().path();
+        std::fs::set_permissions(&f, std::fs::Permissions::from_mode(0o644)).unwrap();
+    }
+    if expired_server {
+        std::thread::sleep(Duration::from_millis(1100));
+    }
+    Pki {
+        ca: dir.join("ca.crt"),
+        server,
+        client,
+    }
+}
+
 /// A Mosquitto of the test's own: the shipped ACL, a fresh password file.
 pub struct Broker {
     pub dir: tempfile::TempDir,
     pub conf: PathBuf,
     pub port: u16,
+    /// The TLS listener's port, if it has one.
+    pub tls_port: Option<u16>,
     pub child: Option<Child>,
+}
+
+/// A TLS listener: its certificates, and whether every client must show
+/// one the CA signed (mutual TLS).
+pub struct TlsListener<'a> {
+    pub pki: &'a Pki,
+    pub require_certificate: bool,
 }
 
 impl Broker {
     /// Starts one, or returns None (skip) when Mosquitto is not installed
     /// outside CI.
     pub fn start() -> Option<Broker> {
+        Self::start_with(None)
+    }
+
+    /// One with the shipped TLS listener example switched on, on a port of
+    /// its own, besides the plaintext listener.
+    pub fn start_tls(tls: TlsListener) -> Option<Broker> {
+        Self::start_with(Some(tls))
+    }
+
+    fn start_with(tls: Option<TlsListener>) -> Option<Broker> {
         if !Path::new(MOSQUITTO).exists() {
             assert!(
                 std::env::var("CI").as_deref() != Ok("true"),
@@ -73,17 +185,30 @@ impl Broker {
         )
         .unwrap();
         let port = free_tcp();
+        let tls_port = tls.as_ref().map(|_| free_tcp());
         let data = dir.path().join("data");
         std::fs::create_dir(&data).unwrap();
         open(&data);
-        // The shipped config with this test's port and paths.
+        // The shipped config with this test's port and paths, and its TLS
+        // example uncommented when asked for.
         let conf_text = shipped
             .lines()
-            .map(|l| match l.split_whitespace().next() {
-                Some("listener") => format!("listener {port} 127.0.0.1"),
-                Some("password_file") => format!("password_file {}", passwd.display()),
-                Some("acl_file") => format!("acl_file {}", acl.canonicalize().unwrap().display()),
-                Some("persistence_location") => {
+            .map(|l| match (l.split_whitespace().next(), &tls, tls_port) {
+                (Some("#listener"), Some(_), Some(p)) => format!("listener {p} 127.0.0.1"),
+                (Some("#cafile"), Some(t), _) => format!("cafile {}", t.pki.ca.display()),
+                (Some("#certfile"), Some(t), _) => {
+                    format!("certfile {}", t.pki.server.0.display())
+                }
+                (Some("#keyfile"), Some(t), _) => format!("keyfile {}", t.pki.server.1.display()),
+                (Some("#require_certificate"), Some(t), _) if t.require_certificate => {
+                    "require_certificate true".into()
+                }
+                (Some("listener"), ..) => format!("listener {port} 127.0.0.1"),
+                (Some("password_file"), ..) => format!("password_file {}", passwd.display()),
+                (Some("acl_file"), ..) => {
+                    format!("acl_file {}", acl.canonicalize().unwrap().display())
+                }
+                (Some("persistence_location"), ..) => {
                     format!("persistence_location {}/", data.display())
                 }
                 _ => l.to_string(),
@@ -100,6 +225,7 @@ impl Broker {
             dir,
             conf,
             port,
+            tls_port,
             child: None,
         };
         b.run();
@@ -116,7 +242,8 @@ impl Broker {
             .unwrap();
         self.child = Some(child);
         let until = Instant::now() + Duration::from_secs(5);
-        while std::net::TcpStream::connect(("127.0.0.1", self.port)).is_err() {
+        let up = |p: u16| std::net::TcpStream::connect(("127.0.0.1", p)).is_ok();
+        while !up(self.port) || !self.tls_port.is_none_or(up) {
             assert!(
                 Instant::now() < until,
                 "mosquitto did not start: {}",
@@ -141,6 +268,15 @@ impl Broker {
     pub fn url(&self, user: &str) -> String {
         let pw = PASSWORDS.iter().find(|p| p.0 == user).unwrap().1;
         format!("mqtt://{user}:{pw}@127.0.0.1:{}", self.port)
+    }
+
+    /// `mqtts://USER:PASSWORD@127.0.0.1:TLS_PORT`.
+    pub fn tls_url(&self, user: &str) -> String {
+        let pw = PASSWORDS.iter().find(|p| p.0 == user).unwrap().1;
+        format!(
+            "mqtts://{user}:{pw}@127.0.0.1:{}",
+            self.tls_port.expect("a broker with a TLS listener")
+        )
     }
 }
 
@@ -308,7 +444,9 @@ impl Gateway {
             args.push(format!("{n}=udp:127.0.0.1:{g}?peer=127.0.0.1:{s}"));
             station_specs.push(format!("udp:127.0.0.1:{s}?peer=127.0.0.1:{g}"));
         }
-        args.extend(["--mqtt".into(), broker.url("gateway")]);
+        if !extra.contains(&"--mqtt") {
+            args.extend(["--mqtt".into(), broker.url("gateway")]);
+        }
         // Defaults for the tests, unless `extra` sets them.
         for (flag, value) in [
             ("--stats-every-s", "1"),
@@ -332,6 +470,20 @@ impl Gateway {
 
     pub fn log(&self) -> String {
         std::fs::read_to_string(&self.log).unwrap_or_default()
+    }
+
+    /// Its exit status once it ended, or None if it still runs after `limit`.
+    pub fn wait_exit(&mut self, limit: Duration) -> Option<std::process::ExitStatus> {
+        let until = Instant::now() + limit;
+        loop {
+            if let Some(status) = self.child.try_wait().unwrap() {
+                return Some(status);
+            }
+            if Instant::now() >= until {
+                return None;
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        }
     }
 }
 
@@ -357,6 +509,19 @@ pub fn depth_ids(got: &[Got]) -> BTreeMap<String, Vec<u32>> {
             .push(json(g)["frame_id"].as_u64().unwrap() as u32);
     }
     ids
+}
+
+/// How many distinct reports arrived, over all stations.
+pub fn distinct_reports(got: &[Got]) -> usize {
+    depth_ids(got)
+        .values()
+        .map(|v| {
+            let mut v = v.clone();
+            v.sort_unstable();
+            v.dedup();
+            v.len()
+        })
+        .sum()
 }
 
 /// Asserts every station's reports 1..=n arrived, each exactly once.
