@@ -145,7 +145,7 @@ pub fn paste_blocks(into: &mut RgbImage, from: &RgbImage, changed: &[bool]) {
 
 /// The size of the mosaic of `n` changed blocks of a view `width` px wide:
 /// as many blocks a row as the view has, and as few rows as hold them.
-fn mosaic_dims(n: usize, width: usize) -> (usize, usize) {
+pub(crate) fn mosaic_dims(n: usize, width: usize) -> (usize, usize) {
     let cols = width.div_ceil(BLOCK).min(n).max(1);
     (cols * BLOCK, n.div_ceil(cols) * BLOCK)
 }
@@ -153,7 +153,7 @@ fn mosaic_dims(n: usize, width: usize) -> (usize, usize) {
 /// The changed blocks of `view` packed into a mosaic; a slot past the
 /// view's edge, or past the last block, repeats the nearest pixel (flat,
 /// so it costs the codec almost nothing).
-fn mosaic(view: &RgbImage, changed: &[bool]) -> RgbImage {
+pub(crate) fn mosaic(view: &RgbImage, changed: &[bool]) -> RgbImage {
     let (w, h) = view.dims();
     let (cols, _) = blocks((w, h));
     let picked: Vec<usize> = (0..changed.len()).filter(|&i| changed[i]).collect();
@@ -170,7 +170,19 @@ fn mosaic(view: &RgbImage, changed: &[bool]) -> RgbImage {
 
 /// Pastes the mosaic's blocks back into `out` at the changed blocks'
 /// places.
-fn unpack(mosaic: &RgbImage, changed: &[bool], out: &mut RgbImage) {
+pub(crate) fn unpack(mosaic: &RgbImage, changed: &[bool], out: &mut RgbImage) {
+    unpack_with(mosaic, changed, out, |to, from, _| to.copy_from_slice(from));
+}
+
+/// Puts each changed block's mosaic slot into `out` at the block's place
+/// through `put(out's row part, the slot's row part, block index)`: the
+/// part inside the view, row by row.
+pub(crate) fn unpack_with(
+    mosaic: &RgbImage,
+    changed: &[bool],
+    out: &mut RgbImage,
+    mut put: impl FnMut(&mut [Rgb], &[Rgb], usize),
+) {
     let (w, h) = out.dims();
     let (cols, _) = blocks((w, h));
     let per_row = mosaic.width() / BLOCK;
@@ -179,7 +191,11 @@ fn unpack(mosaic: &RgbImage, changed: &[bool], out: &mut RgbImage) {
         let (x0, y0) = ((i % cols) * BLOCK, (i / cols) * BLOCK);
         let x1 = (x0 + BLOCK).min(w);
         for dy in 0..(y0 + BLOCK).min(h) - y0 {
-            out.row_mut(y0 + dy)[x0..x1].copy_from_slice(&mosaic.row(my + dy)[mx..mx + x1 - x0]);
+            put(
+                &mut out.row_mut(y0 + dy)[x0..x1],
+                &mosaic.row(my + dy)[mx..mx + x1 - x0],
+                i,
+            );
         }
     }
 }

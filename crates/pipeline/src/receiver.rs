@@ -32,6 +32,7 @@ use std::fmt::Write;
 
 use stereolink_codec::container::{self, Body, FrameDecoder, FrameRef};
 use stereolink_codec::control::{Command, Control};
+use stereolink_codec::stereo::left_disparity_into;
 use stereolink_codec::temporal::{RefId, References};
 use stereolink_codec::{CodecError, Limits, Message, SegmentationKind, StereoFrame, View};
 use stereolink_display::{
@@ -410,8 +411,20 @@ impl BoardReceiver {
         // are matched and shown from their colours.
         let (left, right) = self.decoder.views();
         let indexed = self.decoder.indexed_views();
-        match self.source {
-            DisparitySource::Wta => {
+        match (self.source, self.decoder.stereo_disparities()) {
+            // A stereo-predicted pair carries the sender's disparity: shown
+            // as it is, no matching (the WTA is the fallback for pairs
+            // without it).
+            (DisparitySource::Wta, Some(carried)) => {
+                left_disparity_into(carried, (w, h), NO_DISPARITY, &mut self.levels);
+                let top = (self.params.min_disp + self.params.ndisp - 1) as u16;
+                for l in self.levels.as_mut_slice() {
+                    if *l != NO_DISPARITY {
+                        *l = (*l).min(top);
+                    }
+                }
+            }
+            (DisparitySource::Wta, None) => {
                 let bits = self.params.gray_bits;
                 if let Some([(ll, lp), (rl, rp)]) = indexed {
                     luma_labels_into(ll, lp, bits, &mut self.luma_lut, &mut self.gray.0);
@@ -430,7 +443,7 @@ impl BoardReceiver {
                     &mut self.levels,
                 );
             }
-            DisparitySource::Planes => {
+            (DisparitySource::Planes, _) => {
                 let (Some(table), Some(labels)) =
                     (frame.planes.as_deref(), self.decoder.left_labels(frame))
                 else {

@@ -235,6 +235,16 @@ fn parse_frame<'a>(r: &mut Reader<'a>, limits: &Limits) -> Result<FrameRef<'a>, 
             "the left view is coded conditioned (on nothing)".into(),
         ));
     }
+    if left.coding == coding::STEREO {
+        return Err(CodecError::Invalid(
+            "the left view is stereo-predicted (from nothing)".into(),
+        ));
+    }
+    if right.coding == coding::STEREO && coding::indexed(left.coding) {
+        return Err(CodecError::Invalid(
+            "a stereo-predicted right view with a segmented left view".into(),
+        ));
+    }
     for view in [&left, &right] {
         if view.coding == coding::PREDICTED {
             temporal::Coded::parse(view.payload, (w, h))?;
@@ -295,7 +305,7 @@ fn parse_view<'a>(r: &mut Reader<'a>, limits: &Limits) -> Result<ViewRef<'a>, Co
             temporal::split_reference(payload)?;
         }
         coding::RGB => {}
-        coding::PREDICTED if n == 0 => {}
+        coding::PREDICTED | coding::STEREO if n == 0 => {}
         coding::LOSSY if n == 0 => {
             let codec = *payload.first().ok_or(CodecError::Truncated("lossy view"))?;
             if LossyCodec::from_u8(codec).is_none() {
