@@ -483,6 +483,10 @@ struct Slot {
     views: [RgbImage; 2],
     labels: [LabelMap; 2],
     palettes: [Vec<Rgb>; 2],
+    /// The block disparities the frame carried ([`crate::stereo`]), or
+    /// those of the pair it repeats.
+    disparities: Vec<u16>,
+    carried: bool,
 }
 
 impl References {
@@ -557,6 +561,8 @@ impl References {
                 views: Default::default(),
                 labels: Default::default(),
                 palettes: Default::default(),
+                disparities: Vec::new(),
+                carried: false,
             }));
         }
     }
@@ -577,7 +583,24 @@ impl References {
         let slot = &mut self.slots[i];
         slot.id = Some(id);
         slot.kept_at = self.clock;
+        slot.carried = false;
         slot
+    }
+
+    /// Keeps the block disparities frame `id` (kept already) carried, or
+    /// those of the pair it repeats ([`crate::stereo`]).
+    pub fn keep_disparities(&mut self, id: RefId, disparities: &[u16]) {
+        if let Some(s) = self.slots.iter_mut().find(|s| s.id == Some(id)) {
+            s.disparities.clear();
+            s.disparities.extend_from_slice(disparities);
+            s.carried = true;
+        }
+    }
+
+    /// The block disparities kept with frame `id`, if any.
+    pub fn disparities(&self, id: RefId) -> Option<&[u16]> {
+        let s = self.slots.iter().find(|s| s.id == Some(id) && s.carried)?;
+        Some(&s.disparities)
     }
 
     /// Forgets frame `frame_id` (a frame of that id was rejected: whatever

@@ -652,8 +652,14 @@ fn stereo_frame() -> StereoFrame {
     .unwrap();
     let left = crate::lossy::encode(&s.left, LossyCodec::Webp, 50).unwrap();
     let spec = StereoSpec::default();
-    let right =
-        StereoView::encode(&s.right, (&s.left, left.image()), LossyCodec::Webp, 50, &spec).unwrap();
+    let right = StereoView::encode(
+        &s.right,
+        (&s.left, left.image()),
+        LossyCodec::Webp,
+        50,
+        &spec,
+    )
+    .unwrap();
     StereoFrame {
         kind: SegmentationKind::None,
         levels: 0,
@@ -722,7 +728,10 @@ fn misplaced_or_truncated_stereo_views_are_typed_errors() {
         right: View::Stereo(right.clone()),
         ..frame(96, 64)
     };
-    let e = decode(&encode(&Message::StereoFrame(Box::new(segmented)), 1, 1), &l);
+    let e = decode(
+        &encode(&Message::StereoFrame(Box::new(segmented)), 1, 1),
+        &l,
+    );
     assert_eq!(
         e.unwrap_err(),
         CodecError::Invalid("a stereo-predicted right view with a segmented left view".into())
