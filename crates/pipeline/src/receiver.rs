@@ -128,6 +128,8 @@ pub struct BoardReceiver {
     /// them or repeats a pair that did ([`stereolink_codec::stereo`]).
     carried: Vec<u16>,
     has_carried: bool,
+    /// Frames shown with the sender's disparities.
+    carried_frames: u32,
     screen: Screen,
     mode: Anaglyph,
     limits: Limits,
@@ -185,6 +187,7 @@ impl BoardReceiver {
             planes: DisparityMap::default(),
             carried: Vec::new(),
             has_carried: false,
+            carried_frames: 0,
             screen: Screen::new(),
             mode: Anaglyph::Dubois,
             limits: Limits::default(),
@@ -349,6 +352,12 @@ impl BoardReceiver {
         self.key_requests.due(self.needs_key, now)
     }
 
+    /// Frames shown with the sender's disparities (stereo-predicted, or
+    /// repeating one that was): their disparity was not matched here.
+    pub fn carried_frames(&self) -> u32 {
+        self.carried_frames
+    }
+
     /// Key frames asked of the sender so far.
     pub fn key_requests(&self) -> u32 {
         self.key_requests.made()
@@ -392,6 +401,7 @@ impl BoardReceiver {
         }
         if self.has_carried {
             self.references.keep_disparities(id, &self.carried);
+            self.carried_frames += 1;
         }
         if key {
             self.needs_key = false;

@@ -177,6 +177,12 @@ impl ViewRef<'_> {
             .map(|(id, _)| id)
     }
 
+    /// Whether the view is predicted from the frame's left view
+    /// ([`crate::stereo`]).
+    pub fn is_stereo(&self) -> bool {
+        self.coding == coding::STEREO
+    }
+
     /// Number of palette colours (0 for an unsegmented view).
     pub fn colours(&self) -> usize {
         self.palette.len() / 3
