@@ -1,41 +1,43 @@
 //! Stereo prediction: the right view coded as the left view, as the
-//! receiver decoded it, shifted by the sender's disparity, with the blocks
-//! the shift does not predict coded on their own.
+//! receiver decoded it, shifted by the sender's disparity, with what the
+//! shift misses coded per block.
 //!
-//! The right view is cut into [`BLOCK`]×[`BLOCK`] blocks (those of
-//! [`temporal`]). Each block carries an integer disparity `d`: its
-//! prediction is the decoded left view `d` px to the right (rectified
-//! views: right(x, y) = left(x + d, y), clamped at the edge). A block the
-//! prediction serves within the left view's own coding error there is
-//! *skipped*; the others are *coded*: packed into a mosaic coded by the
-//! left view's lossy codec at its quality, as [`temporal`] codes changed
-//! blocks, and pasted over the prediction.
+//! Each [`CELL`]×[`CELL`] cell of the right view carries an integer
+//! disparity `d`: its prediction is the decoded left view `d` px to the
+//! right (rectified views: right(x, y) = left(x + d, y), clamped at the
+//! edge). Each [`BLOCK`]×[`BLOCK`] block (the macroblocks of [`temporal`])
+//! then has a [`Mode`]: *skipped* (the prediction alone), a *residual* (the
+//! prediction's error, offset by 128) or *intra* (its pixels). Coded blocks
+//! are packed into one mosaic, coded by the left view's lossy codec a few
+//! quality steps coarser, and put over the prediction, as [`temporal`]
+//! packs changed blocks.
 //!
-//! Why this scheme, by measurement (`docs/benchmarks.md`, "Stereo
-//! prediction"; `docs/tuning.md`, "Stereo prediction"):
+//! Why this scheme, by measurement (`docs/tuning.md`, "Stereo prediction",
+//! on 8 scenes; `docs/benchmarks.md`, "Stereo prediction", on 20):
 //!
 //! * the loop is closed: disparities are found against the *decoded* left
 //!   view, so what the sender predicts is what the receiver predicts;
-//! * a whole residual view (the prediction's error, offset by 128, coded as
-//!   an image) costs most of a view even coarsely quantised: the codec pays
-//!   for the left view's coding noise once more in every block. Skipping
-//!   the blocks whose prediction error is within that noise, and coding the
-//!   rest as pixels, gives the same pair PSNR for fewer bytes;
-//! * the skip test scales with the left view's coding error in the block
-//!   the prediction comes from ([`StereoSpec`]), so it follows the quality
-//!   rate control picks: a coarse left view skips more;
-//! * one disparity per 16-px block, median-predicted from its causal
-//!   neighbours and range coded, costs well under a bit a pixel row of
-//!   blocks; the disparities are the sender's coarse disparity map, which
-//!   the receiver shows instead of matching the pair itself.
+//! * coding the blocks the shift misses as pixels (as temporal prediction
+//!   does) pays for their texture again: a residual pays only for the miss.
+//!   But where the shift is worse than no prediction (occlusions), pixels
+//!   cost less: the three modes beat a whole residual view and pixels alone;
+//! * the skip test scales with the left view's coding error where the
+//!   prediction comes from ([`StereoSpec`]), so it follows the quality rate
+//!   control picks; skipping 60 % of the blocks costs no PSNR per byte
+//!   against coding them all, and leaves the board less to decode;
+//! * 8-px cells predict better than 16-px ones by more than their
+//!   disparities cost (4-px cells cost more than they gain); disparities
+//!   are median-predicted from their causal neighbours, range coded, and
+//!   chosen with a rate term. They are the sender's disparity map at 8 px,
+//!   which the receiver shows instead of matching the pair itself.
 //!
 //! Payload of a stereo-predicted right view (after the container's view
-//! header):
+//! header; `docs/wire-format.md`, coding 6):
 //!
 //! ```text
-//! blocks length (u32) | blocks (range coded: per block in raster order,
-//! its mode bit, then its disparity less the median of its left, upper and
-//! upper-right neighbours) | [codec (u8) | mosaic bitstream]  (if any block is coded)
+//! blocks length (u32) | blocks (range coded: each block's mode in raster
+//! order, then each cell's disparity less the median of its left, upper and
+//! upper-right neighbours') | [codec (u8) | mosaic bitstream]  (if any block is coded)
 //! ```
 //!
 //! A disparity decoded outside `0..=width` is an error, as are a mosaic
@@ -98,13 +100,23 @@ pub enum Mode {
     Intra = 2,
 }
 
+/// Side of a disparity's cell, in pixels: each cell of the right view has
+/// one disparity. The modes stay per [`BLOCK`] (the codecs' macroblock).
+pub const CELL: usize = 8;
+
+/// The disparity cells of a `width`×`height` view: `(columns, rows)`.
+pub fn cells((width, height): (usize, usize)) -> (usize, usize) {
+    (width.div_ceil(CELL), height.div_ceil(CELL))
+}
+
 /// Bits of the largest disparity residual's exponent.
 const MAX_EXP: usize = 15;
 
-/// Weight of a disparity's residual bits against the block's summed
-/// absolute difference in the search: smooth disparities cost fewer bits
-/// and make a cleaner map.
-const LAMBDA: u32 = 24;
+/// Weight of a disparity's residual bits against its cell's summed
+/// absolute difference in the search (docs/tuning.md, "Stereo
+/// prediction"): smooth disparities cost fewer bits, predict about as
+/// well, and make a cleaner map.
+const LAMBDA: u32 = 48;
 
 /// A right view predicted from the left: the blocks' disparities and
 /// modes, the coded blocks' mosaic, and the view it rebuilds.
@@ -160,7 +172,7 @@ impl StereoView {
         } else {
             None
         };
-        let blocks = write_blocks(&disparities, &modes, blocks((w, h)).0);
+        let blocks = write_blocks(&disparities, &modes, (w, h));
         Ok(StereoView {
             disparities,
             modes,
@@ -189,7 +201,7 @@ impl StereoView {
         })
     }
 
-    /// Each block's disparity (px), raster order.
+    /// Each cell's disparity (px), raster order ([`cells`]).
     pub fn disparities(&self) -> &[u16] {
         &self.disparities
     }
@@ -284,11 +296,9 @@ impl StereoDecoder {
     ) -> Result<(), CodecError> {
         let parsed = parse(payload)?;
         let (w, _) = left.dims();
-        let cols = blocks(left.dims()).0;
         read_blocks(
             parsed.blocks,
-            (cols, blocks(left.dims()).1),
-            w,
+            left.dims(),
             &mut self.disparities,
             &mut self.modes,
         )?;
@@ -310,13 +320,13 @@ impl StereoDecoder {
         }
     }
 
-    /// The last view's block disparities (px), raster order.
+    /// The last view's cell disparities (px), raster order ([`cells`]).
     pub fn disparities(&self) -> &[u16] {
         &self.disparities
     }
 }
 
-/// The block disparities of a `width`×`height` right view as a map over
+/// The cell disparities of a `width`×`height` right view as a map over
 /// the *left* view (the receiver's disparity panel): each right pixel
 /// marks its left pixel, x + d, with d (the larger where two meet: the
 /// nearer surface), and the left pixels no right pixel sees (occluded)
@@ -331,13 +341,13 @@ pub fn left_disparity_into(
     if out.dims() != (width, height) {
         out.reset(width, height, none);
     }
-    let cols = blocks((width, height)).0;
+    let cols = cells((width, height)).0;
     for y in 0..height {
         let row = out.row_mut(y);
         row.fill(none);
-        let by = y / BLOCK;
+        let cy = y / CELL;
         for x in 0..width {
-            let d = disparities[by * cols + x / BLOCK];
+            let d = disparities[cy * cols + x / CELL];
             let xl = x + usize::from(d);
             if xl < width && (row[xl] == none || d > row[xl]) {
                 row[xl] = d;
@@ -373,13 +383,13 @@ fn warp_into(left: &RgbImage, disparities: &[u16], out: &mut RgbImage) {
     if out.dims() != (w, h) {
         out.reset(w, h, [0; 3]);
     }
-    let cols = blocks((w, h)).0;
+    let cols = cells((w, h)).0;
     for y in 0..h {
         let from = left.row(y);
         let to = out.row_mut(y);
-        for bx in 0..cols {
-            let d = usize::from(disparities[(y / BLOCK) * cols + bx]);
-            let (x0, x1) = (bx * BLOCK, ((bx + 1) * BLOCK).min(w));
+        for cx in 0..cols {
+            let d = usize::from(disparities[(y / CELL) * cols + cx]);
+            let (x0, x1) = (cx * CELL, ((cx + 1) * CELL).min(w));
             let inside = x1.saturating_add(d).min(w).saturating_sub(d).max(x0);
             if inside > x0 {
                 to[x0..inside].copy_from_slice(&from[x0 + d..inside + d]);
@@ -443,19 +453,24 @@ fn mode_context(modes: &[Mode], cols: usize, i: usize) -> usize {
     usize::from(left) + usize::from(up)
 }
 
-/// Range codes the blocks' modes and disparities.
-fn write_blocks(disparities: &[u16], modes: &[Mode], cols: usize) -> Vec<u8> {
+/// Range codes the modes of a `width`×`height` view's blocks, then its
+/// cells' disparities.
+fn write_blocks(disparities: &[u16], modes: &[Mode], dims: (usize, usize)) -> Vec<u8> {
+    let (bcols, ccols) = (blocks(dims).0, cells(dims).0);
     let mut enc = Encoder::new();
     let mut m = Model::new();
-    for (i, (&d, &mode)) in disparities.iter().zip(modes).enumerate() {
+    for (i, &mode) in modes.iter().enumerate() {
         enc.bit(
-            &mut m.mode[mode_context(modes, cols, i)],
+            &mut m.mode[mode_context(modes, bcols, i)],
             mode != Mode::Skip,
         );
         if mode != Mode::Skip {
             enc.bit(&mut m.intra, mode == Mode::Intra);
         }
-        let r = i32::from(d) - i32::from(predictor(disparities, cols, i));
+    }
+    for (i, &d) in disparities.iter().enumerate() {
+        let mode = modes[block_of(i, ccols, bcols)];
+        let r = i32::from(d) - i32::from(predictor(disparities, ccols, i));
         enc.bit(&mut m.moved[mode as usize], r != 0);
         if r != 0 {
             enc.bit(&mut m.sign, r < 0);
@@ -473,29 +488,38 @@ fn write_blocks(disparities: &[u16], modes: &[Mode], cols: usize) -> Vec<u8> {
     enc.finish()
 }
 
-/// Decodes the modes and disparities of `cols`×`rows` blocks of a view
-/// `width` px wide into `disparities` and `modes`.
+/// The block holding cell `i` (of `ccols` a row; `bcols` blocks a row).
+fn block_of(i: usize, ccols: usize, bcols: usize) -> usize {
+    let (cx, cy) = (i % ccols, i / ccols);
+    (cy * CELL / BLOCK) * bcols + cx * CELL / BLOCK
+}
+
+/// Decodes the block modes and cell disparities of a `width`×`height`
+/// view into `disparities` and `modes`.
 fn read_blocks(
     bits: &[u8],
-    (cols, rows): (usize, usize),
-    width: usize,
+    (width, height): (usize, usize),
     disparities: &mut Vec<u16>,
     modes: &mut Vec<Mode>,
 ) -> Result<(), CodecError> {
-    let n = cols * rows;
+    let (bcols, brows) = blocks((width, height));
+    let (ccols, crows) = cells((width, height));
     disparities.clear();
     modes.clear();
     let mut dec = Decoder::new(bits);
     let mut m = Model::new();
-    for i in 0..n {
-        let mode = match dec.bit(&mut m.mode[mode_context(modes, cols, i)]) {
+    for i in 0..bcols * brows {
+        let mode = match dec.bit(&mut m.mode[mode_context(modes, bcols, i)]) {
             false => Mode::Skip,
             true if dec.bit(&mut m.intra) => Mode::Intra,
             true => Mode::Residual,
         };
         modes.push(mode);
+    }
+    for i in 0..ccols * crows {
+        let mode = modes[block_of(i, ccols, bcols)];
         disparities.push(0);
-        let mut d = i64::from(predictor(disparities, cols, i));
+        let mut d = i64::from(predictor(disparities, ccols, i));
         if dec.bit(&mut m.moved[mode as usize]) {
             let negative = dec.bit(&mut m.sign);
             let mut k = 0;
@@ -523,11 +547,11 @@ fn read_blocks(
 /// [`LAMBDA`] a bit of its residual from the median prediction.
 fn search(right: &RgbImage, left: &RgbImage, max_disp: usize) -> Vec<u16> {
     let (w, h) = right.dims();
-    let (cols, rows) = blocks((w, h));
+    let (cols, rows) = cells((w, h));
     let mut d = vec![0u16; cols * rows];
     for i in 0..cols * rows {
-        let (x0, y0) = ((i % cols) * BLOCK, (i / cols) * BLOCK);
-        let (x1, y1) = ((x0 + BLOCK).min(w), (y0 + BLOCK).min(h));
+        let (x0, y0) = ((i % cols) * CELL, (i / cols) * CELL);
+        let (x1, y1) = ((x0 + CELL).min(w), (y0 + CELL).min(h));
         let pred = predictor(&d, cols, i);
         let mut best = (u32::MAX, 0u16);
         for disp in 0..=max_disp {
@@ -571,14 +595,13 @@ fn modes(
     spec: &StereoSpec,
 ) -> Vec<Mode> {
     let (w, h) = right.dims();
-    let cols = blocks((w, h)).0;
+    let (cols, rows) = blocks((w, h));
+    let ccols = cells((w, h)).0;
     let sq = |a: [u8; 3], b: [u8; 3]| -> u64 {
         (0..3).map(|k| u64::from(a[k].abs_diff(b[k])).pow(2)).sum()
     };
-    disparities
-        .iter()
-        .enumerate()
-        .map(|(i, &d)| {
+    (0..cols * rows)
+        .map(|i| {
             let (x0, y0) = ((i % cols) * BLOCK, (i / cols) * BLOCK);
             let (x1, y1) = ((x0 + BLOCK).min(w), (y0 + BLOCK).min(h));
             let (mut err, mut noise) = (0u64, 0u64);
@@ -587,6 +610,7 @@ fn modes(
                 for x in x0..x1 {
                     let r = right.get(x, y);
                     err += sq(r, predicted.get(x, y));
+                    let d = disparities[(y / CELL) * ccols + x / CELL];
                     let xl = (x + usize::from(d)).min(w - 1);
                     noise += sq(left.get(xl, y), left_sent.get(xl, y));
                     for k in 0..3 {
@@ -687,9 +711,12 @@ mod tests {
 
     #[test]
     fn the_left_map_marks_each_left_pixel_its_right_pixel_sees() {
-        // One row of two blocks: disparities 2 and 0 over 32 px.
+        // One row of 32 px: disparity 2 in its first half, 0 in the other.
         let mut out = Plane::default();
-        left_disparity_into(&[2, 0], (32, 1), u16::MAX, &mut out);
+        let d: Vec<u16> = (0..32 / CELL)
+            .map(|c| if c * CELL < 16 { 2 } else { 0 })
+            .collect();
+        left_disparity_into(&d, (32, 1), u16::MAX, &mut out);
         let row = out.row(0);
         // x = 0..16 land on 2..18 (d 2), x = 16..32 on themselves (d 0),
         // except 16 and 17, where the nearer d 2 wins; 0 and 1 are holes
@@ -713,9 +740,11 @@ mod tests {
         fn blocks_data_round_trips(ds in proptest::collection::vec(0u16..=40, 6), ms in proptest::collection::vec(0u8..3, 6)) {
             let modes = [Mode::Skip, Mode::Residual, Mode::Intra];
             let cs: Vec<Mode> = ms.iter().map(|&m| modes[usize::from(m)]).collect();
-            let bits = write_blocks(&ds, &cs, 3);
+            // 48x32 px: 3x2 blocks, 6x4 cells.
+            let ds: Vec<u16> = ds.iter().cycle().take(24).copied().collect();
+            let bits = write_blocks(&ds, &cs, (48, 32));
             let (mut d, mut c) = (Vec::new(), Vec::new());
-            read_blocks(&bits, (3, 2), 40, &mut d, &mut c).unwrap();
+            read_blocks(&bits, (48, 32), &mut d, &mut c).unwrap();
             prop_assert_eq!(d, ds);
             prop_assert_eq!(c, cs);
         }

@@ -209,8 +209,8 @@ impl FrameDecoder {
         ])
     }
 
-    /// The block disparities the last frame carried for its right view
-    /// (raster order, [`crate::temporal::BLOCK`]-px blocks), if it was
+    /// The cell disparities the last frame carried for its right view
+    /// (raster order, [`crate::stereo::CELL`]-px cells), if it was
     /// stereo-predicted ([`crate::stereo`]): the sender's disparity.
     pub fn stereo_disparities(&self) -> Option<&[u16]> {
         self.stereo_right.then(|| self.stereo.disparities())
