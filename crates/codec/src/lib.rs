@@ -16,7 +16,7 @@
 //!   the blocks that changed beyond sensor noise are coded), a label map
 //!   coded with the reference's labels as its prediction.
 //! * [`stereo`] predicts a lossy right view from the decoded left one,
-//!   shifted by the sender's block disparities (which the receiver then
+//!   shifted by the sender's cell disparities (which the receiver then
 //!   shows as its disparity), coding only the blocks the shift misses.
 //! * [`rgb`] codes unsegmented RGB losslessly (MED predictor), so the
 //!   original pair can be sent for comparison.

@@ -531,7 +531,7 @@ fn read_blocks(
         }
         if !(0..=width as i64).contains(&d) {
             return Err(CodecError::Invalid(format!(
-                "a block disparity of {d} px in a {width} px wide view"
+                "a cell disparity of {d} px in a {width} px wide view"
             )));
         }
         disparities[i] = d as u16;
@@ -542,7 +542,7 @@ fn read_blocks(
     Ok(())
 }
 
-/// Each block's disparity in `0..=max_disp`: the least summed absolute
+/// Each cell's disparity in `0..=max_disp`: the least summed absolute
 /// difference of its pixels against the decoded left view, plus
 /// [`LAMBDA`] a bit of its residual from the median prediction.
 fn search(right: &RgbImage, left: &RgbImage, max_disp: usize) -> Vec<u16> {

@@ -483,7 +483,7 @@ struct Slot {
     views: [RgbImage; 2],
     labels: [LabelMap; 2],
     palettes: [Vec<Rgb>; 2],
-    /// The block disparities the frame carried ([`crate::stereo`]), or
+    /// The cell disparities the frame carried ([`crate::stereo`]), or
     /// those of the pair it repeats.
     disparities: Vec<u16>,
     carried: bool,
@@ -587,7 +587,7 @@ impl References {
         slot
     }
 
-    /// Keeps the block disparities frame `id` (kept already) carried, or
+    /// Keeps the cell disparities frame `id` (kept already) carried, or
     /// those of the pair it repeats ([`crate::stereo`]).
     pub fn keep_disparities(&mut self, id: RefId, disparities: &[u16]) {
         if let Some(s) = self.slots.iter_mut().find(|s| s.id == Some(id)) {
@@ -597,7 +597,7 @@ impl References {
         }
     }
 
-    /// The block disparities kept with frame `id`, if any.
+    /// The cell disparities kept with frame `id`, if any.
     pub fn disparities(&self, id: RefId) -> Option<&[u16]> {
         let s = self.slots.iter().find(|s| s.id == Some(id) && s.carried)?;
         Some(&s.disparities)

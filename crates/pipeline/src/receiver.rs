@@ -124,7 +124,7 @@ pub struct BoardReceiver {
     levels: Levels,
     /// The map rebuilt from a plane table ([`DisparitySource::Planes`]).
     planes: DisparityMap,
-    /// The sender's block disparities for the pair shown, if it carried
+    /// The sender's cell disparities for the pair shown, if it carried
     /// them or repeats a pair that did ([`stereolink_codec::stereo`]).
     carried: Vec<u16>,
     has_carried: bool,

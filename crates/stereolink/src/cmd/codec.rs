@@ -75,7 +75,7 @@ pub struct CodingArgs {
     #[arg(long, value_name = "N")]
     pub bytes: Option<usize>,
     /// A lossy coding's right view: `on`, predicted from the left view as
-    /// decoded, shifted by block disparities the frame carries (the
+    /// decoded, shifted by cell disparities the frame carries (the
     /// receiver shows them as its disparity, without matching); `off`,
     /// coded on its own as the left one is.
     #[arg(long, default_value = "on", value_name = "on|off", value_parser = on_off, action = clap::ArgAction::Set)]
