@@ -8,7 +8,8 @@ aspect ratio changes a little, as a 320x240 camera would frame the scene),
 and coded at each budget (bytes per pair, default 4000 6000 8000 10000
 12000 16000):
   * ours: `stereolink encode --json --bytes N` with `--view-coding
-    segmented` (k-means, 2 up to --levels 16 classes), `jpeg` and `webp`;
+    segmented` (k-means, 2 up to --levels 16 classes), `jpeg` and `webp`,
+    the lossy ones with `--stereo-prediction off` and `on` (`+stereo`);
     the bytes are the whole frame message (header, fields, both views);
   * anchors: JPEG (libjpeg, optimised Huffman tables, 4:2:0), WebP
     (libwebp, method 6) and AVIF (Pillow's AVIF plugin, speed 6) through
@@ -44,8 +45,10 @@ SIZE = (320, 240)
 BIN = os.environ.get("STEREOLINK_BIN", "target/release/stereolink")
 OURS = {
     "segmented": ["--view-coding", "segmented", "--method", "kmeans", "--levels", "16"],
-    "jpeg": ["--view-coding", "jpeg"],
-    "webp": ["--view-coding", "webp"],
+    "jpeg": ["--view-coding", "jpeg", "--stereo-prediction", "off"],
+    "webp": ["--view-coding", "webp", "--stereo-prediction", "off"],
+    "jpeg+stereo": ["--view-coding", "jpeg", "--stereo-prediction", "on"],
+    "webp+stereo": ["--view-coding", "webp", "--stereo-prediction", "on"],
 }
 ANCHORS = {
     "JPEG": ("JPEG", dict(optimize=True, subsampling=2), range(1, 96)),
@@ -94,7 +97,15 @@ def ours_point(paths, flags, budget, tmp):
             return None
         raise RuntimeError(r.stderr)
     e = json.loads(r.stdout)
+    if e.get("left_view_bytes"):
+        LEFT.setdefault((flags[1], paths[0]), set()).add((e["left_view_bytes"], e["psnr_db"][0]))
     return e["bytes"], e["psnr_pair_db"]
+
+
+# (codec, left image) -> {(left view bytes, left view PSNR)}: the left view's
+# own curve, from every lossy frame coded (the left view is coded alone, at
+# the frame's quality, with and without stereo prediction).
+LEFT = {}
 
 
 def bd_rate(anchor, test):
@@ -133,7 +144,7 @@ def main():
         pair = [Image.open(os.path.join(data, scene, f"{v}.png")).convert("RGB").resize(SIZE, Image.LANCZOS)
                 for v in ("left", "right")]
         with tempfile.TemporaryDirectory() as tmp:
-            paths = [os.path.join(tmp, f"{v}.png") for v in ("left", "right")]
+            paths = [os.path.join(tmp, f"{scene}_{v}.png") for v in ("left", "right")]
             for im, p in zip(pair, paths):
                 im.save(p)
             for budget in budgets:
@@ -169,6 +180,21 @@ def main():
                       f"{len(rates)} scenes)")
             else:
                 print(f"  {ours:<9} vs {anchor:<4}: no overlapping curves")
+    print()
+    print("pair / left view bytes at equal PSNR (the pair's curve against its left view's alone, "
+          "1 + BD-rate; mean over scenes):")
+    for ours, flags in OURS.items():
+        if flags[1] == "segmented":
+            continue
+        ratios = []
+        for scene in scenes:
+            left = [p for (codec, path), pts in LEFT.items() if codec == flags[1] and f"/{scene}_" in path
+                    for p in pts]
+            r = bd_rate(sorted(left), list(curves[ours].get(scene, {}).values()))
+            if r is not None:
+                ratios.append(1 + r / 100)
+        if ratios:
+            print(f"  {ours:<12}: {np.mean(ratios):.2f}x (median {np.median(ratios):.2f}x, {len(ratios)} scenes)")
 
 
 if __name__ == "__main__":

@@ -15,6 +15,9 @@
 //!   the receiver holds: a lossy view by conditional replenishment (only
 //!   the blocks that changed beyond sensor noise are coded), a label map
 //!   coded with the reference's labels as its prediction.
+//! * [`stereo`] predicts a lossy right view from the decoded left one,
+//!   shifted by the sender's cell disparities (which the receiver then
+//!   shows as its disparity), coding only the blocks the shift misses.
 //! * [`rgb`] codes unsegmented RGB losslessly (MED predictor), so the
 //!   original pair can be sent for comparison.
 //! * [`container`] frames [`Message`]s ([`StereoFrame`], [`DepthReport`],
@@ -51,6 +54,7 @@ pub mod planetable;
 pub mod rangecoder;
 pub mod rate;
 pub mod rgb;
+pub mod stereo;
 pub mod temporal;
 
 use stereolink_image::{Calibration, IndexedImage, RgbImage};
@@ -214,6 +218,8 @@ pub enum View {
     Predicted(temporal::PredictedView),
     /// A segmented view predicted from an earlier frame ([`temporal`]).
     PredictedLabels(temporal::PredictedLabels),
+    /// A right view predicted from the frame's left view ([`stereo`]).
+    Stereo(stereo::StereoView),
 }
 
 impl View {
@@ -225,11 +231,12 @@ impl View {
             View::Lossy(v) => v.image().clone(),
             View::Predicted(v) => v.image().clone(),
             View::PredictedLabels(v) => v.image().to_rgb(),
+            View::Stereo(v) => v.image().clone(),
         }
     }
 
     /// How the view is coded: `segmented`, `rgb` (lossless), the lossy
-    /// codec's name, or `predicted`.
+    /// codec's name, `predicted` or `stereo`.
     pub fn coding_name(&self) -> &'static str {
         match self {
             View::Indexed(_) => lossy::ViewCoding::Segmented.name(),
@@ -237,6 +244,7 @@ impl View {
             View::Lossy(v) => v.codec().name(),
             View::Predicted(_) => "predicted",
             View::PredictedLabels(_) => lossy::ViewCoding::Segmented.name(),
+            View::Stereo(_) => "stereo",
         }
     }
 
@@ -245,7 +253,7 @@ impl View {
         match self {
             View::Indexed(i) => Some(i),
             View::PredictedLabels(v) => Some(v.image()),
-            View::Rgb(_) | View::Lossy(_) | View::Predicted(_) => None,
+            View::Rgb(_) | View::Lossy(_) | View::Predicted(_) | View::Stereo(_) => None,
         }
     }
 
@@ -257,6 +265,7 @@ impl View {
             View::Lossy(v) => v.image().dims(),
             View::Predicted(v) => v.image().dims(),
             View::PredictedLabels(v) => v.image().labels().dims(),
+            View::Stereo(v) => v.image().dims(),
         }
     }
 }
@@ -277,7 +286,7 @@ pub struct StereoFrame {
     /// Left (reference) view.
     pub left: View,
     /// Right view (coded conditioned on the left when both are indexed; a
-    /// lossy right view goes with a lossy left one).
+    /// lossy or stereo-predicted right view goes with a lossy left one).
     pub right: View,
     /// The sender's disparity as planes over the left view's segments.
     pub planes: Option<planetable::PlaneTable>,

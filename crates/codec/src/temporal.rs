@@ -145,7 +145,7 @@ pub fn paste_blocks(into: &mut RgbImage, from: &RgbImage, changed: &[bool]) {
 
 /// The size of the mosaic of `n` changed blocks of a view `width` px wide:
 /// as many blocks a row as the view has, and as few rows as hold them.
-fn mosaic_dims(n: usize, width: usize) -> (usize, usize) {
+pub(crate) fn mosaic_dims(n: usize, width: usize) -> (usize, usize) {
     let cols = width.div_ceil(BLOCK).min(n).max(1);
     (cols * BLOCK, n.div_ceil(cols) * BLOCK)
 }
@@ -153,7 +153,7 @@ fn mosaic_dims(n: usize, width: usize) -> (usize, usize) {
 /// The changed blocks of `view` packed into a mosaic; a slot past the
 /// view's edge, or past the last block, repeats the nearest pixel (flat,
 /// so it costs the codec almost nothing).
-fn mosaic(view: &RgbImage, changed: &[bool]) -> RgbImage {
+pub(crate) fn mosaic(view: &RgbImage, changed: &[bool]) -> RgbImage {
     let (w, h) = view.dims();
     let (cols, _) = blocks((w, h));
     let picked: Vec<usize> = (0..changed.len()).filter(|&i| changed[i]).collect();
@@ -170,7 +170,19 @@ fn mosaic(view: &RgbImage, changed: &[bool]) -> RgbImage {
 
 /// Pastes the mosaic's blocks back into `out` at the changed blocks'
 /// places.
-fn unpack(mosaic: &RgbImage, changed: &[bool], out: &mut RgbImage) {
+pub(crate) fn unpack(mosaic: &RgbImage, changed: &[bool], out: &mut RgbImage) {
+    unpack_with(mosaic, changed, out, |to, from, _| to.copy_from_slice(from));
+}
+
+/// Puts each changed block's mosaic slot into `out` at the block's place
+/// through `put(out's row part, the slot's row part, block index)`: the
+/// part inside the view, row by row.
+pub(crate) fn unpack_with(
+    mosaic: &RgbImage,
+    changed: &[bool],
+    out: &mut RgbImage,
+    mut put: impl FnMut(&mut [Rgb], &[Rgb], usize),
+) {
     let (w, h) = out.dims();
     let (cols, _) = blocks((w, h));
     let per_row = mosaic.width() / BLOCK;
@@ -179,7 +191,11 @@ fn unpack(mosaic: &RgbImage, changed: &[bool], out: &mut RgbImage) {
         let (x0, y0) = ((i % cols) * BLOCK, (i / cols) * BLOCK);
         let x1 = (x0 + BLOCK).min(w);
         for dy in 0..(y0 + BLOCK).min(h) - y0 {
-            out.row_mut(y0 + dy)[x0..x1].copy_from_slice(&mosaic.row(my + dy)[mx..mx + x1 - x0]);
+            put(
+                &mut out.row_mut(y0 + dy)[x0..x1],
+                &mosaic.row(my + dy)[mx..mx + x1 - x0],
+                i,
+            );
         }
     }
 }
@@ -467,6 +483,10 @@ struct Slot {
     views: [RgbImage; 2],
     labels: [LabelMap; 2],
     palettes: [Vec<Rgb>; 2],
+    /// The cell disparities the frame carried ([`crate::stereo`]), or
+    /// those of the pair it repeats.
+    disparities: Vec<u16>,
+    carried: bool,
 }
 
 impl References {
@@ -541,6 +561,8 @@ impl References {
                 views: Default::default(),
                 labels: Default::default(),
                 palettes: Default::default(),
+                disparities: Vec::new(),
+                carried: false,
             }));
         }
     }
@@ -561,7 +583,24 @@ impl References {
         let slot = &mut self.slots[i];
         slot.id = Some(id);
         slot.kept_at = self.clock;
+        slot.carried = false;
         slot
+    }
+
+    /// Keeps the cell disparities frame `id` (kept already) carried, or
+    /// those of the pair it repeats ([`crate::stereo`]).
+    pub fn keep_disparities(&mut self, id: RefId, disparities: &[u16]) {
+        if let Some(s) = self.slots.iter_mut().find(|s| s.id == Some(id)) {
+            s.disparities.clear();
+            s.disparities.extend_from_slice(disparities);
+            s.carried = true;
+        }
+    }
+
+    /// The cell disparities kept with frame `id`, if any.
+    pub fn disparities(&self, id: RefId) -> Option<&[u16]> {
+        let s = self.slots.iter().find(|s| s.id == Some(id) && s.carried)?;
+        Some(&s.disparities)
     }
 
     /// Forgets frame `frame_id` (a frame of that id was rejected: whatever

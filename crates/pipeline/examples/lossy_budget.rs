@@ -3,7 +3,7 @@
 //!
 //! ```sh
 //! stereolink encode left.png right.png -o examples/lossy/cones-320x240-CODEC.slnk \
-//!     --view-coding CODEC --bytes 8000
+//!     --view-coding CODEC --bytes 8000 --stereo-prediction off
 //! ```
 //!
 //! decoded `FRAMES` times (argument 1, default 1) with codec `jpeg` or
@@ -12,6 +12,11 @@
 //! handled whole by the board's receiver (`receive`: decode, WTA-match with
 //! 32 disparities, render the screen). `tools/arm926/board count-lossy`
 //! counts its ARM926 instructions per pair under qemu.
+//!
+//! `webp-stereo` is the WebP pair with its right view stereo-predicted
+//! (`stereolink_codec::stereo`; `encode ... --view-coding webp --bytes
+//! 8000`, stereo prediction on): its receiver shows the disparities the
+//! frame carries instead of matching.
 //!
 //! `webp-still` and `webp-moving` are predicted pairs
 //! (`stereolink_codec::temporal`): the same pair with fresh sensor noise
@@ -30,6 +35,7 @@ use stereolink_pipeline::receiver::{BoardReceiver, Event};
 
 const JPEG: &[u8] = include_bytes!("lossy/cones-320x240-jpeg.slnk");
 const WEBP: &[u8] = include_bytes!("lossy/cones-320x240-webp.slnk");
+const STEREO: &[u8] = include_bytes!("lossy/cones-320x240-webp-stereo.slnk");
 const KEY: &[u8] = include_bytes!("lossy/cones-320x240-webp-key.slnk");
 const STILL: &[u8] = include_bytes!("lossy/cones-320x240-webp-still.slnk");
 const MOVING: &[u8] = include_bytes!("lossy/cones-320x240-webp-moving.slnk");
@@ -54,9 +60,12 @@ fn main() {
     let (bytes, key) = match arg(2).as_deref() {
         None | Some("jpeg") => (JPEG, None),
         Some("webp") => (WEBP, None),
+        Some("webp-stereo") => (STEREO, None),
         Some("webp-still") => (STILL, Some(KEY)),
         Some("webp-moving") => (MOVING, Some(KEY)),
-        Some(other) => panic!("codec {other:?}: jpeg, webp, webp-still or webp-moving"),
+        Some(other) => {
+            panic!("codec {other:?}: jpeg, webp, webp-stereo, webp-still or webp-moving")
+        }
     };
     let receive = arg(3).as_deref() == Some("receive");
     let mut decoder = FrameDecoder::default();

@@ -13,6 +13,7 @@ use std::ops::RangeInclusive;
 
 use stereolink_codec::lossy::{self, LossyCodec, ViewCoding};
 use stereolink_codec::rate;
+use stereolink_codec::stereo::{StereoSpec, StereoView};
 use stereolink_codec::{container, labels, Message, StereoFrame, View};
 use stereolink_image::RgbImage;
 
@@ -26,16 +27,20 @@ pub struct CodingSpec {
     pub quality: u8,
     /// The most bytes a frame (the whole message) may take.
     pub budget: Option<usize>,
+    /// A lossy right view is predicted from the left one
+    /// ([`stereolink_codec::stereo`]) rather than coded on its own.
+    pub stereo_prediction: bool,
 }
 
 impl Default for CodingSpec {
     /// Segmented views, no budget; lossy views at quality 75 (the JPEG
-    /// convention's usual default).
+    /// convention's usual default), the right one stereo-predicted.
     fn default() -> Self {
         CodingSpec {
             coding: ViewCoding::Segmented,
             quality: 75,
             budget: None,
+            stereo_prediction: true,
         }
     }
 }
@@ -68,12 +73,21 @@ pub struct Coded {
     pub setting: u8,
 }
 
-/// Both views coded lossily with `codec` at `quality`, in parallel.
+/// Both views coded lossily with `codec` at `quality`: with
+/// `stereo_prediction`, the right view predicted from the left as decoded
+/// ([`StereoView`]); else each on its own, in parallel.
 pub fn lossy_views(
     (left, right): (&RgbImage, &RgbImage),
     codec: LossyCodec,
     quality: u8,
+    stereo_prediction: bool,
 ) -> anyhow::Result<(View, View)> {
+    if stereo_prediction {
+        let l = lossy::encode(left, codec, quality)?;
+        let spec = StereoSpec::default();
+        let r = StereoView::encode(right, (left, l.image()), codec, quality, &spec)?;
+        return Ok((View::Lossy(l), View::Stereo(r)));
+    }
     let (l, r) = rayon::join(
         || lossy::encode(left, codec, quality),
         || lossy::encode(right, codec, quality),
@@ -148,7 +162,7 @@ mod tests {
         })
         .unwrap();
         let pair = (&s.left, &s.right);
-        let make = |q| lossy_views(pair, LossyCodec::Jpeg, q).map(|(l, r)| frame(l, r));
+        let make = |q| lossy_views(pair, LossyCodec::Jpeg, q, false).map(|(l, r)| frame(l, r));
         let ids = (1, 0, labels::Mode::Fast);
         let mut last = (0, 0.0);
         for budget in [3_000, 6_000, 12_000] {

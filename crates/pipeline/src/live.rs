@@ -19,9 +19,10 @@ use std::time::{Duration, Instant};
 use anyhow::Context;
 use serde::Serialize;
 use stereolink_calib::StereoRectifier;
+use stereolink_codec::container::{self, Body};
 use stereolink_codec::control::{unix_us, Control, Reply};
 use stereolink_codec::temporal::SkipSpec;
-use stereolink_codec::{CodecError, DepthReport};
+use stereolink_codec::{CodecError, DepthReport, Limits};
 use stereolink_image::{io, Calibration, RgbImage};
 use stereolink_link::endpoint::SendStats;
 
@@ -47,6 +48,9 @@ pub struct Sent {
     pub frame_kind: &'static str,
     /// How the views were coded (`segmented`, `jpeg`, `webp`).
     pub view_coding: &'static str,
+    /// Whether the right view is predicted from the left one
+    /// (`--stereo-prediction`).
+    pub stereo_prediction: bool,
     /// The coding's setting: the lossy quality, or the segmentation's classes.
     pub setting: u8,
     /// PSNR of the left and right views as sent.
@@ -564,6 +568,10 @@ impl SendLoop {
         // The report first: it goes ahead of the frame still in flight.
         let report_bytes = self.hand_report(&p.report, (pair_id, next.captured_us), report_as)?;
         let frame_bytes = p.frame_bytes.len();
+        let stereo_prediction = matches!(
+            container::parse(&p.frame_bytes, &Limits::default()),
+            Ok((_, Body::StereoFrame(f))) if f.right.is_stereo()
+        );
         self.uplink.frame(pair_id, p.frame_bytes)?;
         let (segment_ms, encode_ms, match_ms) = p.times_ms;
         let sent = Sent {
@@ -571,6 +579,7 @@ impl SendLoop {
             frame_bytes,
             report_bytes,
             view_coding: self.cfg.coding.coding.name(),
+            stereo_prediction,
             frame_kind,
             setting: p.setting,
             psnr_db: p.psnr_db,

@@ -32,6 +32,7 @@ use std::fmt::Write;
 
 use stereolink_codec::container::{self, Body, FrameDecoder, FrameRef};
 use stereolink_codec::control::{Command, Control};
+use stereolink_codec::stereo::left_disparity_into;
 use stereolink_codec::temporal::{RefId, References};
 use stereolink_codec::{CodecError, Limits, Message, SegmentationKind, StereoFrame, View};
 use stereolink_display::{
@@ -123,6 +124,12 @@ pub struct BoardReceiver {
     levels: Levels,
     /// The map rebuilt from a plane table ([`DisparitySource::Planes`]).
     planes: DisparityMap,
+    /// The sender's cell disparities for the pair shown, if it carried
+    /// them or repeats a pair that did ([`stereolink_codec::stereo`]).
+    carried: Vec<u16>,
+    has_carried: bool,
+    /// Frames shown with the sender's disparities.
+    carried_frames: u32,
     screen: Screen,
     mode: Anaglyph,
     limits: Limits,
@@ -178,6 +185,9 @@ impl BoardReceiver {
             label_pairs: Vec::new(),
             levels: Levels::default(),
             planes: DisparityMap::default(),
+            carried: Vec::new(),
+            has_carried: false,
+            carried_frames: 0,
             screen: Screen::new(),
             mode: Anaglyph::Dubois,
             limits: Limits::default(),
@@ -342,6 +352,12 @@ impl BoardReceiver {
         self.key_requests.due(self.needs_key, now)
     }
 
+    /// Frames shown with the sender's disparities (stereo-predicted, or
+    /// repeating one that was): their disparity was not matched here.
+    pub fn carried_frames(&self) -> u32 {
+        self.carried_frames
+    }
+
     /// Key frames asked of the sender so far.
     pub fn key_requests(&self) -> u32 {
         self.key_requests.made()
@@ -362,6 +378,17 @@ impl BoardReceiver {
             )));
         }
         self.decoder.decode_with(frame, &self.references)?;
+        // The sender's disparities: carried by the frame, or by the pair a
+        // still pair repeats.
+        let carried = match self.decoder.stereo_disparities() {
+            Some(d) => Some(d),
+            None => frame
+                .unchanged()
+                .and_then(|r| self.references.disparities(r)),
+        };
+        self.carried.clear();
+        self.carried.extend(carried.into_iter().flatten());
+        self.has_carried = carried.is_some();
         let key = frame.references().next().is_none();
         // The pair is kept as a reference: segmented views as their
         // labels, others as their colours.
@@ -371,6 +398,10 @@ impl BoardReceiver {
                 self.decoder.expand_views();
                 self.references.keep(id, self.decoder.views());
             }
+        }
+        if self.has_carried {
+            self.references.keep_disparities(id, &self.carried);
+            self.carried_frames += 1;
         }
         if key {
             self.needs_key = false;
@@ -410,8 +441,21 @@ impl BoardReceiver {
         // are matched and shown from their colours.
         let (left, right) = self.decoder.views();
         let indexed = self.decoder.indexed_views();
-        match self.source {
-            DisparitySource::Wta => {
+        let carried = self.has_carried.then_some(&self.carried[..]);
+        match (self.source, carried) {
+            // A stereo-predicted pair carries the sender's disparity: shown
+            // as it is, no matching (the WTA is the fallback for pairs
+            // without it).
+            (DisparitySource::Wta, Some(carried)) => {
+                left_disparity_into(carried, (w, h), NO_DISPARITY, &mut self.levels);
+                let top = (self.params.min_disp + self.params.ndisp - 1) as u16;
+                for l in self.levels.as_mut_slice() {
+                    if *l != NO_DISPARITY {
+                        *l = (*l).min(top);
+                    }
+                }
+            }
+            (DisparitySource::Wta, None) => {
                 let bits = self.params.gray_bits;
                 if let Some([(ll, lp), (rl, rp)]) = indexed {
                     luma_labels_into(ll, lp, bits, &mut self.luma_lut, &mut self.gray.0);
@@ -430,7 +474,7 @@ impl BoardReceiver {
                     &mut self.levels,
                 );
             }
-            DisparitySource::Planes => {
+            (DisparitySource::Planes, _) => {
                 let (Some(table), Some(labels)) =
                     (frame.planes.as_deref(), self.decoder.left_labels(frame))
                 else {
@@ -622,6 +666,43 @@ mod tests {
                 d.len()
             );
         }
+    }
+
+    /// A stereo-predicted pair's disparity is the one it carries, mapped
+    /// onto the left view: not the WTA's, which the same pair without it
+    /// gets.
+    #[test]
+    fn a_stereo_predicted_pair_shows_the_disparity_it_carries() {
+        let bytes = &include_bytes!("../examples/lossy/cones-320x240-webp-stereo.slnk")[..];
+        let mut board = BoardReceiver::new(31, 9, std::time::Duration::from_secs(10));
+        assert!(matches!(board.handle(bytes), Event::Frame { .. }));
+        let Ok((_, Message::StereoFrame(f))) = container::decode(bytes, &Limits::default()) else {
+            panic!("not a frame")
+        };
+        let View::Stereo(right) = &f.right else {
+            panic!("the right view is not stereo-predicted")
+        };
+        assert_eq!(
+            board.pair().unwrap(),
+            (&f.left.to_rgb(), &right.image().clone())
+        );
+        let mut want = Levels::default();
+        left_disparity_into(right.disparities(), (320, 240), NO_DISPARITY, &mut want);
+        for l in want.as_mut_slice() {
+            *l = (*l).min(31);
+        }
+        assert_eq!(board.disparity(), levels_to_disparity(&want));
+        // The same views without the disparities (the right one lossless):
+        // the WTA's map, another one.
+        let plain = StereoFrame {
+            right: View::Rgb(right.image().clone()),
+            ..*f.clone()
+        };
+        let plain = container::encode(&Message::StereoFrame(Box::new(plain)), 2, 2);
+        let mut wta = BoardReceiver::new(31, 9, std::time::Duration::from_secs(10));
+        assert!(matches!(wta.handle(&plain), Event::Frame { .. }));
+        assert_eq!(wta.pair(), board.pair());
+        assert_ne!(wta.disparity(), board.disparity());
     }
 
     /// The watchdog stops a moving axis without any message arriving, once

@@ -348,7 +348,7 @@ pub(crate) fn prepare_with(
             encode_fitted(settings, cfg.coding.budget, ids, |q| {
                 let (l, r) = match predict.as_mut() {
                     Some(Predict::Lossy { views, .. }) => views(q)?,
-                    _ => lossy_views((left, right), codec, q)?,
+                    _ => lossy_views((left, right), codec, q, cfg.coding.stereo_prediction)?,
                 };
                 Ok(StereoFrame {
                     kind: SegmentationKind::None,

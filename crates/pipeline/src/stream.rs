@@ -370,6 +370,7 @@ mod tests {
                 coding: ViewCoding::Lossy(LossyCodec::Webp),
                 quality: 60,
                 budget,
+                stereo_prediction: true,
             },
         }
     }

@@ -554,6 +554,65 @@ fn a_lossy_pair_within_a_budget_over_udp() {
     assert!(shots.join("screen-00001.png").is_file());
 }
 
+/// A WebP pair over UDP, stereo prediction on (the default) and off: with
+/// it, the frame carries the sender's disparities and the board shows them
+/// (no matching), rebuilding the right view bit for bit from the left;
+/// without it, the board matches the pair.
+#[test]
+fn a_stereo_predicted_pair_over_udp_carries_its_disparity() {
+    let dir = tempfile::tempdir().unwrap();
+    let scene = dir.path().join("scene");
+    synth(&scene);
+    for stereo in ["on", "off"] {
+        let (a, b) = (free_port(), free_port());
+        let saved = dir.path().join(format!("saved-{stereo}"));
+        let saved_arg = saved.to_str().unwrap();
+        let rx = spawn_udp_receiver(
+            a,
+            b,
+            &[
+                "--json",
+                "--frames",
+                "1",
+                "--timeout-s",
+                "60",
+                "--save",
+                saved_arg,
+            ],
+        );
+        std::thread::sleep(Duration::from_millis(200));
+        let mut tx_args = vec!["--json".to_string()];
+        tx_args.extend(send_args(
+            &format!("udp:127.0.0.1:{a}?peer=127.0.0.1:{b}"),
+            &scene,
+        ));
+        tx_args.extend(strings(&[
+            "--view-coding",
+            "webp",
+            "--bytes",
+            "6000",
+            "--stereo-prediction",
+            stereo,
+            "--save",
+            saved_arg,
+        ]));
+        let sent: serde_json::Value =
+            serde_json::from_str(&finish(spawn(&tx_args), "send")).unwrap();
+        let received: serde_json::Value = serde_json::from_str(&finish(rx, "receive")).unwrap();
+        let summary = &received["summary"];
+        let frame = &sent["frames"][0];
+        assert_eq!(frame["stereo_prediction"], stereo == "on", "{sent}");
+        assert!(frame["frame_bytes"].as_u64().unwrap() <= 6000, "{sent}");
+        let carried = u64::from(stereo == "on");
+        assert_eq!(summary["carried_disparity_frames"], carried, "{summary}");
+        for side in ["left", "right"] {
+            let a = io::read_rgb(saved.join(format!("sent-{side}.png"))).unwrap();
+            let b = io::read_rgb(saved.join(format!("received-{side}.png"))).unwrap();
+            assert_eq!(a, b, "{stereo}: {side} view differs");
+        }
+    }
+}
+
 /// `send --temporal` over UDP: after a key frame, a pair seen again is
 /// predicted from the frame the link delivered and costs a fraction of it;
 /// the board rebuilds it bit for bit as the sender's closed loop did.

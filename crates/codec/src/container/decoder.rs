@@ -7,6 +7,7 @@ use stereolink_image::{IndexedImage, LabelMap, Rgb, RgbImage};
 
 use super::{coding, FrameRef, ViewRef};
 use crate::lossy::{self, LossyView};
+use crate::stereo::{StereoDecoder, StereoView};
 use crate::temporal::{self, References};
 use crate::{labels, rgb, CodecError, StereoFrame, View};
 
@@ -23,12 +24,14 @@ impl FrameRef<'_> {
         let mut d = FrameDecoder::default();
         d.decode_labels(self, refs)?;
         let (w, h) = (self.width, self.height);
+        let left_rgb = d.rgb.0.clone();
         let view = |v: &ViewRef, side: usize, labels: LabelMap, rgb: RgbImage| {
             if let Some((codec, bits)) = v.lossy() {
                 return Ok(View::Lossy(LossyView::decoded(codec, bits.to_vec(), rgb)));
             }
             Ok(match v.coding {
                 coding::RGB => View::Rgb(rgb),
+                coding::STEREO => View::Stereo(StereoView::decode(v.payload, &left_rgb)?),
                 coding::PREDICTED => {
                     let coded = temporal::Coded::parse(v.payload, (w, h))?;
                     View::Predicted(coded.decode(&reference(refs, coded.reference)?[side])?)
@@ -136,6 +139,10 @@ pub struct FrameDecoder {
     /// A predicted view's changed blocks and their decoded mosaic.
     changed: Vec<bool>,
     mosaic: RgbImage,
+    /// The stereo-predicted right view's decoder, and whether the last
+    /// frame's right view was one.
+    stereo: StereoDecoder,
+    stereo_right: bool,
 }
 
 impl FrameDecoder {
@@ -202,6 +209,13 @@ impl FrameDecoder {
         ])
     }
 
+    /// The cell disparities the last frame carried for its right view
+    /// (raster order, [`crate::stereo::CELL`]-px cells), if it was
+    /// stereo-predicted ([`crate::stereo`]): the sender's disparity.
+    pub fn stereo_disparities(&self) -> Option<&[u16]> {
+        self.stereo_right.then(|| self.stereo.disparities())
+    }
+
     /// The views of the last frame [`decode_rgb`](Self::decode_rgb) decoded
     /// (or [`decode`](Self::decode) and [`expand_views`](Self::expand_views)).
     pub fn views(&self) -> (&RgbImage, &RgbImage) {
@@ -212,6 +226,7 @@ impl FrameDecoder {
     /// views into the RGB images.
     fn decode_labels(&mut self, frame: &FrameRef, refs: &References) -> Result<(), CodecError> {
         let (w, h) = (frame.width, frame.height);
+        self.stereo_right = false;
         for (i, view) in [frame.left, frame.right].iter().enumerate() {
             let (labels, rgb) = if i == 0 {
                 (&mut self.labels.0, &mut self.rgb.0)
@@ -230,6 +245,12 @@ impl FrameDecoder {
                 coding::LOSSY => {
                     let (codec, bits) = view.lossy().ok_or(CodecError::Truncated("lossy view"))?;
                     lossy::decode_into(codec, bits, (w, h), rgb)?;
+                }
+                coding::STEREO => {
+                    // Checked by `parse`: the right view, after an RGB left.
+                    self.stereo
+                        .decode_into(view.payload, &self.rgb.0, &mut self.rgb.1)?;
+                    self.stereo_right = true;
                 }
                 coding::PREDICTED => {
                     let coded = temporal::Coded::parse(view.payload, (w, h))?;

@@ -59,6 +59,9 @@ mod coding {
     pub const PREDICTED: u8 = 4;
     /// A label map predicted from an earlier frame's.
     pub const LABELS_PREDICTED: u8 = 5;
+    /// A right view predicted from the frame's left view
+    /// ([`crate::stereo`]).
+    pub const STEREO: u8 = 6;
 
     /// Whether a view so coded is a label map.
     pub fn indexed(code: u8) -> bool {

@@ -177,6 +177,12 @@ impl ViewRef<'_> {
             .map(|(id, _)| id)
     }
 
+    /// Whether the view is predicted from the frame's left view
+    /// ([`crate::stereo`]).
+    pub fn is_stereo(&self) -> bool {
+        self.coding == coding::STEREO
+    }
+
     /// Number of palette colours (0 for an unsegmented view).
     pub fn colours(&self) -> usize {
         self.palette.len() / 3
@@ -233,6 +239,16 @@ fn parse_frame<'a>(r: &mut Reader<'a>, limits: &Limits) -> Result<FrameRef<'a>, 
     if left.coding == coding::LABELS_CONDITIONED {
         return Err(CodecError::Invalid(
             "the left view is coded conditioned (on nothing)".into(),
+        ));
+    }
+    if left.coding == coding::STEREO {
+        return Err(CodecError::Invalid(
+            "the left view is stereo-predicted (from nothing)".into(),
+        ));
+    }
+    if right.coding == coding::STEREO && coding::indexed(left.coding) {
+        return Err(CodecError::Invalid(
+            "a stereo-predicted right view with a segmented left view".into(),
         ));
     }
     for view in [&left, &right] {
@@ -295,7 +311,7 @@ fn parse_view<'a>(r: &mut Reader<'a>, limits: &Limits) -> Result<ViewRef<'a>, Co
             temporal::split_reference(payload)?;
         }
         coding::RGB => {}
-        coding::PREDICTED if n == 0 => {}
+        coding::PREDICTED | coding::STEREO if n == 0 => {}
         coding::LOSSY if n == 0 => {
             let codec = *payload.first().ok_or(CodecError::Truncated("lossy view"))?;
             if LossyCodec::from_u8(codec).is_none() {

@@ -638,3 +638,114 @@ fn predicted_label_maps_decode_from_their_reference_only() {
         })
     );
 }
+
+/// A frame whose right view is stereo-predicted from its WebP left view
+/// (the synthetic pair), and the original right view.
+#[cfg(feature = "encode")]
+fn stereo_frame() -> StereoFrame {
+    use crate::stereo::{StereoSpec, StereoView};
+    use stereolink_image::synth::{synthesize, SynthSpec};
+    let s = synthesize(&SynthSpec {
+        width: 96,
+        height: 64,
+        max_disp: 12,
+        seed: 9,
+    })
+    .unwrap();
+    let left = crate::lossy::encode(&s.left, LossyCodec::Webp, 50).unwrap();
+    let spec = StereoSpec::default();
+    let right = StereoView::encode(
+        &s.right,
+        (&s.left, left.image()),
+        LossyCodec::Webp,
+        50,
+        &spec,
+    )
+    .unwrap();
+    StereoFrame {
+        kind: SegmentationKind::None,
+        levels: 0,
+        thresholds: None,
+        left: View::Lossy(left),
+        right: View::Stereo(right),
+        ..frame(96, 64)
+    }
+}
+
+#[cfg(feature = "encode")]
+#[test]
+fn stereo_predicted_views_rebuild_the_senders_pair_through_both_decoders() {
+    let f = stereo_frame();
+    let m = Message::StereoFrame(Box::new(f.clone()));
+    let bytes = encode(&m, 5, 6);
+    assert_eq!(decode(&bytes, &Limits::default()).unwrap().1, m);
+    let Ok((_, Body::StereoFrame(parsed))) = parse(&bytes, &Limits::default()) else {
+        panic!("not a frame")
+    };
+    let mut d = FrameDecoder::default();
+    d.decode_rgb(&parsed).unwrap();
+    assert_eq!(d.views(), (&f.left.to_rgb(), &f.right.to_rgb()));
+    let View::Stereo(right) = &f.right else {
+        unreachable!("built stereo")
+    };
+    assert_eq!(d.stereo_disparities(), Some(right.disparities()));
+    // A frame without stereo prediction carries no disparities.
+    let plain = encode(&Message::StereoFrame(Box::new(lossy_frame())), 7, 8);
+    let Ok((_, Body::StereoFrame(parsed))) = parse(&plain, &Limits::default()) else {
+        panic!("not a frame")
+    };
+    d.decode_rgb(&parsed).unwrap();
+    assert_eq!(d.stereo_disparities(), None);
+}
+
+#[cfg(feature = "encode")]
+#[test]
+fn misplaced_or_truncated_stereo_views_are_typed_errors() {
+    let l = Limits::default();
+    let f = stereo_frame();
+    // The right view's coding byte: after the left view (coding, palette
+    // count, payload length, payload).
+    let bytes = encode(&Message::StereoFrame(Box::new(f.clone())), 1, 1);
+    let View::Lossy(left) = &f.left else {
+        unreachable!("built lossy")
+    };
+    let left_at = bytes
+        .windows(left.bytes().len())
+        .position(|w| w == left.bytes())
+        .unwrap();
+    let right_at = left_at + left.bytes().len();
+    assert_eq!(bytes[right_at], coding::STEREO);
+    // A stereo-predicted left view (from nothing).
+    let mut forged = bytes.clone();
+    forged[left_at - 10] = coding::STEREO;
+    assert_eq!(
+        decode(&resealed(forged), &l).unwrap_err(),
+        CodecError::Invalid("the left view is stereo-predicted (from nothing)".into())
+    );
+    // After a segmented left view.
+    let View::Stereo(right) = f.right else {
+        unreachable!("built stereo")
+    };
+    let segmented = StereoFrame {
+        right: View::Stereo(right.clone()),
+        ..frame(96, 64)
+    };
+    let e = decode(
+        &encode(&Message::StereoFrame(Box::new(segmented)), 1, 1),
+        &l,
+    );
+    assert_eq!(
+        e.unwrap_err(),
+        CodecError::Invalid("a stereo-predicted right view with a segmented left view".into())
+    );
+    // The payload cut inside its blocks, in a consistent message.
+    let payload = right.payload();
+    let mut cut = bytes[..right_at + 5].to_vec();
+    let keep = 6usize;
+    cut.extend_from_slice(&(keep as u32).to_le_bytes());
+    cut.extend_from_slice(&payload[..keep]);
+    assert!(matches!(
+        decode(&resealed(cut), &l),
+        Err(CodecError::Truncated(_))
+    ));
+}

@@ -6,6 +6,7 @@ use std::time::Instant;
 use anyhow::Context;
 use serde::Serialize;
 use stereolink_codec::lossy::ViewCoding;
+use stereolink_codec::stereo::Mode;
 use stereolink_codec::{container, labels, Limits, Message, SegmentationKind, StereoFrame, View};
 use stereolink_image::metrics::{psnr_pair, psnr_rgb, reduction_percent};
 use stereolink_image::{io, RgbImage, Scene};
@@ -73,6 +74,21 @@ pub struct CodingArgs {
     /// budget below the smallest frame is an error that names its size.
     #[arg(long, value_name = "N")]
     pub bytes: Option<usize>,
+    /// A lossy coding's right view: `on`, predicted from the left view as
+    /// decoded, shifted by cell disparities the frame carries (the
+    /// receiver shows them as its disparity, without matching); `off`,
+    /// coded on its own as the left one is.
+    #[arg(long, default_value = "on", value_name = "on|off", value_parser = on_off, action = clap::ArgAction::Set)]
+    pub stereo_prediction: bool,
+}
+
+/// `on` or `off`.
+fn on_off(s: &str) -> Result<bool, String> {
+    match s {
+        "on" => Ok(true),
+        "off" => Ok(false),
+        _ => Err(format!("{s:?}: on or off")),
+    }
 }
 
 impl CodingArgs {
@@ -82,6 +98,7 @@ impl CodingArgs {
             coding: self.view_coding,
             quality: self.quality,
             budget: self.bytes,
+            stereo_prediction: self.stereo_prediction,
         }
     }
 }
@@ -103,6 +120,40 @@ struct Encoded {
     psnr_db: Option<(f64, f64)>,
     /// PSNR of the pair as sent: both views, one MSE.
     psnr_pair_db: Option<f64>,
+    #[serde(flatten)]
+    views: ViewBytes,
+}
+
+/// What a frame's views cost, for `--json`.
+#[derive(Serialize)]
+struct ViewBytes {
+    /// The left view's coded bytes (its lossy bitstream), for a lossy
+    /// frame.
+    left_view_bytes: Option<usize>,
+    /// Whether the right view is predicted from the left ([`View::Stereo`]).
+    stereo_prediction: bool,
+    /// Share of the stereo-predicted right view's blocks that are coded
+    /// (the others are the prediction alone).
+    stereo_coded_share: Option<f64>,
+}
+
+impl ViewBytes {
+    fn of(frame: &StereoFrame) -> Self {
+        ViewBytes {
+            left_view_bytes: match &frame.left {
+                View::Lossy(v) => Some(v.bytes().len()),
+                _ => None,
+            },
+            stereo_prediction: matches!(frame.right, View::Stereo(_)),
+            stereo_coded_share: match &frame.right {
+                View::Stereo(v) => {
+                    let coded = v.modes().iter().filter(|&&m| m != Mode::Skip).count();
+                    Some(coded as f64 / v.modes().len().max(1) as f64)
+                }
+                _ => None,
+            },
+        }
+    }
 }
 
 /// Segments (unless `--original`) and encodes a pair.
@@ -153,7 +204,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         let ids = (1, 0, args.mode);
         let coded = match spec.coding {
             ViewCoding::Lossy(codec) => encode_fitted(settings, spec.budget, ids, |q| {
-                let (l, r) = lossy_views((&left, &right), codec, q)?;
+                let (l, r) = lossy_views((&left, &right), codec, q, spec.stereo_prediction)?;
                 Ok(StereoFrame {
                     kind: SegmentationKind::None,
                     levels: 0,
@@ -217,6 +268,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         levels: setting.filter(|_| !lossy),
         psnr_db: psnr,
         psnr_pair_db,
+        views: ViewBytes::of(&frame),
     };
     out.emit(&e, || {
         format!(
@@ -268,6 +320,8 @@ struct Decoded {
     psnr_db: Option<(f64, f64)>,
     /// PSNR of the pair: both views, one MSE.
     psnr_pair_db: Option<f64>,
+    #[serde(flatten)]
+    views: ViewBytes,
 }
 
 /// Decodes a frame file into its two views.
@@ -309,6 +363,7 @@ pub fn run_decode(args: DecodeArgs, out: &super::Output) -> anyhow::Result<()> {
         bytes: bytes.len(),
         psnr_db: psnr,
         psnr_pair_db,
+        views: ViewBytes::of(&frame),
     };
     out.emit(&d, || {
         format!(

@@ -308,6 +308,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
             .and_then(|p| p.as_ref().ok().copied()),
         axis_stopped: axis.stopped,
         key_requests: board.key_requests(),
+        carried_disparity_frames: board.carried_frames(),
     };
     if !out.json {
         println!("{summary}");
@@ -498,6 +499,9 @@ struct Summary {
     /// Key frames asked of the sender (predicted frames that could not be
     /// shown).
     key_requests: u32,
+    /// Frames whose disparity is the sender's, carried by a
+    /// stereo-predicted frame (the others were matched on the board).
+    carried_disparity_frames: u32,
 }
 
 impl std::fmt::Display for Summary {
