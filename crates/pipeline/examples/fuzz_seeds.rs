@@ -51,6 +51,7 @@ fn main() -> anyhow::Result<()> {
                 coding,
                 quality: 30,
                 budget: None,
+                stereo_prediction: true,
             },
         })
     };

@@ -124,7 +124,7 @@ fn lossy_at(scene: &Scene, bytes: usize) -> anyhow::Result<BTreeMap<String, f64>
     let mut psnr = BTreeMap::new();
     for codec in [LossyCodec::Webp, LossyCodec::Jpeg] {
         let fitted = encode_fitted(codec.qualities(), Some(bytes), (0, 0, Mode::Fast), |q| {
-            let (left, right) = lossy_views((&scene.left, &scene.right), codec, q)?;
+            let (left, right) = lossy_views((&scene.left, &scene.right), codec, q, true)?;
             Ok(StereoFrame {
                 kind: SegmentationKind::None,
                 levels: 0,
