@@ -165,7 +165,14 @@ const ROUND: Duration = Duration::from_millis(5);
 const STATIONS_EVERY: Duration = Duration::from_secs(2);
 
 /// Runs the gateway until `stop` is set; then says `offline` and leaves.
-pub fn run(cfg: GatewayConfig, stop: Arc<AtomicBool>) -> anyhow::Result<Summary> {
+/// `on_turn` is called on each turn of its loop (every few milliseconds)
+/// with whether the broker is connected: what a service manager's
+/// readiness and watchdog hang on.
+pub fn run(
+    cfg: GatewayConfig,
+    stop: Arc<AtomicBool>,
+    mut on_turn: impl FnMut(bool),
+) -> anyhow::Result<Summary> {
     anyhow::ensure!(
         !cfg.stations.is_empty(),
         "the gateway needs at least one --link"
@@ -208,6 +215,7 @@ pub fn run(cfg: GatewayConfig, stop: Arc<AtomicBool>) -> anyhow::Result<Summary>
     let mut last_stations = Instant::now() - STATIONS_EVERY;
     let mut leaving: Option<Instant> = None;
     loop {
+        on_turn(connected);
         if stop.load(Ordering::Relaxed) && leaving.is_none() {
             leaving = Some(Instant::now());
             bridge.leave(connected);

@@ -684,3 +684,54 @@ fn measure_sixteen_paced_stations() {
     );
     drop(sims);
 }
+
+/// Under systemd (`Type=notify`, `WatchdogSec=`): the gateway says it is
+/// ready once the broker has answered, pings the watchdog while its loop
+/// turns, and says it is stopping.
+#[test]
+fn gateway_tells_systemd_it_is_ready_once_the_broker_answers() {
+    use std::os::unix::net::UnixDatagram;
+    let Some(broker) = Broker::start() else {
+        return;
+    };
+    let socket = broker.dir.path().join("notify");
+    let systemd = UnixDatagram::bind(&socket).unwrap();
+    systemd
+        .set_read_timeout(Some(Duration::from_secs(20)))
+        .unwrap();
+    let (g, s) = (common::free_port(), common::free_port());
+    let link = format!("cam1=udp:127.0.0.1:{g}?peer=127.0.0.1:{s}");
+    // As systemd starts it: WATCHDOG_PID is the service's own pid.
+    let child = Command::new("sh")
+        .args(["-c", "WATCHDOG_PID=$$ exec \"$0\" \"$@\""])
+        .arg(env!("CARGO_BIN_EXE_stereolink"))
+        .args(["gateway", "--link", &link, "--mqtt", &broker.url("gateway")])
+        .args(["--max-disp", "16", "--run-s", "2"])
+        .env("NOTIFY_SOCKET", &socket)
+        .env("WATCHDOG_USEC", "200000")
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    let mut said = Vec::new();
+    let mut buf = [0u8; 512];
+    while !said.iter().any(|s: &String| s.contains("STOPPING=1")) {
+        let n = systemd
+            .recv(&mut buf)
+            .expect("a notification from the gateway");
+        said.push(String::from_utf8_lossy(&buf[..n]).into_owned());
+    }
+    let out = child.wait_with_output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(
+        said[0].contains("READY=1") && said[0].contains("bridging to"),
+        "{said:?}"
+    );
+    let pings = said.iter().filter(|s| s.contains("WATCHDOG=1")).count();
+    // 2 s of running, a ping at most every 100 ms.
+    assert!(pings >= 5, "{said:?}");
+}

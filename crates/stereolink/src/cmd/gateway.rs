@@ -200,7 +200,21 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
             stop.store(true, Ordering::Relaxed);
         });
     }
-    let summary = gateway::run(cfg, stop);
+    // systemd (deploy/systemd/stereolink-gateway.service): ready once the
+    // broker first answers, alive while the bridge's loop turns.
+    let mut service = super::service::Service::new();
+    let mut ready = false;
+    let broker_name = cfg.broker.to_string();
+    let summary = gateway::run(cfg, stop, |connected| {
+        if connected && !ready {
+            ready = true;
+            service.ready(&format!("bridging to {broker_name}"));
+        }
+        if ready {
+            service.alive();
+        }
+    });
+    service.stopping();
     // The stations' threads have ended: the recording is this one's alone.
     if let Some(r) = recorder.and_then(Arc::into_inner) {
         r.into_inner().unwrap_or_else(|e| e.into_inner()).finish()?;
