@@ -619,22 +619,52 @@ fn a_stereo_predicted_pair_over_udp_carries_its_disparity() {
 #[test]
 fn predicted_frames_over_udp_rebuild_the_senders_reconstruction() {
     let (a, b) = (free_port(), free_port());
+    predicted_frames_rebuild_the_senders_reconstruction(
+        &format!("udp:127.0.0.1:{b}?peer=127.0.0.1:{a}"),
+        &format!("udp:127.0.0.1:{a}?peer=127.0.0.1:{b}"),
+    );
+}
+
+/// The same over two emulated ZigBee radios at their real rate, each end
+/// addressed by the other's serial number.
+#[test]
+fn predicted_frames_over_emulated_zigbee_radios_rebuild_the_senders_reconstruction() {
+    let radio = RadioLink::timed(Firmware::Zigbee, Timing::zigbee());
+    let (a, b) = (radio.configs[0].serial, radio.configs[1].serial);
+    predicted_frames_rebuild_the_senders_reconstruction(
+        &format!("serial:{}?baud=115200&api=2&dest=0x{a:016X}", radio.b),
+        &format!("serial:{}?baud=115200&api=2&dest=0x{b:016X}", radio.a),
+    );
+}
+
+/// `send --temporal --repeat 4` to `receive`: a key frame, then predicted
+/// frames of at most a quarter of it, and the board's last pair is the
+/// sender's reconstruction, bit for bit.
+fn predicted_frames_rebuild_the_senders_reconstruction(rx_link: &str, tx_link: &str) {
     let dir = tempfile::tempdir().unwrap();
     let scene = dir.path().join("scene");
     synth(&scene);
     let saved = dir.path().join("saved");
     let saved_arg = saved.to_str().unwrap();
-    let rx = spawn_udp_receiver(
-        a,
-        b,
-        &["--frames", "4", "--timeout-s", "60", "--save", saved_arg],
-    );
+    let rx = spawn(&[
+        "receive",
+        "--link",
+        rx_link,
+        "--robot",
+        "sim",
+        "--insecure",
+        "--max-disp",
+        "24",
+        "--frames",
+        "4",
+        "--timeout-s",
+        "60",
+        "--save",
+        saved_arg,
+    ]);
     std::thread::sleep(Duration::from_millis(200));
     let mut tx_args = vec!["--json".to_string()];
-    tx_args.extend(send_args(
-        &format!("udp:127.0.0.1:{a}?peer=127.0.0.1:{b}"),
-        &scene,
-    ));
+    tx_args.extend(send_args(tx_link, &scene));
     tx_args.extend(strings(&[
         "--view-coding",
         "webp",
