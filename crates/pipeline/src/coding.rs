@@ -14,8 +14,8 @@ use std::ops::RangeInclusive;
 use stereolink_codec::lossy::{self, LossyCodec, ViewCoding};
 use stereolink_codec::rate;
 use stereolink_codec::stereo::{StereoSpec, StereoView};
-use stereolink_codec::{container, labels, Message, StereoFrame, View};
-use stereolink_image::RgbImage;
+use stereolink_codec::{container, labels, Message, SegmentationKind, StereoFrame, View};
+use stereolink_image::{Calibration, RgbImage};
 
 /// How the sender codes each pair's views.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -93,6 +93,26 @@ pub fn lossy_views(
         || lossy::encode(right, codec, quality),
     );
     Ok((View::Lossy(l?), View::Lossy(r?)))
+}
+
+/// A frame of two lossy views (no segmentation), its parameters naming the
+/// codec and the quality, as the sender, `encode` and the report build it.
+pub fn lossy_frame(
+    codec: LossyCodec,
+    quality: u8,
+    (left, right): (View, View),
+    calibration: Option<Calibration>,
+) -> StereoFrame {
+    StereoFrame {
+        kind: SegmentationKind::None,
+        levels: 0,
+        params: format!("{} q={quality}", codec.name()),
+        thresholds: None,
+        calibration,
+        left,
+        right,
+        planes: None,
+    }
 }
 
 /// The frame `make` builds at a setting, encoded (as `frame_id` at

@@ -33,7 +33,7 @@ use stereolink_stereo::depth::{depth_levels, depth_of, metric, region_distance, 
 use stereolink_stereo::planes::match_planes;
 use stereolink_stereo::{Algorithm, MatchSpec, Matcher};
 
-use crate::coding::{encode_fitted, lossy_views, CodingSpec};
+use crate::coding::{encode_fitted, lossy_frame, lossy_views, CodingSpec};
 use crate::planetable;
 
 /// What the sender does with a pair.
@@ -350,16 +350,7 @@ pub(crate) fn prepare_with(
                     Some(Predict::Lossy { views, .. }) => views(q)?,
                     _ => lossy_views((left, right), codec, q, cfg.coding.stereo_prediction)?,
                 };
-                Ok(StereoFrame {
-                    kind: SegmentationKind::None,
-                    levels: 0,
-                    params: format!("{} q={q}", codec.name()),
-                    thresholds: None,
-                    calibration: Some(*calib),
-                    left: l,
-                    right: r,
-                    planes: None,
-                })
+                Ok(lossy_frame(codec, q, (l, r), Some(*calib)))
             })?
         }
         ViewCoding::Segmented => encode_fitted(settings, cfg.coding.budget, ids, |levels| {

@@ -260,9 +260,10 @@ fn golden_depth_report() {
     );
 }
 
-#[test]
-fn lossy_views_round_trip_through_both_decoders() {
-    let f = lossy_frame();
+/// Encodes `f`, and checks that the owned decoder gives it back and that
+/// a [`FrameDecoder`] rebuilds its views; returns that decoder and the
+/// parsed frame's bytes.
+fn through_both_decoders(f: &StereoFrame) -> (FrameDecoder, Vec<u8>) {
     let m = Message::StereoFrame(Box::new(f.clone()));
     let bytes = encode(&m, 5, 6);
     assert_eq!(decode(&bytes, &Limits::default()).unwrap().1, m);
@@ -272,6 +273,16 @@ fn lossy_views_round_trip_through_both_decoders() {
     let mut d = FrameDecoder::default();
     d.decode_rgb(&parsed).unwrap();
     assert_eq!(d.views(), (&f.left.to_rgb(), &f.right.to_rgb()));
+    (d, bytes)
+}
+
+#[test]
+fn lossy_views_round_trip_through_both_decoders() {
+    let f = lossy_frame();
+    let (d, bytes) = through_both_decoders(&f);
+    let Ok((_, Body::StereoFrame(parsed))) = parse(&bytes, &Limits::default()) else {
+        panic!("not a frame")
+    };
     assert!(d.indexed_views().is_none() && d.left_labels(&parsed).is_none());
     // The views are the pictures, not black: the mean of a channel is
     // far from zero.
@@ -676,15 +687,7 @@ fn stereo_frame() -> StereoFrame {
 #[test]
 fn stereo_predicted_views_rebuild_the_senders_pair_through_both_decoders() {
     let f = stereo_frame();
-    let m = Message::StereoFrame(Box::new(f.clone()));
-    let bytes = encode(&m, 5, 6);
-    assert_eq!(decode(&bytes, &Limits::default()).unwrap().1, m);
-    let Ok((_, Body::StereoFrame(parsed))) = parse(&bytes, &Limits::default()) else {
-        panic!("not a frame")
-    };
-    let mut d = FrameDecoder::default();
-    d.decode_rgb(&parsed).unwrap();
-    assert_eq!(d.views(), (&f.left.to_rgb(), &f.right.to_rgb()));
+    let (mut d, _) = through_both_decoders(&f);
     let View::Stereo(right) = &f.right else {
         unreachable!("built stereo")
     };

@@ -10,7 +10,7 @@ use stereolink_codec::stereo::Mode;
 use stereolink_codec::{container, labels, Limits, Message, SegmentationKind, StereoFrame, View};
 use stereolink_image::metrics::{psnr_pair, psnr_rgb, reduction_percent};
 use stereolink_image::{io, RgbImage, Scene};
-use stereolink_pipeline::coding::{encode_fitted, lossy_views, CodingSpec};
+use stereolink_pipeline::coding::{encode_fitted, lossy_frame, lossy_views, CodingSpec};
 use stereolink_pipeline::sender::segment_pair;
 
 use super::segment::SegmentArgs;
@@ -205,16 +205,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         let coded = match spec.coding {
             ViewCoding::Lossy(codec) => encode_fitted(settings, spec.budget, ids, |q| {
                 let (l, r) = lossy_views((&left, &right), codec, q, spec.stereo_prediction)?;
-                Ok(StereoFrame {
-                    kind: SegmentationKind::None,
-                    levels: 0,
-                    params: format!("{} q={q}", codec.name()),
-                    thresholds: None,
-                    calibration: None,
-                    left: l,
-                    right: r,
-                    planes: None,
-                })
+                Ok(lossy_frame(codec, q, (l, r), None))
             }),
             ViewCoding::Segmented => {
                 let method = args.segment.method()?;

@@ -32,7 +32,7 @@ use stereolink_codec::lossy::LossyCodec;
 use stereolink_codec::{container, CodecError, Message, SegmentationKind, StereoFrame, View};
 use stereolink_display::{anaglyph, Anaglyph};
 use stereolink_image::{colormap, io, metrics, DisparityMap, LabelMap, RgbImage, Scene};
-use stereolink_pipeline::coding::{encode_fitted, lossy_views};
+use stereolink_pipeline::coding::{encode_fitted, lossy_frame, lossy_views};
 use stereolink_pipeline::planes::{left_segments, Segments};
 use stereolink_segment::{segment, Method};
 use stereolink_stereo::depth::{depth_levels, LevelSpec};
@@ -124,17 +124,8 @@ fn lossy_at(scene: &Scene, bytes: usize) -> anyhow::Result<BTreeMap<String, f64>
     let mut psnr = BTreeMap::new();
     for codec in [LossyCodec::Webp, LossyCodec::Jpeg] {
         let fitted = encode_fitted(codec.qualities(), Some(bytes), (0, 0, Mode::Fast), |q| {
-            let (left, right) = lossy_views((&scene.left, &scene.right), codec, q, true)?;
-            Ok(StereoFrame {
-                kind: SegmentationKind::None,
-                levels: 0,
-                params: String::new(),
-                thresholds: None,
-                calibration: None,
-                left,
-                right,
-                planes: None,
-            })
+            let views = lossy_views((&scene.left, &scene.right), codec, q, true)?;
+            Ok(lossy_frame(codec, q, views, None))
         });
         match fitted {
             Ok(coded) => {
