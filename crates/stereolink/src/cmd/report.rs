@@ -36,7 +36,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         bar.set_message(name.to_string());
         bar.inc(1);
     };
-    let r = crate::report::run(&dirs, &args.out, &step)?;
+    let r = stereolink_report::run(&dirs, &args.out, &step)?;
     bar.finish_and_clear();
     let d = Done {
         out: args.out.join("index.html"),

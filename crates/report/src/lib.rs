@@ -1,5 +1,6 @@
-//! `stereolink report`: reruns the paper's experiments on a data folder and
-//! writes an HTML page (`index.html`, images in `img/`) and `report.json`.
+//! The paper's experiments rerun on a data folder (`stereolink report`),
+//! written as an HTML page (`index.html`, images in `img/`) and
+//! `report.json`.
 //!
 //! Per scene: each segmentation method (the paper's five and the exact
 //! multilevel Otsu) with PSNR (Table IV, and beside it the PSNR WebP and
