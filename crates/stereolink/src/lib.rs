@@ -7,3 +7,4 @@
 //! call, and every pipeline lives in a library.
 
 pub mod cmd;
+pub mod config;

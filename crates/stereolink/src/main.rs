@@ -1,13 +1,15 @@
 //! The `stereolink` command line: parses arguments, runs a command, prints
 //! one clear line on failure.
 //!
-//! Exit codes: 0 success, 1 failure, 2 usage error (clap's own).
+//! Exit codes: 0 success, 1 failure, 2 usage error (clap's own, or a bad
+//! `--config` file).
 
 use std::process::ExitCode;
 
-use clap::Parser;
+use clap::{CommandFactory, Parser};
 
 use stereolink::cmd::{Cli, Output};
+use stereolink::config;
 
 /// Diagnostics (`tracing`) go to stderr, filtered by `RUST_LOG` (default
 /// `info`; `RUST_LOG=debug` shows the link's decisions); under systemd
@@ -30,7 +32,14 @@ fn init_logging() {
 
 fn main() -> ExitCode {
     init_logging();
-    let cli = Cli::parse();
+    let argv = match config::expand(std::env::args_os().collect(), &Cli::command()) {
+        Ok(argv) => argv,
+        Err(err) => {
+            eprintln!("stereolink: {err:#}");
+            return ExitCode::from(2);
+        }
+    };
+    let cli = Cli::parse_from(argv);
     let out = Output { json: cli.json };
     match cli.command.run(&out) {
         Ok(()) => ExitCode::SUCCESS,

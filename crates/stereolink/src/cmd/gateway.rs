@@ -93,6 +93,9 @@ pub struct Args {
     /// recording; the gateway goes on.
     #[arg(long, value_name = "FILE.mcap")]
     pub record: Option<PathBuf>,
+    #[command(flatten)]
+    /// `--config FILE.toml`.
+    pub config: crate::config::ConfigArg,
 }
 
 /// Bridges the stations to the broker until killed (or `--run-s`).

@@ -85,6 +85,9 @@ pub struct Args {
     #[command(flatten)]
     /// `--record FILE.mcap`.
     pub record: super::record::RecordArgs,
+    #[command(flatten)]
+    /// `--config FILE.toml`.
+    pub config: crate::config::ConfigArg,
 }
 
 /// Receives, shows and moves until done.

@@ -169,6 +169,9 @@ pub struct Args {
     #[command(flatten)]
     /// `--record FILE.mcap`.
     pub record: super::record::RecordArgs,
+    #[command(flatten)]
+    /// `--config FILE.toml`.
+    pub config: crate::config::ConfigArg,
 }
 
 impl Args {
