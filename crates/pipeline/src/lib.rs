@@ -19,6 +19,7 @@
 //! It depends on the crates it joins: image, segment, stereo, codec, link
 //! (with `std`), display, robot, calib and capture; nothing above it.
 
+pub mod board_links;
 pub mod cdr;
 pub mod coding;
 pub mod demo;

@@ -12,6 +12,8 @@ use std::time::{Duration, Instant};
 
 use serde::Serialize;
 
+use crate::receiver::Event;
+
 /// Counts since a start: the whole run, or the last second.
 #[derive(Clone, Debug)]
 pub struct Rates {
@@ -191,6 +193,43 @@ impl std::fmt::Display for Figures {
             "), {} frames ({:.2}/s), {} B in {:.1} s",
             self.frames, self.frame_rate_hz, self.bytes, self.seconds
         )
+    }
+}
+
+/// Frames complete on the board: a frame counts once its views and a
+/// depth report of its pair or a later one arrived (the reports overtake the
+/// frames, and a newer pair's report may have taken its own's place).
+#[derive(Debug, Default)]
+pub struct FrameCount {
+    /// Frames complete so far.
+    pub counted: u32,
+    /// The newest report's pair.
+    last_report: Option<u32>,
+    /// Frames whose report has not come yet.
+    waiting: std::collections::BTreeSet<u32>,
+}
+
+impl FrameCount {
+    /// Counts what the board made of a message.
+    pub fn count(&mut self, event: &Event) {
+        match *event {
+            Event::Report { frame_id, .. } => {
+                self.last_report = self.last_report.max(Some(frame_id));
+                let later = self.waiting.split_off(&(frame_id + 1));
+                self.counted += self.waiting.len() as u32;
+                self.waiting = later;
+            }
+            Event::Frame { frame_id, .. } if self.last_report >= Some(frame_id) => {
+                self.counted += 1;
+            }
+            Event::Frame { frame_id, .. } => {
+                self.waiting.insert(frame_id);
+                if self.waiting.len() > 16 {
+                    self.waiting.pop_first();
+                }
+            }
+            _ => {}
+        }
     }
 }
 

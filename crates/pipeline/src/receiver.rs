@@ -30,6 +30,8 @@ use std::time::Instant;
 
 use std::fmt::Write;
 
+use anyhow::Context;
+
 use stereolink_codec::container::{self, Body, FrameDecoder, FrameRef};
 use stereolink_codec::control::{Command, Control};
 use stereolink_codec::stereo::left_disparity_into;
@@ -566,6 +568,39 @@ impl BoardReceiver {
         axis.stop().inspect_err(|_| self.watchdog.rearm())?;
         Ok(true)
     }
+
+    /// The axis once the messages end: it finishes the move the last fresh
+    /// report commanded (`finish`: the run ended as asked), or, the link
+    /// having gone quiet or failed and left no fresh data, stops where it
+    /// is. `None` without an axis.
+    pub fn settle_axis(&mut self, finish: bool) -> Option<AxisEnd> {
+        let axis = self.axis.as_mut()?;
+        let mut stopped = false;
+        let position = (|| {
+            if finish {
+                let pos = stereolink_robot::wait_until_idle(axis.as_mut(), 6000)?;
+                return pos.context("the axis is still moving");
+            }
+            if axis.is_moving()? {
+                axis.stop()?;
+                stopped = true;
+            }
+            Ok(axis.position()?)
+        })();
+        Some(AxisEnd {
+            position_mm: position,
+            stopped,
+        })
+    }
+}
+
+/// The axis after the messages ended ([`BoardReceiver::settle_axis`]).
+#[derive(Debug)]
+pub struct AxisEnd {
+    /// Where it settled, or why that is not known.
+    pub position_mm: anyhow::Result<f64>,
+    /// It was still moving on data no longer fresh, so it was stopped.
+    pub stopped: bool,
 }
 
 /// The StereoFrame message of a synthetic scene (`synth`'s generator, its

@@ -1,10 +1,10 @@
 //! The CLI frame: exit codes, one-line errors, `synth` and `info`.
 
+mod common;
+
 use std::process::Command;
 
-fn stereolink() -> Command {
-    Command::new(env!("CARGO_BIN_EXE_stereolink"))
-}
+use common::stereolink;
 
 /// Asserts that the command succeeded, showing its stderr if not.
 fn assert_success(out: &std::process::Output) {
@@ -27,27 +27,6 @@ fn usage_errors_exit_2_and_failures_exit_1_with_one_line() {
     let err = String::from_utf8(out.stderr).unwrap();
     assert_eq!(err.lines().count(), 1, "{err}");
     assert!(err.contains("/no/such/scene"), "{err}");
-}
-
-/// A bad `--config` file is a usage error: exit 2, one line naming the
-/// file, the line and the key, before anything is opened.
-#[test]
-fn a_bad_config_file_is_a_usage_error_naming_file_line_and_key() {
-    let dir = tempfile::tempdir().unwrap();
-    let file = dir.path().join("robot.toml");
-    std::fs::write(&file, "[receive]\nlink = \"sim:\"\nwatchdog-s = \"soon\"\n").unwrap();
-    let out = stereolink()
-        .args(["receive", "--config"])
-        .arg(&file)
-        .output()
-        .unwrap();
-    assert_eq!(out.status.code(), Some(2));
-    let err = String::from_utf8(out.stderr).unwrap();
-    assert_eq!(err.lines().count(), 1, "{err}");
-    assert!(
-        err.contains("robot.toml:3: bad value for `watchdog-s`"),
-        "{err}"
-    );
 }
 
 #[test]

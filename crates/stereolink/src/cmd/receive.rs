@@ -8,9 +8,10 @@ use stereolink_codec::container;
 use stereolink_codec::control::unix_us;
 use stereolink_display::open_sink;
 use stereolink_link::endpoint::{Endpoint, Lane, LinkError};
-use stereolink_link::secure::{Rejections, SecureConfig};
-use stereolink_pipeline::rates::{since_stamp, Figures, Rates};
-use stereolink_pipeline::receiver::{BoardReceiver, DisparitySource, Event};
+use stereolink_link::secure::SecureConfig;
+use stereolink_pipeline::board_links::{next_message, security_line};
+use stereolink_pipeline::rates::{since_stamp, Figures, FrameCount, Rates};
+use stereolink_pipeline::receiver::{AxisEnd, BoardReceiver, DisparitySource, Event};
 use stereolink_robot::open_axis;
 use stereolink_robot::policy::MotionPolicy;
 
@@ -281,13 +282,13 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
             }
         }
     }
-    // The axis: after the frames asked for, it finishes the move the last
-    // fresh report commanded; a link gone quiet or failed leaves no fresh
-    // data, so it stops where it is.
-    let finish_move = matches!(ended, Ok(End::Frames));
-    let axis = settle_axis(&mut board, finish_move);
-    if let Some(Ok(pos)) = &axis.position_mm {
-        if axis.stopped {
+    let axis = board.settle_axis(matches!(ended, Ok(End::Frames)));
+    if let Some(AxisEnd {
+        position_mm: Ok(pos),
+        stopped,
+    }) = &axis
+    {
+        if *stopped {
             eprintln!("link quiet: the axis was still moving on stale data; stopped");
         }
         if !out.json {
@@ -306,10 +307,9 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
             Err(e) => format!("error: {e:#}"),
         },
         axis_mm: axis
-            .position_mm
             .as_ref()
-            .and_then(|p| p.as_ref().ok().copied()),
-        axis_stopped: axis.stopped,
+            .and_then(|a| a.position_mm.as_ref().ok().copied()),
+        axis_stopped: axis.as_ref().is_some_and(|a| a.stopped),
         key_requests: board.key_requests(),
         carried_disparity_frames: board.carried_frames(),
     };
@@ -328,7 +328,11 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
             String::new,
         )?;
     }
-    if let Some(Err(e)) = axis.position_mm {
+    if let Some(AxisEnd {
+        position_mm: Err(e),
+        ..
+    }) = axis
+    {
         return Err(e).context("the axis after the last report");
     }
     recorded?;
@@ -375,42 +379,6 @@ fn check_watchdog(board: &mut BoardReceiver, secs: f64) {
     }
 }
 
-/// The next message from any of the links, waiting up to `timeout`.
-fn next_message(eps: &mut [Endpoint], timeout: Duration) -> Result<Vec<u8>, LinkError> {
-    let until = Instant::now() + timeout;
-    let slice = Duration::from_millis(20) / eps.len().max(1) as u32;
-    loop {
-        for ep in eps.iter_mut() {
-            match ep.recv_message(slice) {
-                Err(LinkError::Timeout) => {}
-                other => return other,
-            }
-        }
-        if Instant::now() >= until {
-            return Err(LinkError::Timeout);
-        }
-    }
-}
-
-/// The screen's security note: sealed or not, and the refusals by cause
-/// over all the links.
-fn security_line(eps: &[Endpoint]) -> String {
-    let all: Option<Vec<Rejections>> = eps.iter().map(Endpoint::rejections).collect();
-    match all {
-        Some(r) => {
-            let sum = |f: fn(&Rejections) -> u64| r.iter().map(f).sum::<u64>();
-            format!(
-                "SEALED  REJ TAG {} RPL {} SES {} HS {}",
-                sum(|r| r.bad_tag),
-                sum(|r| r.replay),
-                sum(|r| r.unknown_session),
-                sum(|r| r.handshake)
-            )
-        }
-        None => "INSECURE".into(),
-    }
-}
-
 /// Why the receive loop ended without an error.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 enum End {
@@ -418,73 +386,6 @@ enum End {
     Frames,
     /// Nothing arrived for `--timeout-s`.
     Quiet,
-}
-
-/// The axis after the loop: where it is, and whether it had to be stopped.
-struct AxisEnd {
-    position_mm: Option<anyhow::Result<f64>>,
-    stopped: bool,
-}
-
-/// Lets the axis finish its move (`finish`), or stops it where it is.
-fn settle_axis(board: &mut BoardReceiver, finish: bool) -> AxisEnd {
-    let Some(axis) = board.axis.as_mut() else {
-        return AxisEnd {
-            position_mm: None,
-            stopped: false,
-        };
-    };
-    let mut stopped = false;
-    let position = (|| {
-        if finish {
-            let pos = stereolink_robot::wait_until_idle(axis.as_mut(), 6000)?;
-            return pos.context("the axis is still moving");
-        }
-        if axis.is_moving()? {
-            axis.stop()?;
-            stopped = true;
-        }
-        Ok(axis.position()?)
-    })();
-    AxisEnd {
-        position_mm: Some(position),
-        stopped,
-    }
-}
-
-/// Frames complete on the board: a frame counts once its views and a
-/// depth report of its pair or a later one arrived (the reports overtake the
-/// frames, and a newer pair's report may have taken its own's place).
-#[derive(Default)]
-struct FrameCount {
-    counted: u32,
-    /// The newest report's pair.
-    last_report: Option<u32>,
-    /// Frames whose report has not come yet.
-    waiting: std::collections::BTreeSet<u32>,
-}
-
-impl FrameCount {
-    fn count(&mut self, event: &Event) {
-        match *event {
-            Event::Report { frame_id, .. } => {
-                self.last_report = self.last_report.max(Some(frame_id));
-                let later = self.waiting.split_off(&(frame_id + 1));
-                self.counted += self.waiting.len() as u32;
-                self.waiting = later;
-            }
-            Event::Frame { frame_id, .. } if self.last_report >= Some(frame_id) => {
-                self.counted += 1;
-            }
-            Event::Frame { frame_id, .. } => {
-                self.waiting.insert(frame_id);
-                if self.waiting.len() > 16 {
-                    self.waiting.pop_first();
-                }
-            }
-            _ => {}
-        }
-    }
 }
 
 /// The receiver's summary, printed on every way out.
