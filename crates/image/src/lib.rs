@@ -10,6 +10,7 @@
 //!   [`pfm`] reads and writes PFM disparity files.
 //! * [`color`] converts RGB ↔ gray ↔ CIE L\*u\*v\*; [`colormap`] paints
 //!   disparity maps for people.
+//! * [`cpu`] says whether the AVX2 kernels can run.
 //! * [`metrics`] holds MSE/PSNR, compression figures and Middlebury
 //!   bad-pixel scoring.
 //! * [`scene`] loads stereo scenes (the shared data layout and the original
@@ -37,6 +38,7 @@
 mod calib_yaml;
 pub mod color;
 pub mod colormap;
+pub mod cpu;
 mod error;
 pub mod io;
 pub mod metrics;

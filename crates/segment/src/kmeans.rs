@@ -139,18 +139,6 @@ fn pick(rng: &mut ChaCha8Rng, weights: &[f64], sum: f64) -> usize {
     weights.len() - 1
 }
 
-/// True when the AVX2 copy of [`chunk_sums`] can run here.
-fn avx2_available() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::is_x86_feature_detected!("avx2")
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
-}
-
 /// Colours as structure of arrays, for vector code: channels and counts as
 /// compact integers (a Lloyd step streams them all, so their size sets its
 /// speed), widened to `f64` where used.
@@ -547,7 +535,7 @@ fn lloyd_sums(
 pub fn cluster(image: &RgbImage, k: usize, seed: u64) -> Result<KMeans, SegmentError> {
     let (centroids, iterations, colours) = fit(image, k, seed)?;
     // Not whole numbers: summed in order, for a deterministic value.
-    let objective = assign(&colours, &centroids, avx2_available())
+    let objective = assign(&colours, &centroids, stereolink_image::cpu::avx2())
         .weighted
         .iter()
         .sum();
@@ -571,7 +559,7 @@ fn fit(
         });
     }
     let soa = colour_counts(image);
-    let avx2 = avx2_available();
+    let avx2 = stereolink_image::cpu::avx2();
     // The AVX2 Lloyd step sums in i32 lanes: up to 255 · pixels.
     let narrow = 255 * image.len() as u64 <= i32::MAX as u64;
     let mut rng = ChaCha8Rng::seed_from_u64(seed);
@@ -626,7 +614,7 @@ fn fit(
 pub fn kmeans(image: &RgbImage, k: usize, seed: u64) -> Result<Segmentation, SegmentError> {
     let (centroids, iterations, _) = fit(image, k, seed)?;
     let pixels = Colours::pixels(image);
-    let data = assign(&pixels, &centroids, avx2_available()).labels;
+    let data = assign(&pixels, &centroids, stereolink_image::cpu::avx2()).labels;
     let labels = Plane::from_vec(image.width(), image.height(), data).expect("one label per pixel");
     let image = compact(labels, |l| {
         centroids[l as usize].map(|v| v.round().clamp(0.0, 255.0) as u8)
@@ -661,7 +649,7 @@ mod tests {
     /// bit, ties included.
     #[test]
     fn avx2_sums_equal_portable_sums() {
-        if !avx2_available() {
+        if !stereolink_image::cpu::avx2() {
             return;
         }
         let mut s = 0x0005_DEEC_E66D_u64;

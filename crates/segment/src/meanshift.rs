@@ -128,18 +128,6 @@ impl MeanShiftSpec {
     }
 }
 
-/// True when the AVX2 window sums can run here.
-fn avx2_available() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::is_x86_feature_detected!("avx2")
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
-}
-
 /// Window pixels summed together, one per lane.
 const LANES: usize = 8;
 
@@ -366,7 +354,7 @@ pub fn mean_shift(image: &RgbImage, spec: &MeanShiftSpec) -> Result<Segmentation
         ColourSpace::Luv => color::rgb_image_to_luv(image),
         ColourSpace::Rgb => image.map(|p| p.map(f32::from)),
     };
-    let avx2 = spec.kernel == Kernel::Uniform && avx2_available();
+    let avx2 = spec.kernel == Kernel::Uniform && stereolink_image::cpu::avx2();
     let (modes, iterations_used) = modes(&feat, spec, spec.pyramid, avx2);
     // Cluster: union neighbours with close modes.
     let mut parent: Vec<u32> = (0..(w * h) as u32).collect();
@@ -503,7 +491,7 @@ mod tests {
     /// The AVX2 window sums give the portable ones bit for bit.
     #[test]
     fn avx2_and_portable_windows_agree() {
-        if !avx2_available() {
+        if !stereolink_image::cpu::avx2() {
             return;
         }
         let (w, h) = (37, 23);

@@ -10,7 +10,7 @@ use stereolink_image::GrayImage;
 /// 9×7 census transform: bit set where the neighbour is darker than the
 /// centre; outside pixels replicate the border.
 pub fn census(img: &GrayImage) -> Vec<u64> {
-    census_with(img, crate::wta::avx2_available())
+    census_with(img, stereolink_image::cpu::avx2())
 }
 
 /// The bits of a [`census`] code that compare the centre with the
@@ -258,7 +258,7 @@ mod tests {
     #[cfg(target_arch = "x86_64")]
     #[test]
     fn avx2_census_equals_portable() {
-        if !crate::wta::avx2_available() {
+        if !stereolink_image::cpu::avx2() {
             return;
         }
         let mut s = 0x0DDB_1A5E_5BAD_5EEDu64;

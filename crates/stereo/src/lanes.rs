@@ -505,10 +505,6 @@ mod tests {
     use super::*;
     use proptest::prelude::*;
 
-    fn avx2() -> bool {
-        std::is_x86_feature_detected!("avx2")
-    }
-
     proptest! {
         #[test]
         fn avx2_equals_portable(
@@ -518,7 +514,7 @@ mod tests {
             leave in any::<bool>(),
             valid_frac in 0.0f64..1.0,
         ) {
-            if !avx2() {
+            if !stereolink_image::cpu::avx2() {
                 return Ok(());
             }
             let n = blocks * LANES;

@@ -29,7 +29,7 @@ const CHUNK: usize = 8;
 /// # Panics
 /// If `size` is larger than 15 (checked by [`crate::MatchSpec::validate`]).
 pub fn median(map: &DisparityMap, size: usize) -> DisparityMap {
-    median_with(map, size, crate::wta::avx2_available())
+    median_with(map, size, stereolink_image::cpu::avx2())
 }
 
 /// [`median`] with the AVX2 kernel (`avx2`, only if the CPU has it) or the portable one.

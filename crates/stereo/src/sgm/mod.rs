@@ -144,7 +144,7 @@ pub struct SgmBuffers {
 
 /// Computes the raw SGM disparity (and the right view's map) of gray views.
 pub fn sgm(left: &GrayImage, right: &GrayImage, spec: &MatchSpec, buffers: &mut SgmBuffers) -> Raw {
-    sgm_with(left, right, spec, buffers, crate::wta::avx2_available())
+    sgm_with(left, right, spec, buffers, stereolink_image::cpu::avx2())
 }
 
 /// [`sgm`] with the AVX2 kernels (`use_avx2`, only if the CPU has it) or the

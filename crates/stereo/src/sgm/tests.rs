@@ -8,7 +8,7 @@ use super::*;
 /// The AVX2 cost rows equal the portable ones (Hamming distances).
 #[test]
 fn avx2_cost_rows_equal_portable_rows() {
-    if !crate::wta::avx2_available() {
+    if !stereolink_image::cpu::avx2() {
         return;
     }
     let mut s = 0x9E37_79B9_7F4A_7C15u64;
@@ -37,7 +37,7 @@ fn avx2_cost_rows_equal_portable_rows() {
 /// of awkward sizes and ranges (a few pixels, ranges past a block).
 #[test]
 fn avx2_and_portable_sgm_agree() {
-    if !crate::wta::avx2_available() {
+    if !stereolink_image::cpu::avx2() {
         return;
     }
     let mut s = 0x1234_5678_9ABC_DEF1u64;
@@ -96,7 +96,7 @@ fn step_follows_the_recurrence() {
 #[cfg(target_arch = "x86_64")]
 #[test]
 fn avx2_pixel_steps_equal_portable_steps() {
-    if !crate::wta::avx2_available() {
+    if !stereolink_image::cpu::avx2() {
         return;
     }
     fn steps(

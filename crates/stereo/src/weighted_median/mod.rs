@@ -162,7 +162,7 @@ pub struct WeightedMedianGuide {
 impl WeightedMedianGuide {
     /// The guide of `guide` for `p`.
     pub fn new(guide: &RgbImage, p: &WeightedMedian) -> Self {
-        Self::with_avx2(guide, p, crate::wta::avx2_available())
+        Self::with_avx2(guide, p, stereolink_image::cpu::avx2())
     }
 
     /// [`Self::new`] with the AVX2 kernels (`avx2`, only if the CPU has it)

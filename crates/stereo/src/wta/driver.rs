@@ -13,7 +13,7 @@ use super::portable::band_avx2;
 use super::portable::band_scalar;
 use super::swar;
 use super::winner::{Disparity, Winner};
-use super::{avx2_available, Kernel, Samples, WtaMatcher, WtaParams};
+use super::{Kernel, Samples, WtaMatcher, WtaParams};
 use crate::lanes::{Portable, Swar, LANES};
 
 /// True where the target has no vector unit the portable loops could use.
@@ -84,7 +84,7 @@ impl WtaMatcher {
             .resize_with(n_bands.max(self.bands.len()), Band::default);
         let reversed = &self.reversed;
         let kernel = match self.kernel {
-            Kernel::Auto if avx2_available() => Kernel::Auto,
+            Kernel::Auto if stereolink_image::cpu::avx2() => Kernel::Auto,
             Kernel::Auto if NO_VECTORS => Kernel::Swar,
             Kernel::Auto => Kernel::Portable,
             k => k,
@@ -138,7 +138,7 @@ impl WtaMatcher {
                     Kernel::Auto => {
                         #[cfg(target_arch = "x86_64")]
                         // SAFETY: only reached when the CPU reports AVX2 (checked in
-                        // `avx2_available`).
+                        // `stereolink_image::cpu::avx2`).
                         unsafe {
                             // The default setting has a loop of its own.
                             let plain = m == 1 && right_rows.is_none();

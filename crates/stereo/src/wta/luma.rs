@@ -16,7 +16,7 @@ pub fn luma_samples_into(img: &RgbImage, bits: u32, out: &mut Samples) {
         out.reset(img.width(), img.height(), 0);
     }
     #[cfg(target_arch = "x86_64")]
-    if super::avx2_available() {
+    if stereolink_image::cpu::avx2() {
         // SAFETY: the CPU has AVX2.
         return unsafe { luma_avx2(img.as_slice(), bits, out.as_mut_slice()) };
     }

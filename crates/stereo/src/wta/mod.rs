@@ -281,16 +281,3 @@ impl WtaMatcher {
         self.compute(left, right, params, out, Right::Map(right_out));
     }
 }
-
-/// True when the AVX2 kernels can run here (the SGM kernels also use
-/// POPCNT, which every AVX2 CPU has; both are checked).
-pub fn avx2_available() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("popcnt")
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
-}
