@@ -16,8 +16,6 @@
 //! A reply (operation 5) carries the id of the command it answers, whether
 //! the station did it, and if not, why.
 
-use std::fmt;
-
 use crate::container::{self, Body};
 use crate::{Limits, Message};
 
@@ -82,19 +80,25 @@ pub enum Control {
 }
 
 /// Why a message is not a Control body this build takes.
-#[derive(Clone, Debug, PartialEq, Eq)]
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
 pub enum ControlError {
     /// The message failed the container's checks.
+    #[error("control message rejected: {0}")]
     Container(String),
     /// The message is another type (a StereoFrame or a DepthReport).
+    #[error("a {0} message, not a control message")]
     NotControl(&'static str),
     /// The body ends before its fields do.
+    #[error("control body: truncated")]
     Truncated,
     /// A body version this build does not read.
+    #[error("control body: version {0} is not supported (this build reads {CONTROL_VERSION})")]
     Version(u8),
     /// An operation this build does not know.
+    #[error("control body: unknown operation {0}")]
     Operation(u8),
     /// The argument does not fit the operation.
+    #[error("control body: operation {op}: {why}")]
     Argument {
         /// The operation code.
         op: u8,
@@ -102,26 +106,6 @@ pub enum ControlError {
         why: String,
     },
 }
-
-impl fmt::Display for ControlError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            ControlError::Container(e) => write!(f, "control message rejected: {e}"),
-            ControlError::NotControl(kind) => write!(f, "a {kind} message, not a control message"),
-            ControlError::Truncated => write!(f, "control body: truncated"),
-            ControlError::Version(v) => write!(
-                f,
-                "control body: version {v} is not supported (this build reads {CONTROL_VERSION})"
-            ),
-            ControlError::Operation(o) => write!(f, "control body: unknown operation {o}"),
-            ControlError::Argument { op, why } => {
-                write!(f, "control body: operation {op}: {why}")
-            }
-        }
-    }
-}
-
-impl std::error::Error for ControlError {}
 
 impl Command {
     /// A short name for logs and responses.

@@ -24,45 +24,34 @@ use crate::transport::{LinkStats, Notice, Transport};
 mod sealed;
 
 /// Everything that can end a send or receive.
-#[derive(Debug)]
+#[derive(Debug, thiserror::Error)]
 pub enum LinkError {
     /// The transport failed.
+    #[error("link I/O error: {0}")]
     Io(std::io::Error),
     /// The protocol gave up (deadline, abort, corruption, reassembly timeout).
+    #[error("{0}")]
     Arq(ArqError),
     /// Nothing arrived in time.
+    #[error("timed out waiting for a message")]
     Timeout,
     /// Nothing at all came back from the peer before the message deadline.
+    #[error(
+        "no answer from the peer: nothing came back in {:.0} s, the message deadline",
+        .0.as_secs_f64()
+    )]
     NoAnswer(Duration),
     /// No secure session could be set up with the peer.
+    #[error("{0}")]
     Secure(SecureError),
     /// The peer answered no handshake before the message deadline.
+    #[error(
+        "no secure session: the peer answered no handshake in {:.0} s \
+         (is it running with the matching --key/--peer-key pair?)",
+        .0.as_secs_f64()
+    )]
     NoHandshake(Duration),
 }
-
-impl std::fmt::Display for LinkError {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            LinkError::Io(e) => write!(f, "link I/O error: {e}"),
-            LinkError::Arq(e) => write!(f, "{e}"),
-            LinkError::Timeout => write!(f, "timed out waiting for a message"),
-            LinkError::NoAnswer(d) => write!(
-                f,
-                "no answer from the peer: nothing came back in {:.0} s, the message deadline",
-                d.as_secs_f64()
-            ),
-            LinkError::Secure(e) => write!(f, "{e}"),
-            LinkError::NoHandshake(d) => write!(
-                f,
-                "no secure session: the peer answered no handshake in {:.0} s \
-                 (is it running with the matching --key/--peer-key pair?)",
-                d.as_secs_f64()
-            ),
-        }
-    }
-}
-
-impl std::error::Error for LinkError {}
 
 impl From<std::io::Error> for LinkError {
     fn from(e: std::io::Error) -> Self {

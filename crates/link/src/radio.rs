@@ -172,9 +172,16 @@ pub struct RadioInfo {
 }
 
 /// Why asking the radio failed.
-#[derive(Debug)]
+#[derive(Debug, thiserror::Error)]
 pub enum RadioError {
     /// No 0x88 came back for `command` within `waited`.
+    #[error(
+        "the radio did not answer AT{} within {} ms: check that baud= matches the radio's BD, \
+         that the radio is in API mode (ATAP 1 or 2, the same as api=), and that it is powered \
+         and its DOUT/DIN reach the port; a plain cable or a radio in transparent mode needs api=0",
+        String::from_utf8_lossy(command),
+        waited.as_millis()
+    )]
     NoAnswer {
         /// The AT command asked.
         command: [u8; 2],
@@ -182,6 +189,9 @@ pub enum RadioError {
         waited: Duration,
     },
     /// The radio's `AP` differs from the link spec's `api=`.
+    #[error(
+        "the radio is in API mode {radio} (ATAP={radio}) but the link spec says api={spec}: make them equal"
+    )]
     ApiMismatch {
         /// The radio's `AP`.
         radio: u8,
@@ -189,6 +199,11 @@ pub enum RadioError {
         spec: u8,
     },
     /// A required query answered with an error status.
+    #[error(
+        "the radio answered AT{} with status {status} ({})",
+        String::from_utf8_lossy(command),
+        at_status_text(*status)
+    )]
     Refused {
         /// The AT command asked.
         command: [u8; 2],
@@ -196,36 +211,9 @@ pub enum RadioError {
         status: u8,
     },
     /// Reading or writing the port failed.
+    #[error("serial port: {0}")]
     Io(io::Error),
 }
-
-impl fmt::Display for RadioError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            RadioError::NoAnswer { command, waited } => write!(
-                f,
-                "the radio did not answer AT{} within {} ms: check that baud= matches the radio's BD, \
-                 that the radio is in API mode (ATAP 1 or 2, the same as api=), and that it is powered \
-                 and its DOUT/DIN reach the port; a plain cable or a radio in transparent mode needs api=0",
-                String::from_utf8_lossy(command),
-                waited.as_millis()
-            ),
-            RadioError::ApiMismatch { radio, spec } => write!(
-                f,
-                "the radio is in API mode {radio} (ATAP={radio}) but the link spec says api={spec}: make them equal"
-            ),
-            RadioError::Refused { command, status } => write!(
-                f,
-                "the radio answered AT{} with status {status} ({})",
-                String::from_utf8_lossy(command),
-                at_status_text(*status)
-            ),
-            RadioError::Io(e) => write!(f, "serial port: {e}"),
-        }
-    }
-}
-
-impl std::error::Error for RadioError {}
 
 impl From<RadioError> for io::Error {
     fn from(e: RadioError) -> io::Error {

@@ -167,27 +167,20 @@ pub enum Frame {
 }
 
 /// Why bytes were not a frame.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
 pub enum FrameError {
     /// The checksum did not match.
+    #[error("XBee frame checksum mismatch")]
     Checksum,
     /// The declared length exceeds [`MAX_FRAME_DATA`] or is zero.
+    #[error("XBee frame length {0} out of range")]
     Length(u16),
     /// A new start delimiter arrived before the frame was complete.
+    #[error("truncated XBee frame")]
     Truncated,
     /// The frame data is too short for its API id.
+    #[error("XBee frame 0x{0:02X} too short")]
     Short(u8),
-}
-
-impl core::fmt::Display for FrameError {
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        match self {
-            FrameError::Checksum => write!(f, "XBee frame checksum mismatch"),
-            FrameError::Length(n) => write!(f, "XBee frame length {n} out of range"),
-            FrameError::Truncated => write!(f, "truncated XBee frame"),
-            FrameError::Short(id) => write!(f, "XBee frame 0x{id:02X} too short"),
-        }
-    }
 }
 
 impl Frame {

@@ -159,29 +159,12 @@ impl<W: Write + Seek> std::fmt::Debug for Recorder<W> {
 }
 
 /// A recording that failed, naming its file.
-#[derive(Debug)]
+#[derive(Debug, thiserror::Error)]
+#[error("cannot {what} the recording {}: {source}", path.display())]
 pub struct RecordError {
     path: PathBuf,
     what: &'static str,
     source: mcap::McapError,
-}
-
-impl std::fmt::Display for RecordError {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(
-            f,
-            "cannot {} the recording {}: {}",
-            self.what,
-            self.path.display(),
-            self.source
-        )
-    }
-}
-
-impl std::error::Error for RecordError {
-    fn source(&self) -> Option<&(dyn std::error::Error + 'static)> {
-        Some(&self.source)
-    }
 }
 
 impl Recorder {

@@ -13,39 +13,25 @@ pub mod grbl;
 pub mod policy;
 pub mod sim;
 
-use std::fmt;
-
 /// Errors of the axis drivers.
-#[derive(Debug)]
+#[derive(Debug, thiserror::Error)]
 pub enum AxisError {
     /// The port failed.
+    #[error("axis port: {0}")]
     Io(std::io::Error),
     /// GRBL answered `error:N`.
+    #[error("GRBL error:{0}")]
     Grbl(u32),
     /// GRBL raised `ALARM:N`; the axis must be unlocked by the operator.
+    #[error("GRBL ALARM:{0}: the axis is locked; check it and unlock ($X)")]
     Alarm(u32),
     /// No answer in time.
+    #[error("axis did not answer {0} in time")]
     Timeout(&'static str),
     /// An unexpected answer.
+    #[error("unexpected answer from the axis: {0}")]
     Protocol(String),
 }
-
-impl fmt::Display for AxisError {
-    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
-        match self {
-            AxisError::Io(e) => write!(f, "axis port: {e}"),
-            AxisError::Grbl(n) => write!(f, "GRBL error:{n}"),
-            AxisError::Alarm(n) => write!(
-                f,
-                "GRBL ALARM:{n}: the axis is locked; check it and unlock ($X)"
-            ),
-            AxisError::Timeout(what) => write!(f, "axis did not answer {what} in time"),
-            AxisError::Protocol(s) => write!(f, "unexpected answer from the axis: {s}"),
-        }
-    }
-}
-
-impl std::error::Error for AxisError {}
 
 impl From<std::io::Error> for AxisError {
     fn from(e: std::io::Error) -> Self {

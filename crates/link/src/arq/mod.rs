@@ -66,33 +66,26 @@ pub type Micros = u64;
 pub const REMEMBERED_SESSIONS: usize = 4;
 
 /// Why a message did not get through.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
 pub enum ArqError {
     /// The message is larger than the protocol (65535 fragments) or the receiver allows.
+    #[error("message too large")]
     TooLarge,
     /// The sender's deadline passed before every fragment was acknowledged.
+    #[error("message not acknowledged before its deadline")]
     Deadline,
     /// The receiver's reassembly timed out.
+    #[error("reassembly timed out: fragments stopped arriving")]
     ReassemblyTimeout,
     /// The sender aborted the message.
+    #[error("the sender gave up on the message")]
     Aborted,
     /// The reassembled message failed its CRC-32.
+    #[error("reassembled message failed its CRC-32")]
     Corrupt,
     /// A message is already being sent.
+    #[error("a message is already in flight")]
     Busy,
-}
-
-impl core::fmt::Display for ArqError {
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        f.write_str(match self {
-            ArqError::TooLarge => "message too large",
-            ArqError::Deadline => "message not acknowledged before its deadline",
-            ArqError::ReassemblyTimeout => "reassembly timed out: fragments stopped arriving",
-            ArqError::Aborted => "the sender gave up on the message",
-            ArqError::Corrupt => "reassembled message failed its CRC-32",
-            ArqError::Busy => "a message is already in flight",
-        })
-    }
 }
 
 /// Sender parameters.

@@ -14,35 +14,21 @@ use rand::RngCore;
 use super::{public_key, Keys};
 
 /// Why a key file could not be written or read.
-#[derive(Debug)]
+#[derive(Debug, thiserror::Error)]
 pub enum KeyFileError {
     /// Reading or writing the file failed.
+    #[error("key file {path}: {error}", path = .0.display(), error = .1)]
     Io(PathBuf, std::io::Error),
     /// The file does not hold one base64 32-byte key.
+    #[error(
+        "key file {} does not hold one base64 32-byte key (make one with `stereolink keygen`)",
+        .0.display()
+    )]
     Malformed(PathBuf),
     /// The file to write exists already.
+    #[error("{} exists already; remove it first to replace the key pair", .0.display())]
     Exists(PathBuf),
 }
-
-impl std::fmt::Display for KeyFileError {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            KeyFileError::Io(p, e) => write!(f, "key file {}: {e}", p.display()),
-            KeyFileError::Malformed(p) => write!(
-                f,
-                "key file {} does not hold one base64 32-byte key (make one with `stereolink keygen`)",
-                p.display()
-            ),
-            KeyFileError::Exists(p) => write!(
-                f,
-                "{} exists already; remove it first to replace the key pair",
-                p.display()
-            ),
-        }
-    }
-}
-
-impl std::error::Error for KeyFileError {}
 
 /// Reads one key from `path`.
 pub fn read_key(path: &Path) -> Result<[u8; 32], KeyFileError> {

@@ -170,26 +170,15 @@ impl core::fmt::Display for Rejections {
 }
 
 /// Why sealing or starting a handshake failed.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
 pub enum SecureError {
     /// No established session: run a handshake first.
+    #[error("no secure session with the peer yet")]
     NoSession,
     /// The Noise library refused (bad key, no randomness).
+    #[error("the Noise handshake could not be built (bad key or no randomness)")]
     Noise,
 }
-
-impl core::fmt::Display for SecureError {
-    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
-        f.write_str(match self {
-            SecureError::NoSession => "no secure session with the peer yet",
-            SecureError::Noise => {
-                "the Noise handshake could not be built (bad key or no randomness)"
-            }
-        })
-    }
-}
-
-impl core::error::Error for SecureError {}
 
 #[cfg(test)]
 mod tests;
