@@ -5,9 +5,9 @@
 //! # Brief overview
 //!
 //! * [`labels`] codes a label map with an adaptive context model and a binary
-//!   range coder, in a fast or a strong ([`mixer`]: contexts mixed) mode;
+//!   range coder, in a fast or a strong (`mixer`: contexts mixed) mode;
 //!   the right view can be coded *conditioned on the left* (predicted
-//!   through per-block disparity shifts). [`channels`] models a label as
+//!   through per-block disparity shifts). `channels` models a label as
 //!   its colour channels' classes for the strong mode.
 //! * [`lossy`] codes unsegmented views with a stock codec (JPEG, WebP) for
 //!   the best picture per byte, and [`rate`] fits a frame in a byte budget.
@@ -18,7 +18,7 @@
 //! * [`stereo`] predicts a lossy right view from the decoded left one,
 //!   shifted by the sender's cell disparities (which the receiver then
 //!   shows as its disparity), coding only the blocks the shift misses.
-//! * [`rgb`] codes unsegmented RGB losslessly (MED predictor), so the
+//! * `rgb` codes unsegmented RGB losslessly (MED predictor), so the
 //!   original pair can be sent for comparison.
 //! * [`container`] frames [`Message`]s ([`StereoFrame`], [`DepthReport`],
 //!   [`Message::Control`]) with a header (magic, version, type, frame id,
@@ -27,6 +27,9 @@
 //!   sender's disparity as planes over the left view's segments.
 //! * [`control`] writes and reads the Control body: the commands a station
 //!   takes and its replies.
+//!
+//! The parts only the coders use (the range coder, the context mixer, the
+//! channel model, the lossless RGB coder) are private to the crate.
 //!
 //! Decoding any byte string gives either the exact message or a
 //! [`CodecError`]: sizes declared in the data are checked against [`Limits`]
@@ -44,16 +47,16 @@
 //! assert_eq!(msg, Message::DepthReport(report));
 //! ```
 
-pub mod channels;
+pub(crate) mod channels;
 pub mod container;
 pub mod control;
 pub mod labels;
 pub mod lossy;
-pub mod mixer;
+pub(crate) mod mixer;
 pub mod planetable;
-pub mod rangecoder;
+pub(crate) mod rangecoder;
 pub mod rate;
-pub mod rgb;
+pub(crate) mod rgb;
 pub mod stereo;
 pub mod temporal;
 

@@ -118,7 +118,7 @@ fn fixed(v: f32, bits: u32) -> i32 {
 impl PlaneTable {
     /// Quantises one plane `[a, b, c]` per segment as `coding` says,
     /// listing equal quantised planes once in the order of their first
-    /// segment. `ids` are the segments (as [`PlaneTable::encode`] takes
+    /// segment. `ids` are the segments (as `PlaneTable::encode` takes
     /// them): a segment that `coding` leaves implied takes its
     /// predecessor's plane here, as the receiver will.
     pub fn quantise(

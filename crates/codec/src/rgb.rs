@@ -85,18 +85,6 @@ pub fn encode(img: &RgbImage) -> Vec<u8> {
     enc.finish()
 }
 
-/// Decodes a `w`×`h` image written by [`encode`].
-pub fn decode(bytes: &[u8], w: usize, h: usize) -> Result<RgbImage, CodecError> {
-    let mut out = RgbImage::new(w, h, [0; 3]);
-    decode_into(bytes, &mut out)?;
-    Ok(out)
-}
-
-/// [`decode`] into a caller-provided image (its size gives `w`×`h`).
-pub fn decode_into(bytes: &[u8], out: &mut RgbImage) -> Result<(), CodecError> {
-    RgbDecoder::default().decode_into(bytes, out)
-}
-
 /// Decodes image after image with one model, so that a receiver decoding
 /// frame after frame allocates nothing.
 pub struct RgbDecoder {
@@ -112,7 +100,8 @@ impl Default for RgbDecoder {
 }
 
 impl RgbDecoder {
-    /// [`decode`] into a caller-provided image (its size gives `w`×`h`).
+    /// Decodes an image written by [`encode`] into a caller-provided one
+    /// (its size gives `w`×`h`).
     pub fn decode_into(&mut self, bytes: &[u8], out: &mut RgbImage) -> Result<(), CodecError> {
         self.model.reset();
         decode_with(&mut self.model, bytes, out)
@@ -161,7 +150,9 @@ mod tests {
                 s ^= s << 13; s ^= s >> 7; s ^= s << 17;
                 [(x * 9) as u8, (s >> 30) as u8, (y * 3 + x) as u8]
             });
-            prop_assert_eq!(decode(&encode(&img), w, h).unwrap(), img);
+            let mut out = RgbImage::new(w, h, [0; 3]);
+            RgbDecoder::default().decode_into(&encode(&img), &mut out).unwrap();
+            prop_assert_eq!(out, img);
         }
     }
 

@@ -1,7 +1,7 @@
 //! Lossless coding of label maps with an adaptive context model.
 //!
 //! Each pixel is coded as a short sequence of binary decisions with the
-//! [range coder](crate::rangecoder): "is it the same label as candidate i?"
+//! range coder (`rangecoder`): "is it the same label as candidate i?"
 //! over the distinct labels of a causal template of the map (W, N, NW, NE,
 //! WW, NN, NEE, NWW, NNW, NNE, WWW, NEEE) and, when the map is the right view
 //! of a pair, of the **stereo prediction** around P, the left view's label at
@@ -15,14 +15,14 @@
 //! the W label) for palettes up to 32 colours, as a binary tree above.
 //!
 //! Two [`Mode`]s: *fast* gives each decision one context; *strong* mixes
-//! nine ([`crate::mixer`]: the two masks at three sizes, an outer ring of
+//! nine (`mixer`: the two masks at three sizes, an outer ring of
 //! the template, runs, the equalities among the neighbours and three hashes
 //! of labels) and, for palettes of per-channel classes, four
-//! [channel models](crate::channels), with two weight sets averaged,
-//! refines the result with an [`Apm`](crate::mixer::Apm), and mixes the
+//! channel models (`channels`), with two weight sets averaged,
+//! refines the result with an `Apm`, and mixes the
 //! missed-label decisions too: smaller, and far slower to decode, so fast
 //! is the default (docs/tuning.md, “The fast mode is the default”).
-//! Probabilities are [`Counter`](crate::rangecoder::Counter)s, which learn
+//! Probabilities are `Counter`s, which learn
 //! fast in rare contexts.
 //! `docs/wire-format.md` specifies the stream bit for bit.
 //!
@@ -175,7 +175,7 @@ fn code_rows<I: BitIo, const STRONG: bool, const COND: bool>(
 }
 
 /// Codes `map` (labels index `palette`, whose colours inform the strong
-/// mode's [channel models](crate::channels)); with `reference`, predicts
+/// mode's channel models (`channels`)); with `reference`, predicts
 /// from it through per-block shifts searched up to `max_shift`.
 pub fn encode(
     map: &LabelMap,
