@@ -1,14 +1,39 @@
 //! The report's HTML page: the summary tables and charts against the
 //! paper's figures, then each scene's images and tables. Rendering only:
 //! every number comes from the [`Report`] that `report` computed.
+//!
+//! The page is written with `maud`'s templates, which escape every value
+//! they insert (scene names come from folder names); the charts come from
+//! [`svg`], which escapes its own text.
 
-use super::{img_name, methods, paper, svg, MatchResult, Report, SegResult, LEVELS, SEED};
+use maud::{html, Markup, PreEscaped, DOCTYPE};
+
+use super::{
+    img_name, methods, paper, svg, MatchResult, Report, SceneReport, SegResult, LEVELS, SEED,
+};
+
+/// The page's style sheet.
+const STYLE: &str = "body{font-family:sans-serif;margin:24px;max-width:1400px;color:#222}\
+table{border-collapse:collapse;margin:8px 0 20px}\
+td,th{border:1px solid #ccc;padding:3px 7px;text-align:right}th{background:#f0f0f0}\
+td.best{font-weight:bold;background:#e6f4e6}\
+.imgs img{height:150px;margin:2px;image-rendering:pixelated}\
+.imgs figure{display:inline-block;margin:4px;text-align:center;font-size:12px}";
+
+/// Marks the page once its images have loaded, with how many did (the
+/// report's browser test reads it).
+const IMAGES_LOADED: &str = "window.addEventListener('load',()=>{const im=[...document.images];\
+document.body.dataset.imagesTotal=im.length;\
+document.body.dataset.imagesOk=im.filter(i=>i.complete&&i.naturalWidth>0).length;});";
+
+/// The matchers, in the tables' order.
+const ALGOS: [&str; 4] = ["wta", "lg", "sgm", "planes"];
 
 /// The headline on the plane matcher: does any segmentation's planes beat
 /// the over-segmentation of the original pair (mean bad > 1 px)?
-fn planes_headline(inputs: &[String], bad: impl Fn(&str) -> Option<f64>) -> String {
+fn planes_headline(inputs: &[String], bad: impl Fn(&str) -> Option<f64>) -> Markup {
     let Some(original) = bad("original") else {
-        return String::new();
+        return html! {};
     };
     let best = inputs
         .iter()
@@ -17,14 +42,14 @@ fn planes_headline(inputs: &[String], bad: impl Fn(&str) -> Option<f64>) -> Stri
         .min_by(|a, b| a.1.total_cmp(&b.1));
     let verdict = match best {
         Some((i, b)) if b < original => format!(
-            "yes: planes over the {i} segments give {b:.2} % bad &gt; 1 px against {original:.2} % over the over-segmented original"
+            "yes: planes over the {i} segments give {b:.2} % bad > 1 px against {original:.2} % over the over-segmented original"
         ),
         Some((i, b)) => format!(
-            "no: the best segmentation ({i}) gives {b:.2} % bad &gt; 1 px against {original:.2} % over the over-segmented original"
+            "no: the best segmentation ({i}) gives {b:.2} % bad > 1 px against {original:.2} % over the over-segmented original"
         ),
         None => format!("no segmented input was scored (original {original:.2} %)"),
     };
-    format!("<p><b>Does segmenting first help when the segments carry planes?</b> {verdict}.</p>")
+    html! { p { b { "Does segmenting first help when the segments carry planes?" } " " (verdict) "." } }
 }
 
 fn mean(v: impl Iterator<Item = f64>) -> Option<f64> {
@@ -37,7 +62,7 @@ fn f(v: Option<f64>, digits: usize) -> String {
 }
 
 /// A table whose best value per numeric column is marked (`lower` says which way is better per column).
-fn table(head: &[&str], rows: &[Vec<String>], lower: &[Option<bool>]) -> String {
+fn table(head: &[&str], rows: &[Vec<String>], lower: &[Option<bool>]) -> Markup {
     let mut best: Vec<Option<f64>> = vec![None; head.len()];
     for (c, dir) in lower.iter().enumerate() {
         if let Some(low) = dir {
@@ -55,33 +80,62 @@ fn table(head: &[&str], rows: &[Vec<String>], lower: &[Option<bool>]) -> String 
                 });
         }
     }
-    let mut s = String::from("<table><tr>");
-    for h in head {
-        s += &format!("<th>{h}</th>");
-    }
-    s += "</tr>";
-    for r in rows {
-        s += "<tr>";
-        for (c, v) in r.iter().enumerate() {
-            let is_best = best
-                .get(c)
-                .copied()
-                .flatten()
-                .is_some_and(|b| v.parse::<f64>().ok() == Some(b));
-            s += &if is_best {
-                format!("<td class=best>{v}</td>")
-            } else {
-                format!("<td>{v}</td>")
-            };
+    let is_best = |c: usize, v: &str| {
+        best.get(c)
+            .copied()
+            .flatten()
+            .is_some_and(|b| v.parse::<f64>().ok() == Some(b))
+    };
+    html! {
+        table {
+            tr { @for h in head { th { (h) } } }
+            @for r in rows {
+                tr {
+                    @for (c, v) in r.iter().enumerate() {
+                        @if is_best(c, v) { td.best { (v) } } @else { td { (v) } }
+                    }
+                }
+            }
         }
-        s += "</tr>";
     }
-    s + "</table>"
 }
 
 /// The page: the summary tables and charts, then each scene's images and tables.
 pub(super) fn page(r: &Report) -> String {
     let names: Vec<String> = methods().iter().map(|m| m.name().to_string()).collect();
+    let inputs: Vec<String> = std::iter::once("original".to_string())
+        .chain(names.iter().cloned())
+        .collect();
+    html! {
+        (DOCTYPE)
+        html {
+            head {
+                meta charset="utf-8";
+                title { "stereolink report" }
+                style { (PreEscaped(STYLE)) }
+            }
+            body {
+                h1 { "stereolink: the paper's experiments, rerun" }
+                p {
+                    (r.scenes.len()) " scenes in " (format!("{:.0}", r.seconds)) " s. Segmentation: "
+                    (LEVELS) " classes (k-means k = " (LEVELS) "; " (LEVELS)
+                    " levels per channel for the thresholding methods), seed " (SEED)
+                    ". Matching scored against the ground truth: bad > 1 px over non-occluded \
+                     pixels, dense output (invalid counts as bad). Best value per column in bold."
+                }
+                (segmentation_summary(r, &names))
+                (matching_summary(r, &inputs))
+                @for s in &r.scenes { (scene(s, &names, &inputs)) }
+                script { (PreEscaped(IMAGES_LOADED)) }
+            }
+        }
+    }
+    .into_string()
+}
+
+/// Table IV and Figs. 12 and 26: each method's means over the scenes, and
+/// the paper's.
+fn segmentation_summary(r: &Report, names: &[String]) -> Markup {
     let seg = |m: &str, f: fn(&SegResult) -> f64| {
         mean(r.scenes.iter().filter_map(|s| s.segmentation.get(m)).map(f))
     };
@@ -101,21 +155,6 @@ pub(super) fn page(r: &Report) -> String {
             None => "–".into(),
         }
     };
-    let mut page = String::from(
-        "<!doctype html><html><head><meta charset=utf-8><title>stereolink report</title><style>\
-         body{font-family:sans-serif;margin:24px;max-width:1400px;color:#222}table{border-collapse:collapse;margin:8px 0 20px}\
-         td,th{border:1px solid #ccc;padding:3px 7px;text-align:right}th{background:#f0f0f0}td.best{font-weight:bold;background:#e6f4e6}\
-         .imgs img{height:150px;margin:2px;image-rendering:pixelated}.imgs figure{display:inline-block;margin:4px;text-align:center;font-size:12px}\
-         </style></head><body>",
-    );
-    page += &format!(
-        "<h1>stereolink: the paper's experiments, rerun</h1><p>{} scenes in {:.0} s. Segmentation: {LEVELS} classes (k-means k = {LEVELS}; \
-         {LEVELS} levels per channel for the thresholding methods), seed {SEED}. Matching scored against the ground truth: bad &gt; 1 px over \
-         non-occluded pixels, dense output (invalid counts as bad). Best value per column in bold.</p>",
-        r.scenes.len(),
-        r.seconds
-    );
-    // Summary: Table IV and Fig. 12.
     let rows: Vec<Vec<String>> = names
         .iter()
         .map(|m| {
@@ -144,94 +183,67 @@ pub(super) fn page(r: &Report) -> String {
             ]
         })
         .collect();
-    page += "<h2>Segmentation (Table IV, Fig. 12, Fig. 26), means over the scenes</h2>";
-    page += &table(
-        &[
-            "method",
-            "PSNR dB",
-            "PSNR on the paper's scenes",
-            "paper PSNR",
-            "difference",
-            "reduction %",
-            "paper 95 % CI",
-            "coded pair B",
-            "WebP PSNR dB in those bytes",
-            "JPEG PSNR dB in those bytes",
-            "time ms",
-        ],
-        &rows,
-        &[
-            None,
-            Some(false),
-            Some(false),
-            None,
-            None,
-            Some(false),
-            None,
-            Some(true),
-            None,
-            None,
-            Some(true),
-        ],
-    );
-    let cats: Vec<String> = names.clone();
-    page += &svg::bars(
+    let head = [
+        "method",
+        "PSNR dB",
+        "PSNR on the paper's scenes",
+        "paper PSNR",
+        "difference",
+        "reduction %",
+        "paper 95 % CI",
+        "coded pair B",
+        "WebP PSNR dB in those bytes",
+        "JPEG PSNR dB in those bytes",
+        "time ms",
+    ];
+    let (lower, higher, none) = (Some(true), Some(false), None);
+    let lower = [
+        none, higher, higher, none, none, higher, none, lower, none, none, lower,
+    ];
+    let of = |f: &dyn Fn(&str) -> Option<f64>| names.iter().map(|m| f(m)).collect::<Vec<_>>();
+    let psnr = svg::bars(
         "PSNR of the segmented left view (dB)",
         "dB",
-        &cats,
+        names,
         &[
-            (
-                "ours".into(),
-                names.iter().map(|m| seg(m, |s| s.psnr_db)).collect(),
-            ),
-            (
-                "paper".into(),
-                names.iter().map(|m| paper_psnr(m)).collect(),
-            ),
+            ("ours".into(), of(&|m| seg(m, |s| s.psnr_db))),
+            ("paper".into(), of(&paper_psnr)),
         ],
     );
-    page += &svg::bars(
+    let reduction = svg::bars(
         "Size reduction against the original PNG pair (%)",
         "%",
-        &cats,
+        names,
         &[
-            (
-                "ours".into(),
-                names
-                    .iter()
-                    .map(|m| seg(m, |s| s.reduction_percent))
-                    .collect(),
-            ),
+            ("ours".into(), of(&|m| seg(m, |s| s.reduction_percent))),
             (
                 "paper CI low".into(),
-                names
-                    .iter()
-                    .map(|m| paper::reduction_ci(m).map(|c| c.0))
-                    .collect(),
+                of(&|m| paper::reduction_ci(m).map(|c| c.0)),
             ),
             (
                 "paper CI high".into(),
-                names
-                    .iter()
-                    .map(|m| paper::reduction_ci(m).map(|c| c.1))
-                    .collect(),
+                of(&|m| paper::reduction_ci(m).map(|c| c.1)),
             ),
         ],
     );
-    page += &svg::bars(
+    let time = svg::bars(
         "Segmentation time of both views (ms)",
         "ms",
-        &cats,
-        &[(
-            "ours".into(),
-            names.iter().map(|m| seg(m, |s| s.time_ms)).collect(),
-        )],
+        names,
+        &[("ours".into(), of(&|m| seg(m, |s| s.time_ms)))],
     );
-    // Matching summary.
-    let inputs: Vec<String> = std::iter::once("original".to_string())
-        .chain(names.iter().cloned())
-        .collect();
-    let algos = ["wta", "lg", "sgm", "planes"];
+    html! {
+        h2 { "Segmentation (Table IV, Fig. 12, Fig. 26), means over the scenes" }
+        (table(&head, &rows, &lower))
+        (PreEscaped(psnr))
+        (PreEscaped(reduction))
+        (PreEscaped(time))
+    }
+}
+
+/// Tables V and VI and Fig. 27: each matcher on each input, means over the
+/// scenes, and accuracy against time per scene.
+fn matching_summary(r: &Report, inputs: &[String]) -> Markup {
     let m = |input: &str, algo: &str, f: fn(&MatchResult) -> Option<f64>| {
         mean(
             r.scenes
@@ -244,60 +256,42 @@ pub(super) fn page(r: &Report) -> String {
         .iter()
         .map(|i| {
             let mut row = vec![i.clone()];
-            for a in algos {
+            for a in ALGOS {
                 row.push(f(m(i, a, |x| x.bad1_nonocc), 2));
             }
-            for a in algos {
+            for a in ALGOS {
                 row.push(f(m(i, a, |x| Some(x.levels as f64)), 1));
             }
-            for a in algos {
+            for a in ALGOS {
                 row.push(f(m(i, a, |x| Some(x.time_ms)), 1));
             }
             row
         })
         .collect();
-    page += "<h2>Matching (Tables V and VI, Fig. 27), means over the scenes</h2><p>Does segmenting first help matching? \
-             Compare each segmented input's bad-pixel rate with the original pair's. The planes column matches the original \
-             pair with a plane per segment of that input (the original: a mean shift over-segmentation).</p>";
-    page += &planes_headline(&inputs, |i| m(i, "planes", |x| x.bad1_nonocc));
-    page += &table(
-        &[
-            "input",
-            "WTA bad1 %",
-            "LG bad1 %",
-            "SGM bad1 %",
-            "Planes bad1 %",
-            "WTA levels",
-            "LG levels",
-            "SGM levels",
-            "Planes levels",
-            "WTA ms",
-            "LG ms",
-            "SGM ms",
-            "Planes ms",
-        ],
-        &rows,
-        &[
-            None,
-            Some(true),
-            Some(true),
-            Some(true),
-            Some(true),
-            None,
-            None,
-            None,
-            None,
-            Some(true),
-            Some(true),
-            Some(true),
-            Some(true),
-        ],
-    );
-    page += &svg::scatter(
+    let head = [
+        "input",
+        "WTA bad1 %",
+        "LG bad1 %",
+        "SGM bad1 %",
+        "Planes bad1 %",
+        "WTA levels",
+        "LG levels",
+        "SGM levels",
+        "Planes levels",
+        "WTA ms",
+        "LG ms",
+        "SGM ms",
+        "Planes ms",
+    ];
+    let (lower, none) = (Some(true), None);
+    let lower = [
+        none, lower, lower, lower, lower, none, none, none, none, lower, lower, lower, lower,
+    ];
+    let scatter = svg::scatter(
         "Accuracy against time, per scene and input",
         "matching time (ms)",
         "bad > 1 px (%)",
-        &algos
+        &ALGOS
             .iter()
             .map(|a| {
                 let pts = r
@@ -314,86 +308,81 @@ pub(super) fn page(r: &Report) -> String {
             })
             .collect::<Vec<_>>(),
     );
-    // Per scene.
-    for s in &r.scenes {
-        page += &format!(
-            "<h2 id=\"{0}\">{0} ({1}x{2}, {3} disparities)</h2><div class=imgs>",
-            s.name, s.size.0, s.size.1, s.ndisp
-        );
-        let fig = |what: &str, cap: &str| {
-            format!(
-                "<figure><img src=\"{}\" alt=\"{cap}\"><figcaption>{cap}</figcaption></figure>",
-                img_name(&s.name, what)
-            )
-        };
-        page += &fig("left", "left view");
-        page += &fig("anaglyph", "anaglyph (Dubois)");
-        for n in &names {
-            page += &fig(&format!("seg-{n}"), n);
+    html! {
+        h2 { "Matching (Tables V and VI, Fig. 27), means over the scenes" }
+        p {
+            "Does segmenting first help matching? Compare each segmented input's bad-pixel rate \
+             with the original pair's. The planes column matches the original pair with a plane \
+             per segment of that input (the original: a mean shift over-segmentation)."
         }
-        page += "<br>";
-        for input in ["original", "fodpso"] {
-            for a in algos {
-                page += &fig(&format!("disp-{input}-{a}"), &format!("{a} on {input}"));
+        (planes_headline(inputs, |i| m(i, "planes", |x| x.bad1_nonocc)))
+        (table(&head, &rows, &lower))
+        (PreEscaped(scatter))
+    }
+}
+
+/// One scene: its images, then its segmentation and matching tables.
+fn scene(s: &SceneReport, names: &[String], inputs: &[String]) -> Markup {
+    let fig = |what: &str, cap: &str| {
+        html! {
+            figure {
+                img src=(img_name(&s.name, what)) alt=(cap);
+                figcaption { (cap) }
             }
         }
-        if s.matching["original"]["sgm"].bad1_nonocc.is_some() {
-            page += &fig("error-sgm", "SGM errors (red: > 1 px)");
+    };
+    let segmentation: Vec<Vec<String>> = names
+        .iter()
+        .map(|n| {
+            let x = &s.segmentation[n];
+            vec![
+                n.clone(),
+                format!("{:.2}", x.psnr_db),
+                f(x.paper_psnr_db, 2),
+                format!("{:.2}", x.reduction_percent),
+                x.coded_bytes.to_string(),
+                x.classes.to_string(),
+                format!("{:.1}", x.time_ms),
+            ]
+        })
+        .collect();
+    let matching: Vec<Vec<String>> = inputs
+        .iter()
+        .map(|i| {
+            let mut row = vec![i.clone()];
+            for a in ALGOS {
+                let x = &s.matching[i][a];
+                row.push(f(x.bad1_nonocc, 2));
+                row.push(format!(
+                    "{}{}",
+                    x.levels,
+                    x.paper_levels.map_or(String::new(), |p| format!(" ({p})"))
+                ));
+            }
+            row
+        })
+        .collect();
+    let (lower, higher, none) = (Some(true), Some(false), None);
+    html! {
+        h2 id=(s.name) { (s.name) " (" (s.size.0) "x" (s.size.1) ", " (s.ndisp) " disparities)" }
+        div.imgs {
+            (fig("left", "left view"))
+            (fig("anaglyph", "anaglyph (Dubois)"))
+            @for n in names { (fig(&format!("seg-{n}"), n)) }
+            br;
+            @for input in ["original", "fodpso"] {
+                @for a in ALGOS { (fig(&format!("disp-{input}-{a}"), &format!("{a} on {input}"))) }
+            }
+            @if s.matching["original"]["sgm"].bad1_nonocc.is_some() {
+                (fig("error-sgm", "SGM errors (red: > 1 px)"))
+            }
         }
-        page += "</div>";
-        let rows: Vec<Vec<String>> = names
-            .iter()
-            .map(|n| {
-                let x = &s.segmentation[n];
-                vec![
-                    n.clone(),
-                    format!("{:.2}", x.psnr_db),
-                    f(x.paper_psnr_db, 2),
-                    format!("{:.2}", x.reduction_percent),
-                    x.coded_bytes.to_string(),
-                    x.classes.to_string(),
-                    format!("{:.1}", x.time_ms),
-                ]
-            })
-            .collect();
-        page += &table(
-            &[
-                "method",
-                "PSNR dB",
-                "paper",
-                "reduction %",
-                "bytes",
-                "classes",
-                "ms",
-            ],
-            &rows,
-            &[
-                None,
-                Some(false),
-                None,
-                Some(false),
-                Some(true),
-                None,
-                Some(true),
-            ],
-        );
-        let rows: Vec<Vec<String>> = inputs
-            .iter()
-            .map(|i| {
-                let mut row = vec![i.clone()];
-                for a in algos {
-                    let x = &s.matching[i][a];
-                    row.push(f(x.bad1_nonocc, 2));
-                    row.push(format!(
-                        "{}{}",
-                        x.levels,
-                        x.paper_levels.map_or(String::new(), |p| format!(" ({p})"))
-                    ));
-                }
-                row
-            })
-            .collect();
-        page += &table(
+        (table(
+            &["method", "PSNR dB", "paper", "reduction %", "bytes", "classes", "ms"],
+            &segmentation,
+            &[none, higher, none, higher, lower, none, lower],
+        ))
+        (table(
             &[
                 "input",
                 "WTA bad1 %",
@@ -405,22 +394,8 @@ pub(super) fn page(r: &Report) -> String {
                 "Planes bad1 %",
                 "Planes levels",
             ],
-            &rows,
-            &[
-                None,
-                Some(true),
-                None,
-                Some(true),
-                None,
-                Some(true),
-                None,
-                Some(true),
-                None,
-            ],
-        );
+            &matching,
+            &[none, lower, none, lower, none, lower, none, lower, none],
+        ))
     }
-    page += "<script>window.addEventListener('load',()=>{const im=[...document.images];\
-             document.body.dataset.imagesTotal=im.length;\
-             document.body.dataset.imagesOk=im.filter(i=>i.complete&&i.naturalWidth>0).length;});</script></body></html>";
-    page
 }

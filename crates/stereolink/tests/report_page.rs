@@ -17,8 +17,10 @@ use stereolink_segment::segment;
 fn report_on_synthetic_scenes_opens_in_chromium() {
     let dir = tempfile::tempdir().unwrap();
     let data = dir.path().join("data");
-    for seed in ["1", "2"] {
-        let s = data.join(format!("synth{seed}"));
+    // The second scene's folder name holds HTML's special characters: the
+    // page must show it as text, and its images must still load.
+    for (seed, name) in [("1", "synth1"), ("2", "synth<2>&'\"")] {
+        let s = data.join(name);
         run_ok(&[
             "synth",
             s.to_str().unwrap(),
@@ -45,6 +47,7 @@ fn report_on_synthetic_scenes_opens_in_chromium() {
         html.matches("<table>").count() >= 2 + 2 * 2,
         "tables missing"
     );
+    assert!(html.contains("synth&lt;2&gt;&amp;'&quot;") && !html.contains("<2>"));
     let json: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("report.json")).unwrap()).unwrap();
     assert_eq!(json["scenes"].as_array().unwrap().len(), 2);
