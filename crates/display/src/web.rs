@@ -6,10 +6,15 @@
 //! a loopback address anyone on the machine may look; on any other address
 //! every request must carry `?token=T`, a random token drawn at start and
 //! given in [`WebViewer::url`], or it is answered 403.
+//!
+//! HTTP is `tiny_http`'s (keep-alive, request parsing with bounded
+//! headers); [`WORKERS`] threads answer, so one slow client does not hold
+//! up the others.
 
-use std::io::{self, BufRead, BufReader, Write};
-use std::net::{TcpListener, TcpStream};
+use std::io;
 use std::sync::{Arc, Mutex};
+
+use tiny_http::{Header, Request, Response, Server};
 
 use stereolink_image::{io as imgio, RgbImage};
 
@@ -36,6 +41,9 @@ setInterval(tick, 500); tick();
 </script></body></html>
 "#;
 
+/// Threads answering requests.
+pub const WORKERS: usize = 4;
+
 #[derive(Default)]
 struct State {
     png: Vec<u8>,
@@ -53,8 +61,11 @@ pub struct WebViewer {
 impl WebViewer {
     /// Starts serving on `addr` (e.g. `127.0.0.1:8080`; port 0 picks one).
     pub fn start(addr: &str) -> io::Result<Self> {
-        let listener = TcpListener::bind(addr)?;
-        let local = listener.local_addr()?;
+        let server = Arc::new(Server::http(addr).map_err(io::Error::other)?);
+        let local = server
+            .server_addr()
+            .to_ip()
+            .ok_or_else(|| io::Error::other("the viewer is not on an IP address"))?;
         let token = match local.ip().is_loopback() {
             true => None,
             false => Some(random_token()?),
@@ -64,12 +75,14 @@ impl WebViewer {
             png: imgio::encode_png_rgb(&RgbImage::new(480, 272, [16, 18, 24])),
             status: "{\"frame_id\":0}".into(),
         }));
-        let (shared, required) = (state.clone(), token.clone());
-        std::thread::spawn(move || {
-            for stream in listener.incoming().flatten() {
-                let _ = serve(stream, &shared, required.as_deref());
-            }
-        });
+        for _ in 0..WORKERS {
+            let (server, shared, required) = (server.clone(), state.clone(), token.clone());
+            std::thread::spawn(move || {
+                for request in server.incoming_requests() {
+                    let _ = answer(request, &shared, required.as_deref());
+                }
+            });
+        }
         Ok(WebViewer { addr, token, state })
     }
 
@@ -103,51 +116,39 @@ fn authorised(query: &str, token: Option<&str>) -> bool {
     })
 }
 
-fn serve(mut stream: TcpStream, state: &Mutex<State>, token: Option<&str>) -> io::Result<()> {
-    stream.set_read_timeout(Some(std::time::Duration::from_secs(2)))?;
-    let mut line = String::new();
-    BufReader::new(&stream).take_line(&mut line)?;
-    let target = line.split_whitespace().nth(1).unwrap_or("/");
-    let (path, query) = target.split_once('?').unwrap_or((target, ""));
+fn answer(request: Request, state: &Mutex<State>, token: Option<&str>) -> io::Result<()> {
+    let target = request.url().to_string();
+    let (path, query) = target.split_once('?').unwrap_or((&target, ""));
     let path = if authorised(query, token) {
         path
     } else {
         "forbidden"
     };
-    let (status, kind, body): (&str, &str, Vec<u8>) = {
+    let (status, kind, body): (u16, &str, Vec<u8>) = {
         let s = state
             .lock()
             .map_err(|_| io::Error::other("viewer state poisoned"))?;
         match path {
-            "/" | "/index.html" => (
-                "200 OK",
-                "text/html; charset=utf-8",
-                PAGE.as_bytes().to_vec(),
-            ),
-            "/screen.png" => ("200 OK", "image/png", s.png.clone()),
-            "/status.json" => ("200 OK", "application/json", s.status.clone().into_bytes()),
+            "/" | "/index.html" => (200, "text/html; charset=utf-8", PAGE.as_bytes().to_vec()),
+            "/screen.png" => (200, "image/png", s.png.clone()),
+            "/status.json" => (200, "application/json", s.status.clone().into_bytes()),
             "forbidden" => (
-                "403 Forbidden",
+                403,
                 "text/plain",
                 b"this viewer needs the token printed at its start: open the URL given there"
                     .to_vec(),
             ),
-            _ => ("404 Not Found", "text/plain", b"not found".to_vec()),
+            _ => (404, "text/plain", b"not found".to_vec()),
         }
     };
-    write!(stream, "HTTP/1.1 {status}\r\nContent-Type: {kind}\r\nContent-Length: {}\r\nCache-Control: no-store\r\nConnection: close\r\n\r\n", body.len())?;
-    stream.write_all(&body)
-}
-
-/// Reads one line, bounded, so a client cannot make the server buffer without limit.
-trait TakeLine {
-    fn take_line(self, line: &mut String) -> io::Result<usize>;
-}
-
-impl<R: BufRead> TakeLine for R {
-    fn take_line(self, line: &mut String) -> io::Result<usize> {
-        io::Read::take(self, 8192).read_line(line)
-    }
+    let header = |name: &str, value: &str| {
+        Header::from_bytes(name.as_bytes(), value.as_bytes()).expect("a valid header")
+    };
+    let response = Response::from_data(body)
+        .with_status_code(status)
+        .with_header(header("Content-Type", kind))
+        .with_header(header("Cache-Control", "no-store"));
+    request.respond(response)
 }
 
 impl Sink for WebViewer {
@@ -171,11 +172,16 @@ impl Sink for WebViewer {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use std::io::Read;
+    use std::io::{Read, Write};
+    use std::net::TcpStream;
 
     fn get(addr: &str, path: &str) -> (String, Vec<u8>) {
         let mut s = TcpStream::connect(addr).unwrap();
-        write!(s, "GET {path} HTTP/1.1\r\nHost: x\r\n\r\n").unwrap();
+        write!(
+            s,
+            "GET {path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n"
+        )
+        .unwrap();
         let mut buf = Vec::new();
         s.read_to_end(&mut buf).unwrap();
         let split = buf.windows(4).position(|w| w == b"\r\n\r\n").unwrap();
