@@ -338,20 +338,11 @@ fn report(frame_id: u32, distance_m: f32) -> Vec<u8> {
     container::encode(&Message::DepthReport(r), frame_id, 0)
 }
 
-/// The number after `key` in `text` (up to the next space).
-fn number_after(text: &str, key: &str) -> f64 {
-    let at = text
-        .find(key)
-        .unwrap_or_else(|| panic!("no {key:?} in:\n{text}"))
-        + key.len();
-    text[at..].split(' ').next().unwrap().parse().unwrap()
-}
-
 #[test]
 fn receive_stops_its_axis_on_an_axis_stop_and_holds_it() {
     let (port, peer_port) = (free_port(), free_port());
     let mut peer = Peer::udp(peer_port, &format!("127.0.0.1:{port}"), None, PATIENCE);
-    let child = common::spawn_udp_receiver(peer_port, port, &["--timeout-s", "2"]);
+    let child = common::spawn_udp_receiver(peer_port, port, &["--timeout-s", "2", "--json"]);
     // Sent to 800 mm at 50 mm/s: 16 s of travel, unless stopped.
     peer.send(&report(1, 0.8));
     std::thread::sleep(Duration::from_millis(300));
@@ -363,30 +354,44 @@ fn receive_stops_its_axis_on_an_axis_stop_and_holds_it() {
         0,
     ));
     peer.send(&report(2, 0.9));
-    let (out, err) = peer.wait(child, "receive");
+    let (out, _) = peer.wait(child, "receive");
+    let got = common::json_text(&out);
+    let events = got["events"].as_array().unwrap();
+    let report = |id: u64| {
+        events
+            .iter()
+            .find(|e| e["Report"]["frame_id"] == id)
+            .map(|e| &e["Report"])
+            .unwrap_or_else(|| panic!("no report {id}: {got}"))
+    };
+    let command = |id: u64| {
+        events
+            .iter()
+            .find(|e| e["Command"]["id"] == id)
+            .map(|e| &e["Command"])
+            .unwrap_or_else(|| panic!("no command {id}: {got}"))
+    };
+    let to = report(1)["commanded_mm"].as_f64().unwrap();
+    assert!((to - 800.0).abs() < 1e-3, "{got}");
+    assert_eq!(command(1)["command"], "axis stop");
+    assert!(command(1)["result"].get("Ok").is_some(), "{got}");
+    // Held: the later report does not move the axis.
+    assert_eq!(report(2)["held"], true, "{got}");
+    assert!(report(2)["commanded_mm"].is_null(), "{got}");
+    let refused = command(2)["result"]["Err"].as_str().unwrap_or_default();
     assert!(
-        out.contains("report 1: distance 0.800 m, axis to 800.0 mm"),
-        "{out}"
-    );
-    let stopped = number_after(&out, "command 1 (axis stop): done, axis at ");
-    assert!(
-        out.contains("report 2: distance 0.900 m, axis held (stopped by command)"),
-        "{out}"
-    );
-    let settled = number_after(&out, "\naxis at ");
-    assert!(stopped < 100.0, "stopped at {stopped} mm:\n{out}");
-    assert!(
-        (settled - stopped).abs() < 5.0,
-        "stopped at {stopped} mm, settled at {settled} mm:\n{out}"
+        refused.contains("the board takes only an axis stop"),
+        "{got}"
     );
     assert!(
-        err.contains("command 2 (levels 4): refused: the board takes only an axis stop"),
-        "{err}"
+        events.iter().any(|e| e["Rejected"]
+            .as_str()
+            .is_some_and(|r| r.contains("control body: operation 1: takes no argument"))),
+        "{got}"
     );
-    assert!(
-        err.contains("control body: operation 1: takes no argument"),
-        "{err}"
-    );
+    // Stopped early (0.3 s at 50 mm/s, about 15 mm) and held there to the end.
+    let settled = got["summary"]["axis_mm"].as_f64().unwrap();
+    assert!(settled < 100.0, "settled at {settled} mm: {got}");
 }
 
 /// A link that goes quiet mid-move: the watchdog stops the axis within its

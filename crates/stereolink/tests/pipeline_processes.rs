@@ -11,18 +11,11 @@ use std::time::Duration;
 
 use common::xbee::{Firmware, RadioLink, Timing};
 use common::{
-    finish, finish_with_stderr, free_port, send_args, spawn, spawn_udp_receiver, strings, synth,
+    finish, finish_with_stderr, free_port, json_text, send_args, spawn, spawn_udp_receiver,
+    strings, synth,
 };
+use serde_json::Value;
 use stereolink_image::io;
-
-/// The number printed right after `word` in `text`.
-fn number_after(text: &str, word: &str) -> f64 {
-    let rest = text
-        .split(word)
-        .nth(1)
-        .unwrap_or_else(|| panic!("no {word:?} in {text}"));
-    rest.split(' ').next().unwrap().parse().unwrap()
-}
 
 /// Where the board's disparity comes from in [`run_pair`].
 #[derive(Clone, Copy, PartialEq)]
@@ -34,6 +27,21 @@ enum Board {
     Planes,
 }
 
+/// The distance `send --json` reported for its first frame, metres.
+fn reported_m(sent: &Value) -> f64 {
+    sent["frames"][0]["distance_m"].as_f64().unwrap()
+}
+
+/// Where `receive --json`'s first depth report sent the axis, mm.
+fn commanded_mm(got: &Value) -> f64 {
+    got["events"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find_map(|e| e["Report"]["commanded_mm"].as_f64())
+        .unwrap_or_else(|| panic!("no report moved the axis: {got}"))
+}
+
 /// Runs one `receive` and one `send` of a synthetic pair; returns what the
 /// sender said on stderr.
 fn run_pair(rx_link: String, tx_link: String, board: Board) -> String {
@@ -42,6 +50,7 @@ fn run_pair(rx_link: String, tx_link: String, board: Board) -> String {
     synth(&scene);
     let (shots, saved) = (dir.path().join("screens"), dir.path().join("saved"));
     let mut rx_args = strings(&[
+        "--json",
         "receive",
         "--link",
         &rx_link,
@@ -68,6 +77,7 @@ fn run_pair(rx_link: String, tx_link: String, board: Board) -> String {
     std::thread::sleep(Duration::from_millis(200));
     let mut tx_args = send_args(&tx_link, &scene);
     tx_args.extend(strings(&[
+        "--json",
         "--save",
         saved.to_str().unwrap(),
         "--method",
@@ -107,20 +117,18 @@ fn run_pair(rx_link: String, tx_link: String, board: Board) -> String {
         io::read_rgb(shots.join("screen.png")).unwrap().dims(),
         (480, 272)
     );
-    // The axis went to the reported distance (clamped to its 1 m travel),
-    // within 0.5 mm. The logs print the sender's distance to the millimetre
-    // (off by up to 0.5 mm) and the receiver's commanded position to a tenth
-    // (off by up to 0.05 mm), so each comparison allows its rounding on top.
-    let distance = number_after(&sent, "distance ");
-    let commanded = number_after(&got, "axis to ");
-    let axis = number_after(&got, "axis at ");
-    let reported = (distance * 1000.0).min(1000.0);
+    // The axis was sent to the reported distance (clamped to its 1 m
+    // travel), and went there within 0.5 mm.
+    let (sent, got) = (json_text(&sent), json_text(&got));
+    let reported = (reported_m(&sent) * 1000.0).min(1000.0);
+    let commanded = commanded_mm(&got);
+    let axis = got["summary"]["axis_mm"].as_f64().unwrap();
     assert!(
-        (commanded - reported).abs() <= 0.5 + 0.05,
+        (commanded - reported).abs() <= 1e-3,
         "axis sent to {commanded} mm for {reported} mm ({sent} / {got})"
     );
     assert!(
-        (axis - commanded).abs() <= 0.5 + 0.05,
+        (axis - commanded).abs() <= 0.5,
         "axis {axis} mm for {commanded} mm ({sent} / {got})"
     );
     said
@@ -157,14 +165,18 @@ fn a_silent_link_trips_the_watchdog_and_stops_the_axis() {
             "1",
             "--max-speed",
             "20",
+            "--json",
         ],
     );
     std::thread::sleep(Duration::from_millis(200));
     let link = format!("udp:127.0.0.1:{a}?peer=127.0.0.1:{b}");
-    let sent = finish(spawn(&send_args(&link, &scene)), "send");
+    let mut tx_args = send_args(&link, &scene);
+    tx_args.push("--json".into());
+    let sent = json_text(&finish(spawn(&tx_args), "send"));
     let (got, said) = finish_with_stderr(rx, "receive");
-    let commanded = (number_after(&sent, "distance ") * 1000.0).min(1000.0);
-    let axis = number_after(&got, "axis at ");
+    let got = json_text(&got);
+    let commanded = (reported_m(&sent) * 1000.0).min(1000.0);
+    let axis = got["summary"]["axis_mm"].as_f64().unwrap();
     assert!(commanded > 200.0, "a long move: {commanded} mm");
     // Stopped where the watchdog found it, far short of the target (without
     // the watchdog the axis goes on to the target).
