@@ -35,7 +35,6 @@
 //! assert!(psnr_rgb(&scene.left, &scene.left).unwrap().overall.is_infinite());
 //! ```
 
-mod calib_yaml;
 pub mod color;
 pub mod colormap;
 pub mod cpu;

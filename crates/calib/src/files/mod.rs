@@ -1,14 +1,18 @@
 //! Calibration files: OpenCV `FileStorage` YAML for the pair ([`opencv`],
-//! read and written, so that OpenCV users and we load each other's files)
-//! and ROS `camera_info` YAML for each camera ([`ros`], written).
+//! read and written, so that OpenCV users and we load each other's files),
+//! ROS `camera_info` YAML for each camera ([`ros`], written), and the depth
+//! geometry alone from either ([`depth`], read through the one OpenCV
+//! reader).
 //!
 //! Translations (`T`, `P2[0][3]`) are in the units of the chessboard's
 //! square size, as the calibration measured them; `docs/calibration.md`
 //! describes the files.
 
+pub mod depth;
 pub mod opencv;
 pub mod ros;
 
+pub use depth::depth_from_yaml;
 pub use opencv::{
     from_opencv_yaml, is_opencv_yaml, read_opencv, read_text, to_opencv_yaml, write_opencv,
 };

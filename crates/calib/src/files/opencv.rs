@@ -258,13 +258,27 @@ struct Mat {
 }
 
 /// A parsed document with the file's name for messages.
-struct Doc<'a> {
+pub(super) struct Doc<'a> {
     entries: Vec<(&'a str, Entry<'a>)>,
     path: &'a Path,
 }
 
-impl Doc<'_> {
-    fn error(&self, problem: String) -> Error {
+impl<'a> Doc<'a> {
+    /// The top-level entries of `text`; `path` names the file in errors.
+    pub(super) fn parse(text: &'a str, path: &'a Path) -> Self {
+        Doc {
+            entries: entries(text),
+            path,
+        }
+    }
+
+    /// Whether the file has the entry `key`.
+    pub(super) fn has(&self, key: &str) -> bool {
+        self.entry(key).is_some()
+    }
+
+    /// An error about this file.
+    pub(super) fn error(&self, problem: String) -> Error {
         Error::File {
             path: self.path.to_owned(),
             problem,
@@ -341,7 +355,13 @@ impl Doc<'_> {
     }
 
     /// The matrix `key`, which must be `rows`×`cols`.
-    fn fixed(&self, key: &str, what: &str, rows: usize, cols: usize) -> Result<DMatrix<f64>> {
+    pub(super) fn fixed(
+        &self,
+        key: &str,
+        what: &str,
+        rows: usize,
+        cols: usize,
+    ) -> Result<DMatrix<f64>> {
         let m = self.matrix(key, what)?;
         if (m.rows, m.cols) != (rows, cols) {
             return Err(self.error(format!(
@@ -406,10 +426,7 @@ impl Doc<'_> {
 /// Parses an OpenCV YAML stereo calibration; `path` names the file in
 /// errors ("stereo.yml: no D2 (the right camera's distortion)").
 pub fn from_opencv_yaml(text: &str, path: &Path) -> Result<StereoCalibration> {
-    let doc = Doc {
-        entries: entries(text),
-        path,
-    };
+    let doc = Doc::parse(text, path);
     let width = doc.side("image_width")?;
     let height = doc.side("image_height")?;
     let (Some(width), Some(height)) = (width, height) else {
@@ -507,10 +524,11 @@ mod tests {
     }
 
     #[test]
-    fn the_image_crates_calib_yaml_reader_takes_our_file() {
+    fn the_depth_reader_takes_our_file() {
         // `--calib-yaml stereo.yml` (depth only, no rectification).
         let c = calibration();
-        let depth = stereolink_image::Calibration::parse_yaml(&to_opencv_yaml(&c), 1.0).unwrap();
+        let path = Path::new("stereo.yml");
+        let depth = super::super::depth_from_yaml(&to_opencv_yaml(&c), path, 1.0).unwrap();
         let (f, b, doffs) = c.rectification.depth_geometry();
         assert_eq!(depth.focal_px, Some(f));
         assert!((depth.baseline_m.unwrap() - b).abs() < 1e-12);

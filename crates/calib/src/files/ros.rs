@@ -147,10 +147,11 @@ mod tests {
     }
 
     #[test]
-    fn the_right_camera_info_gives_the_depth_to_the_image_crate() {
+    fn the_right_camera_info_gives_the_depth() {
         let c = calibration();
         let text = to_camera_info_yaml(&c, Side::Right, "right");
-        let depth = stereolink_image::Calibration::parse_yaml(&text, 1.0).unwrap();
+        let path = std::path::Path::new("right.yaml");
+        let depth = super::super::depth_from_yaml(&text, path, 1.0).unwrap();
         let (f, b, _) = c.rectification.depth_geometry();
         assert_eq!(depth.focal_px, Some(f));
         assert!((depth.baseline_m.unwrap() - b).abs() < 1e-12);

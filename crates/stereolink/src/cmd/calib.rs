@@ -97,8 +97,8 @@ impl CalibArgs {
             };
         }
         if let Some(p) = &self.calib_yaml {
-            let file = Calibration::parse_yaml(&read(p)?, metres_per_unit(&self.calib_units))
-                .map_err(|e| anyhow::anyhow!("{}: {e}", p.display()))?;
+            let units = metres_per_unit(&self.calib_units);
+            let file = stereolink_calib::files::depth_from_yaml(&read(p)?, p, units)?;
             c = Calibration { ndisp, ..file };
         }
         c.focal_px = self.focal_px.or(c.focal_px);
