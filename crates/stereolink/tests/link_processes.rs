@@ -8,12 +8,11 @@
 
 mod common;
 
-use std::net::UdpSocket;
 use std::sync::atomic::Ordering;
 use std::time::{Duration, Instant};
 
 use common::xbee::{Cable, Firmware, RadioLink, Timing};
-use common::{finish, free_port, spawn, strings, synth};
+use common::{finish, free_port, spawn, strings, synth, udp_relay};
 
 /// `send` of the scene's pair with a small disparity range and k-means,
 /// after `args` (the link and the options of the test).
@@ -76,24 +75,14 @@ fn udp_between_two_processes() {
 /// datagrams from `a`, then goes away (the radio pair between them died):
 /// nothing more crosses it either way. It stops by itself.
 fn relay_that_dies(a: u16, b: u16, budget: usize) -> u16 {
-    let socket = UdpSocket::bind("127.0.0.1:0").unwrap();
-    let port = socket.local_addr().unwrap().port();
-    socket
-        .set_read_timeout(Some(Duration::from_millis(100)))
-        .unwrap();
-    std::thread::spawn(move || {
-        let (start, mut left) = (Instant::now(), budget);
-        let mut buf = [0u8; 2048];
-        while left > 0 && start.elapsed() < Duration::from_secs(60) {
-            let Ok((n, from)) = socket.recv_from(&mut buf) else {
-                continue;
-            };
-            let to = if from.port() == a { b } else { a };
-            left -= usize::from(from.port() == a);
-            let _ = socket.send_to(&buf[..n], ("127.0.0.1", to));
+    let (start, mut left) = (Instant::now(), budget);
+    udp_relay(a, b, move |from_a, _| {
+        if left == 0 || start.elapsed() > Duration::from_secs(60) {
+            return None;
         }
-    });
-    port
+        left -= usize::from(from_a);
+        Some(true)
+    })
 }
 
 /// `link-test` over a bond of two UDP pairs, the first through a relay

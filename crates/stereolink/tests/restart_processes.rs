@@ -7,7 +7,6 @@
 mod common;
 
 use std::io::{BufRead, BufReader};
-use std::net::UdpSocket;
 use std::path::Path;
 use std::process::{Child, Command, Stdio};
 use std::sync::atomic::{AtomicU8, Ordering};
@@ -301,44 +300,29 @@ struct Relay {
 
 impl Relay {
     fn start(a: u16, b: u16, msg_id: u8) -> Relay {
-        let socket = UdpSocket::bind("127.0.0.1:0").unwrap();
-        socket
-            .set_read_timeout(Some(Duration::from_millis(50)))
-            .unwrap();
-        let port = socket.local_addr().unwrap().port();
         let mode = Arc::new(AtomicU8::new(FORWARD_FIRST_8));
         let m = mode.clone();
-        std::thread::spawn(move || {
-            let mut buf = [0u8; 2048];
-            loop {
-                let Ok((n, from)) = socket.recv_from(&mut buf) else {
-                    continue;
-                };
-                let to = if from.port() == a { b } else { a };
-                let forward = match (m.load(Ordering::SeqCst), Segment::parse(&buf[..n])) {
-                    (FORWARD_ALL, _) => true,
-                    (CUT, _) => false,
-                    (
-                        _,
-                        Some(Segment::Data {
-                            msg_id: id, index, ..
-                        }),
-                    ) => id != msg_id || index < 8,
-                    (
-                        _,
-                        Some(Segment::Ack {
-                            msg_id: id, next, ..
-                        }),
-                    ) if id == msg_id && next >= 8 => {
-                        m.store(CUT, Ordering::SeqCst);
-                        true
-                    }
-                    _ => true,
-                };
-                if forward {
-                    let _ = socket.send_to(&buf[..n], ("127.0.0.1", to));
+        let port = common::udp_relay(a, b, move |_, datagram| {
+            Some(match (m.load(Ordering::SeqCst), Segment::parse(datagram)) {
+                (FORWARD_ALL, _) => true,
+                (CUT, _) => false,
+                (
+                    _,
+                    Some(Segment::Data {
+                        msg_id: id, index, ..
+                    }),
+                ) => id != msg_id || index < 8,
+                (
+                    _,
+                    Some(Segment::Ack {
+                        msg_id: id, next, ..
+                    }),
+                ) if id == msg_id && next >= 8 => {
+                    m.store(CUT, Ordering::SeqCst);
+                    true
                 }
-            }
+                _ => true,
+            })
         });
         Relay { port, mode }
     }

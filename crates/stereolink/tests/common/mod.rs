@@ -104,6 +104,41 @@ pub fn synth(dir: &std::path::Path) {
     assert!(status.success());
 }
 
+/// A UDP relay on loopback between ports `a` and `b`: each datagram goes
+/// on to the other side if `forward(from_a, datagram)` says `Some(true)`, is
+/// dropped on `Some(false)`, and `None` stops the relay (nothing more
+/// crosses it either way). Returns the relay's port, which both ends give
+/// as their peer.
+pub fn udp_relay(
+    a: u16,
+    b: u16,
+    mut forward: impl FnMut(bool, &[u8]) -> Option<bool> + Send + 'static,
+) -> u16 {
+    let socket = std::net::UdpSocket::bind("127.0.0.1:0").unwrap();
+    let port = socket.local_addr().unwrap().port();
+    socket
+        .set_read_timeout(Some(std::time::Duration::from_millis(50)))
+        .unwrap();
+    std::thread::spawn(move || {
+        let mut buf = [0u8; 2048];
+        loop {
+            let Ok((n, from)) = socket.recv_from(&mut buf) else {
+                continue;
+            };
+            let from_a = from.port() == a;
+            match forward(from_a, &buf[..n]) {
+                None => return,
+                Some(false) => {}
+                Some(true) => {
+                    let to = if from_a { b } else { a };
+                    let _ = socket.send_to(&buf[..n], ("127.0.0.1", to));
+                }
+            }
+        }
+    });
+    port
+}
+
 /// A UDP port free at the time of the call.
 pub fn free_port() -> u16 {
     std::net::UdpSocket::bind("127.0.0.1:0")
