@@ -8,7 +8,7 @@ use rumqttc::QoS;
 use serde_json::{json, Value};
 use stereolink_codec::control::unix_us;
 
-use crate::command;
+use crate::command::{self, SetError};
 use crate::mqtt::{Outbox, Pub};
 use crate::session::Reply;
 use crate::station::{Request, Up};
@@ -339,8 +339,8 @@ impl Bridge {
         else {
             return;
         };
-        let parsed: Result<Value, String> =
-            serde_json::from_slice(payload).map_err(|e| format!("the payload is not JSON: {e}"));
+        let parsed: Result<Value, SetError> =
+            serde_json::from_slice(payload).map_err(|e| SetError::NotJson(e.to_string()));
         let transaction = parsed
             .as_ref()
             .ok()
@@ -390,7 +390,8 @@ impl Bridge {
                 }
             }
             Err(e) => {
-                let r = json!({"status": "error", "error": e, "transaction": transaction});
+                let r =
+                    json!({"status": "error", "error": e.to_string(), "transaction": transaction});
                 self.respond(i, &r, reply.as_ref(), connected);
             }
         }

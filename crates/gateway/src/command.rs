@@ -5,44 +5,69 @@
 use serde_json::Value;
 use stereolink_codec::control::{Command, METHODS};
 
+/// Why a `set` payload is not a command: said back to the client in the
+/// response's `error`.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum SetError {
+    /// The payload does not parse as JSON.
+    #[error("the payload is not JSON: {0}")]
+    NotJson(String),
+    /// The payload is JSON but not an object.
+    #[error("the payload must be a JSON object, e.g. {{\"axis\":\"stop\"}}")]
+    NotObject,
+    /// Not exactly one command key (the ones given, or `none`).
+    #[error("give exactly one of axis, frame, levels, method (got {0})")]
+    NotOne(String),
+    /// `axis` other than `"stop"`.
+    #[error("axis: only \"stop\" is supported")]
+    Axis,
+    /// `frame` other than `"request"`.
+    #[error("frame: only \"request\" is supported")]
+    Frame,
+    /// `levels` outside 2–16.
+    #[error("levels: an integer from 2 to 16")]
+    Levels,
+    /// `method` not a known segmentation method.
+    #[error("method: one of {}", METHODS.join(", "))]
+    Method,
+    /// A key that is no command.
+    #[error("unknown command {0:?}")]
+    Unknown(String),
+}
+
 /// Reads the command of a `set` payload: exactly one of
 /// `{"axis":"stop"}`, `{"frame":"request"}`, `{"levels":N}` or
 /// `{"method":"NAME"}`, plus an optional `transaction` field (any JSON
 /// value, echoed in the response).
-pub fn from_json(v: &Value) -> Result<Command, String> {
-    let obj = v
-        .as_object()
-        .ok_or("the payload must be a JSON object, e.g. {\"axis\":\"stop\"}")?;
+pub fn from_json(v: &Value) -> Result<Command, SetError> {
+    let obj = v.as_object().ok_or(SetError::NotObject)?;
     let keys: Vec<&str> = obj
         .keys()
         .map(String::as_str)
         .filter(|k| *k != "transaction")
         .collect();
     let [key] = keys[..] else {
-        return Err(format!(
-            "give exactly one of axis, frame, levels, method (got {})",
-            if keys.is_empty() {
-                "none".into()
-            } else {
-                keys.join(", ")
-            }
-        ));
+        return Err(SetError::NotOne(if keys.is_empty() {
+            "none".into()
+        } else {
+            keys.join(", ")
+        }));
     };
     let val = &obj[key];
     match (key, val) {
         ("axis", Value::String(s)) if s == "stop" => Ok(Command::AxisStop),
-        ("axis", _) => Err("axis: only \"stop\" is supported".into()),
+        ("axis", _) => Err(SetError::Axis),
         ("frame", Value::String(s)) if s == "request" => Ok(Command::FrameRequest),
-        ("frame", _) => Err("frame: only \"request\" is supported".into()),
+        ("frame", _) => Err(SetError::Frame),
         ("levels", v) => match v.as_u64() {
             Some(n @ 2..=16) => Ok(Command::SetLevels(n as u8)),
-            _ => Err("levels: an integer from 2 to 16".into()),
+            _ => Err(SetError::Levels),
         },
         ("method", Value::String(m)) if METHODS.contains(&m.as_str()) => {
             Ok(Command::SetMethod(m.clone()))
         }
-        ("method", _) => Err(format!("method: one of {}", METHODS.join(", "))),
-        (other, _) => Err(format!("unknown command {other:?}")),
+        ("method", _) => Err(SetError::Method),
+        (other, _) => Err(SetError::Unknown(other.into())),
     }
 }
 

@@ -65,7 +65,7 @@ impl Broker {
     /// Reads `mqtt://[USER[:PASSWORD]@]HOST[:PORT]` (`tcp://` too; port
     /// 1883 by default) or, over TLS, `mqtts://...` (`ssl://` too; port
     /// 8883 by default), with no TLS files yet (the system's CAs).
-    pub fn parse(url: &str) -> Result<Broker, String> {
+    pub fn parse(url: &str) -> Result<Broker, BrokerUrlError> {
         let plain = url
             .strip_prefix("mqtt://")
             .or_else(|| url.strip_prefix("tcp://"));
@@ -75,11 +75,7 @@ impl Broker {
         let (rest, tls) = match (plain, secure) {
             (Some(rest), _) => (rest, None),
             (None, Some(rest)) => (rest, Some(TlsFiles::default())),
-            (None, None) => {
-                return Err(format!(
-                    "broker {url:?}: use mqtt://HOST:PORT, or mqtts://HOST:PORT for TLS"
-                ))
-            }
+            (None, None) => return Err(BrokerUrlError::Scheme(url.into())),
         };
         let rest = rest.trim_end_matches('/');
         let (login, hostport) = match rest.rsplit_once('@') {
@@ -92,13 +88,15 @@ impl Broker {
         let (host, port) = match hostport.rsplit_once(':') {
             Some((h, p)) => (
                 h,
-                p.parse()
-                    .map_err(|_| format!("broker {url:?}: port {p:?} is not a number"))?,
+                p.parse().map_err(|_| BrokerUrlError::Port {
+                    url: url.into(),
+                    port: p.into(),
+                })?,
             ),
             None => (hostport, if tls.is_some() { 8883 } else { 1883 }),
         };
         if host.is_empty() {
-            return Err(format!("broker {url:?}: no host"));
+            return Err(BrokerUrlError::NoHost(url.into()));
         }
         Ok(Broker {
             host: host.into(),
@@ -108,6 +106,25 @@ impl Broker {
             tls,
         })
     }
+}
+
+/// Why a broker URL was refused.
+#[derive(Clone, Debug, PartialEq, Eq, thiserror::Error)]
+pub enum BrokerUrlError {
+    /// Neither `mqtt://` (`tcp://`) nor `mqtts://` (`ssl://`).
+    #[error("broker {0:?}: use mqtt://HOST:PORT, or mqtts://HOST:PORT for TLS")]
+    Scheme(String),
+    /// The port is not a number.
+    #[error("broker {url:?}: port {port:?} is not a number")]
+    Port {
+        /// The URL given.
+        url: String,
+        /// Its port.
+        port: String,
+    },
+    /// No host before the port.
+    #[error("broker {0:?}: no host")]
+    NoHost(String),
 }
 
 /// `mqtts://HOST:PORT` or `mqtt://HOST:PORT`: the broker without its login.

@@ -107,7 +107,7 @@ pub fn run(args: Args, out: &super::Output) -> anyhow::Result<()> {
         );
         Ok(Duration::from_secs_f64(s))
     };
-    let mut broker = Broker::parse(&args.mqtt).map_err(|e| anyhow::anyhow!(e))?;
+    let mut broker = Broker::parse(&args.mqtt)?;
     broker.client_id = args.client_id.clone();
     let client = args.mqtt_cert.clone().zip(args.mqtt_key.clone());
     match &mut broker.tls {
