@@ -171,10 +171,13 @@ impl ViewRef<'_> {
 
     /// The frame a predicted view is predicted from (checked by [`parse`]).
     pub fn reference(&self) -> Option<RefId> {
-        matches!(self.coding, coding::PREDICTED | coding::LABELS_PREDICTED)
-            .then(|| temporal::split_reference(self.payload).ok())
-            .flatten()
-            .map(|(id, _)| id)
+        matches!(
+            self.coding,
+            coding::PREDICTED | coding::LABELS_PREDICTED | coding::MOTION
+        )
+        .then(|| temporal::split_reference(self.payload).ok())
+        .flatten()
+        .map(|(id, _)| id)
     }
 
     /// Whether the view is predicted from the frame's left view
@@ -308,6 +311,9 @@ fn parse_view<'a>(r: &mut Reader<'a>, limits: &Limits) -> Result<ViewRef<'a>, Co
     match code {
         coding::LABELS | coding::LABELS_CONDITIONED if n > 0 => {}
         coding::LABELS_PREDICTED if n > 0 => {
+            temporal::split_reference(payload)?;
+        }
+        coding::MOTION if n == 0 => {
             temporal::split_reference(payload)?;
         }
         coding::RGB => {}
