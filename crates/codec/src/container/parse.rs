@@ -186,6 +186,12 @@ impl ViewRef<'_> {
         self.coding == coding::STEREO
     }
 
+    /// Whether the view is predicted by motion from an earlier frame
+    /// ([`crate::motion`]).
+    pub fn is_motion(&self) -> bool {
+        self.coding == coding::MOTION
+    }
+
     /// Number of palette colours (0 for an unsegmented view).
     pub fn colours(&self) -> usize {
         self.palette.len() / 3
