@@ -21,6 +21,14 @@
 //! The loop is closed: vectors are searched against the reference as the
 //! receiver decoded it, so both ends predict the same pixels bit for bit.
 //!
+//! Cells are 16 px (a codec macroblock, one vector a block), not the 8 px
+//! of stereo cells: at the low qualities a thin link affords, the decoded
+//! reference is smooth and sensor noise moves 8-px cells' best vectors at
+//! random, whose bits then outweigh what they predict; 16-px cells, their
+//! rate term scaled with their area, cost a quarter of the vectors and
+//! predict a moving rig's views as well (measured on the `pan` sequence:
+//! `docs/benchmarks.md`, "Sequences against x264").
+//!
 //! The search (±[`MotionSpec::range`] px in both directions) is a coarse
 //! grid of every 4th vector, plus the median prediction and the left and
 //! upper neighbours' vectors, refined by a small diamond (±1 px steps
@@ -58,8 +66,8 @@ pub use crate::shift::{Mode, ModeSpec, Vector};
 use crate::temporal::{self, RefId};
 use crate::CodecError;
 
-/// Side of a motion vector's cell, in pixels.
-pub const CELL: usize = 8;
+/// Side of a motion vector's cell, in pixels: the blocks' ([`temporal::BLOCK`]).
+pub const CELL: usize = 16;
 
 /// How the sender searches motion and chooses each block's mode.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -77,6 +77,12 @@ impl Shift {
         }
     }
 
+    /// Weight of a vector's residual bits against its cell's summed
+    /// absolute difference in the search: [`LAMBDA`] per 8×8 px.
+    fn lambda(self) -> u32 {
+        LAMBDA * (self.cell() * self.cell() / 64) as u32
+    }
+
     /// The errors' names: the view, its blocks, its mosaic.
     fn names(self) -> [&'static str; 3] {
         match self {
@@ -150,10 +156,11 @@ impl Default for ModeSpec {
 /// Bits of the largest vector residual's exponent.
 const MAX_EXP: usize = 15;
 
-/// Weight of a vector's residual bits against its cell's summed absolute
-/// difference in the search (docs/tuning.md, "Stereo prediction"): smooth
-/// vectors cost fewer bits, predict about as well, and make a cleaner map.
-pub(crate) const LAMBDA: u32 = 48;
+/// Weight of a vector's residual bits against an 8×8 cell's summed
+/// absolute difference in the search (docs/tuning.md, "Stereo
+/// prediction"): smooth vectors cost fewer bits, predict about as well,
+/// and make a cleaner map.
+const LAMBDA: u32 = 48;
 
 /// The vectors and block modes of a view, and its prediction: all the
 /// sender decides before coding the blocks (none of it depends on the
@@ -433,7 +440,7 @@ fn warp_into(source: &RgbImage, vectors: &[Vector], cell: usize, out: &mut RgbIm
 /// The component-wise median of a cell's causal neighbours' vectors (left,
 /// upper, upper-right, or upper-left at the right edge); one neighbour
 /// alone is taken as is, none gives 0.
-pub(crate) fn predictor(v: &[Vector], cols: usize, i: usize) -> Vector {
+fn predictor(v: &[Vector], cols: usize, i: usize) -> Vector {
     let (bx, by) = (i % cols, i / cols);
     match (bx > 0, by > 0) {
         (false, false) => [0, 0],
@@ -584,7 +591,7 @@ pub(crate) fn read_blocks(
 
 /// The summed absolute difference of the pixels of cell `(x0, y0)` of
 /// `current` (`cell` px, cut at the edge) against `source` shifted by `v`.
-pub(crate) fn sad(
+fn sad(
     current: &RgbImage,
     source: &RgbImage,
     (x0, y0): (usize, usize),
@@ -606,11 +613,10 @@ pub(crate) fn sad(
     sad
 }
 
-/// Each cell's vector, in raster order: of `candidates(prediction, cost)`
-/// (called per cell with the median prediction of the vectors found so
-/// far and the cost of a vector), the one it returns; the cost is the
-/// cell's [`sad`] plus [`LAMBDA`] a bit of its residual from the
-/// prediction.
+/// Each cell's vector, in raster order: the one `choose(prediction,
+/// vectors found so far, cell index, cost)` returns, given the median
+/// prediction and the cost of a vector: the cell's [`sad`] plus
+/// [`Shift::lambda`] a bit of its residual from the prediction.
 pub(crate) fn search(
     current: &RgbImage,
     source: &RgbImage,
@@ -627,7 +633,7 @@ pub(crate) fn search(
             let bits: u32 = (0..shift.axes())
                 .map(|k| residual_bits(v[k] - pred[k]))
                 .sum();
-            sad(current, source, origin, cell, v) + LAMBDA * bits
+            sad(current, source, origin, cell, v) + shift.lambda() * bits
         };
         let v = choose(pred, &vectors, i, &cost);
         vectors.push(v);
