@@ -215,24 +215,14 @@ impl MotionView {
         self.reference
     }
 
-    /// Each cell's vector, raster order.
-    pub fn vectors(&self) -> &[Vector] {
-        &self.shifted.vectors
-    }
-
-    /// Each block's mode, raster order.
-    pub fn modes(&self) -> &[Mode] {
-        &self.shifted.modes
-    }
-
-    /// The codec of the coded blocks, if any is coded.
-    pub fn codec(&self) -> Option<LossyCodec> {
-        self.shifted.codec()
-    }
-
     /// The view rebuilt.
     pub fn image(&self) -> &RgbImage {
         self.shifted.image()
+    }
+
+    /// Each cell's vector and each block's mode, raster order.
+    pub fn blocks(&self) -> (&[Vector], &[Mode]) {
+        (&self.shifted.vectors, &self.shifted.modes)
     }
 
     /// The view's payload in the container.
@@ -316,17 +306,17 @@ mod tests {
         // The window moved 5 px right and 3 down: the content is found 5 px
         // right and 3 px down in the reference. Cells inside the view find
         // it (the edge ones may not: their content is new).
-        let inside = v.vectors().iter().filter(|&&m| m == [5, 3]).count();
+        let inside = v.blocks().0.iter().filter(|&&m| m == [5, 3]).count();
         assert!(
-            inside * 10 > v.vectors().len() * 8,
+            inside * 10 > v.blocks().0.len() * 8,
             "{inside} of {}",
-            v.vectors().len()
+            v.blocks().0.len()
         );
-        let skipped = v.modes().iter().filter(|&&m| m == Mode::Skip).count();
+        let skipped = v.blocks().1.iter().filter(|&&m| m == Mode::Skip).count();
         assert!(
-            skipped * 2 > v.modes().len(),
+            skipped * 2 > v.blocks().1.len(),
             "{skipped} of {}",
-            v.modes().len()
+            v.blocks().1.len()
         );
     }
 

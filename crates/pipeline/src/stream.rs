@@ -448,6 +448,30 @@ mod tests {
         }
     }
 
+    /// Sends `pairs` through a stream (frame ids from 1, each acknowledged)
+    /// to a board, which must show each frame as the sender rebuilt it, bit
+    /// for bit; each frame's kind and what the sender prepared.
+    fn closed_loop(
+        pairs: &[(RgbImage, RgbImage)],
+        cfg: &SenderConfig,
+    ) -> Vec<(FrameKind, Prepared)> {
+        let mut stream = StreamEncoder::new(SkipSpec::default());
+        let mut board = BoardReceiver::new(15, 5, std::time::Duration::from_secs(10));
+        let mut sent = Vec::new();
+        for (i, (l, r)) in pairs.iter().enumerate() {
+            let id = i as u32 + 1;
+            let (p, kind) = stream
+                .prepare((l, r), &calib(), cfg, (id, 1_000 * u64::from(id)), false)
+                .unwrap();
+            let event = board.handle(&p.frame_bytes);
+            assert!(matches!(event, Event::Frame { .. }), "{id}: {event:?}");
+            assert_eq!(board.pair().unwrap(), (&p.sent.0, &p.sent.1), "frame {id}");
+            stream.acknowledge(id);
+            sent.push((kind, p));
+        }
+        sent
+    }
+
     /// The board rebuilds every frame, key or predicted, bit for bit as
     /// the sender's reconstruction; on a still noisy rig a predicted pair
     /// costs far less than a key pair at about its PSNR, and a moving
@@ -455,22 +479,14 @@ mod tests {
     #[test]
     fn the_board_rebuilds_the_senders_reconstruction_bit_for_bit() {
         let pairs = sequence();
-        let cfg = config(Some(4_000));
-        let mut stream = StreamEncoder::new(SkipSpec::default());
-        let mut board = BoardReceiver::new(15, 5, std::time::Duration::from_secs(10));
-        let mut seen = Vec::new();
-        for (i, (l, r)) in pairs.iter().enumerate() {
-            let id = i as u32 + 1;
-            let (p, kind) = stream
-                .prepare((l, r), &calib(), &cfg, (id, 1_000 * u64::from(id)), false)
-                .unwrap();
-            let event = board.handle(&p.frame_bytes);
-            assert!(matches!(event, Event::Frame { .. }), "{id}: {event:?}");
-            assert_eq!(board.pair().unwrap(), (&p.sent.0, &p.sent.1), "frame {id}");
-            stream.acknowledge(id);
-            let psnr = psnr_pair((l, r), (&p.sent.0, &p.sent.1)).unwrap();
-            seen.push((kind, p.frame_bytes.len(), psnr));
-        }
+        let seen: Vec<_> = closed_loop(&pairs, &config(Some(4_000)))
+            .into_iter()
+            .zip(&pairs)
+            .map(|((kind, p), (l, r))| {
+                let psnr = psnr_pair((l, r), (&p.sent.0, &p.sent.1)).unwrap();
+                (kind, p.frame_bytes.len(), psnr)
+            })
+            .collect();
         assert_eq!(seen[0].0, FrameKind::Key);
         let (key_bytes, key_psnr) = (seen[0].1, seen[0].2);
         for (i, &(kind, bytes, psnr)) in seen.iter().enumerate().skip(1) {
@@ -530,27 +546,17 @@ mod tests {
     /// about its PSNR.
     #[test]
     fn a_panning_rig_is_predicted_by_motion_bit_for_bit() {
-        let cfg = config(Some(6_000));
-        let mut stream = StreamEncoder::new(SkipSpec::default());
-        let mut board = BoardReceiver::new(15, 5, std::time::Duration::from_secs(10));
+        let pairs = panning();
         let mut seen = Vec::new();
-        for (i, (l, r)) in panning().iter().enumerate() {
-            let id = i as u32 + 1;
-            let (p, kind) = stream
-                .prepare((l, r), &calib(), &cfg, (id, 1_000 * u64::from(id)), false)
-                .unwrap();
-            let event = board.handle(&p.frame_bytes);
-            assert!(matches!(event, Event::Frame { .. }), "{id}: {event:?}");
-            assert_eq!(board.pair().unwrap(), (&p.sent.0, &p.sent.1), "frame {id}");
-            stream.acknowledge(id);
+        for ((kind, p), (l, r)) in closed_loop(&pairs, &config(Some(6_000))).iter().zip(&pairs) {
             let psnr = psnr_pair((l, r), (&p.sent.0, &p.sent.1)).unwrap();
             let Ok((_, container::Body::StereoFrame(f))) =
                 container::parse(&p.frame_bytes, &Default::default())
             else {
-                panic!("frame {id} is not a frame")
+                panic!("not a frame")
             };
             let motion = [f.left.is_motion(), f.right.is_motion()];
-            seen.push((kind, motion, p.frame_bytes.len(), psnr));
+            seen.push((*kind, motion, p.frame_bytes.len(), psnr));
         }
         let (key_bytes, key_psnr) = (seen[0].2, seen[0].3);
         assert_eq!(seen[0].0, FrameKind::Key);
