@@ -5,7 +5,8 @@
 //! held is an error, never a picture; whatever decodes is kept as the next
 //! frames' reference, as the receiver (`pipeline::receiver`) keeps it.
 //!
-//! Seeds: a key WebP pair followed by a still and a moving predicted pair
+//! Seeds: a key WebP pair followed by a still, a moving and a panned
+//! predicted pair, the last predicted by motion ([`stereolink_codec::motion`])
 //! (`fuzz/seeds/stream`, made by `tools/fuzz/seeds`).
 #![no_main]
 

@@ -1,6 +1,8 @@
 //! Temporal prediction by conditional replenishment: a view predicted from
 //! the same view of an earlier frame that the receiver holds, for a fixed
-//! rig whose pictures change little from frame to frame.
+//! rig whose pictures change little from frame to frame. A moving rig's
+//! views, whose blocks all change, are predicted by motion instead
+//! ([`crate::motion`], view coding 7), from the same [`References`].
 //!
 //! The view is cut into [`BLOCK`]×[`BLOCK`] blocks. A block whose change
 //! since the reference is within sensor noise ([`SkipSpec`]) is skipped:
