@@ -6,8 +6,9 @@
 //! frames' reference, as the receiver (`pipeline::receiver`) keeps it.
 //!
 //! Seeds: a key WebP pair followed by a still, a moving and a panned
-//! predicted pair, the last predicted by motion ([`stereolink_codec::motion`])
-//! (`fuzz/seeds/stream`, made by `tools/fuzz/seeds`).
+//! pair predicted by motion ([`stereolink_codec::motion`]), and a
+//! segmented key pair followed by predicted label maps (`fuzz/seeds/stream`,
+//! made by the pipeline's `fuzz_seeds` example).
 #![no_main]
 
 use std::cell::RefCell;

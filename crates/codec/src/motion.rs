@@ -66,8 +66,10 @@ pub use crate::shift::{Mode, ModeSpec, Vector};
 use crate::temporal::{self, RefId};
 use crate::CodecError;
 
-/// Side of a motion vector's cell, in pixels: the blocks' ([`temporal::BLOCK`]).
+/// Side of a motion vector's cell, in pixels: the blocks'
+/// ([`temporal::BLOCK`]), so that a cell is a block.
 pub const CELL: usize = 16;
+const _: () = assert!(CELL == temporal::BLOCK);
 
 /// How the sender searches motion and chooses each block's mode.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -101,19 +103,27 @@ pub struct MotionPlan {
 impl MotionPlan {
     /// The plan of `current` predicted from the reference view as the
     /// receiver decoded it (`rebuilt`), whose pixels were coded from
-    /// `basis`.
+    /// `basis`. The blocks `still` flags (one flag a block, raster order:
+    /// those that changed within sensor noise since `basis`,
+    /// [`temporal::changed_blocks`]) are skipped with a zero vector, as
+    /// conditional replenishment skips them.
     ///
     /// # Panics
-    /// If the views differ in size.
+    /// If the views differ in size, or `still` is not one flag a block.
     pub fn new(
         current: &RgbImage,
         (basis, rebuilt): (&RgbImage, &RgbImage),
+        still: &[bool],
         spec: &MotionSpec,
     ) -> Self {
         assert_eq!(current.dims(), rebuilt.dims(), "views differ in size");
+        let (cols, rows) = Shift::Motion.cells(current.dims());
+        assert_eq!(still.len(), cols * rows, "one flag a block");
         let r = spec.range as i32;
-        let cols = Shift::Motion.cells(current.dims()).0;
         let vectors = search(current, rebuilt, Shift::Motion, |pred, found, i, cost| {
+            if still[i] {
+                return [0, 0];
+            }
             let mut best = ([0, 0], cost([0, 0]));
             let consider = |best: &mut (Vector, u32), v: Vector| {
                 let v = v.map(|c| c.clamp(-r, r));
@@ -146,14 +156,18 @@ impl MotionPlan {
                 }
             }
         });
+        let mut plan = Plan::new(
+            current,
+            (basis, rebuilt),
+            Shift::Motion,
+            vectors,
+            &spec.modes,
+        );
+        for (mode, _) in plan.modes.iter_mut().zip(still).filter(|(_, &s)| s) {
+            *mode = Mode::Skip;
+        }
         MotionPlan {
-            plan: Plan::new(
-                current,
-                (basis, rebuilt),
-                Shift::Motion,
-                vectors,
-                &spec.modes,
-            ),
+            plan,
             quality_drop: spec.modes.quality_drop,
         }
     }
@@ -233,6 +247,14 @@ impl MotionView {
     }
 }
 
+/// The reference of a `width`×`height` view's payload if the view is the
+/// reference's, unmoved (every block skipped, every vector zero): a still
+/// view.
+pub(crate) fn still_reference(payload: &[u8], dims: (usize, usize)) -> Option<RefId> {
+    let (id, rest) = temporal::split_reference(payload).ok()?;
+    crate::shift::unmoved(rest, dims, Shift::Motion).then_some(id)
+}
+
 /// Decodes motion-predicted views into buffers it keeps: after the first
 /// view of a size it allocates nothing (the lossy decoders aside).
 #[derive(Default)]
@@ -284,7 +306,13 @@ mod tests {
     fn coded() -> (RgbImage, RgbImage, MotionView, MotionPlan) {
         let (first, next) = (window(0, 0), window(5, 3));
         let sent = lossy::encode(&first, LossyCodec::Webp, 60).unwrap();
-        let plan = MotionPlan::new(&next, (&first, sent.image()), &MotionSpec::default());
+        let still = vec![false; 8 * 6];
+        let plan = MotionPlan::new(
+            &next,
+            (&first, sent.image()),
+            &still,
+            &MotionSpec::default(),
+        );
         let v = MotionView::encode(&next, (ID, &plan), LossyCodec::Webp, 60).unwrap();
         (sent.image().clone(), next, v, plan)
     }

@@ -589,6 +589,29 @@ pub(crate) fn read_blocks(
     Ok(())
 }
 
+/// Whether `payload` predicts its `width`×`height` view as the source
+/// alone, unmoved: every block skipped, every vector zero (read as
+/// [`read_blocks`] reads it, without allocating).
+pub(crate) fn unmoved(payload: &[u8], dims: (usize, usize), shift: Shift) -> bool {
+    let Ok(parsed) = parse(payload, shift) else {
+        return false;
+    };
+    let (bcols, brows) = blocks(dims);
+    let (ccols, crows) = shift.cells(dims);
+    let mut dec = Decoder::new(parsed.blocks);
+    let mut m = Model::default();
+    // With no block coded so far, every mode's context is 0; with every
+    // vector zero so far, every prediction is zero.
+    let skipped = (0..bcols * brows).all(|_| !dec.bit(&mut m.mode[0]));
+    let zero = skipped
+        && (0..ccols * crows).all(|_| {
+            let axes = &mut m.axes[..shift.axes()];
+            axes.iter_mut()
+                .all(|c| !dec.bit(&mut c.moved[Mode::Skip as usize]))
+        });
+    parsed.mosaic.is_none() && zero && !dec.overrun()
+}
+
 /// The summed absolute difference of the pixels of cell `(x0, y0)` of
 /// `current` (`cell` px, cut at the edge) against `source` shifted by `v`.
 fn sad(

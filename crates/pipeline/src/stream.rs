@@ -13,12 +13,16 @@
 //! at the start, when the caller wants one (on request, after a restart of
 //! either end, every so often), and when nothing acknowledged is held.
 //!
-//! A predicted frame codes each view's changed blocks at the quality of the
-//! last key frame (at most: a budget may lower it), so that the picture
-//! keeps one quality. A view whose blocks mostly changed (the rig moves)
-//! is predicted by motion instead ([`stereolink_codec::motion`]): each
-//! block follows its motion vector in the reference, and only what the
-//! motion misses is coded. A predicted segmented frame codes each label map from
+//! A predicted frame's lossy views are predicted by motion
+//! ([`stereolink_codec::motion`]): the blocks that changed within sensor
+//! noise since their basis ([`SkipSpec`]) are skipped, as conditional
+//! replenishment skips them; the others follow their motion vector in the
+//! reference, and only what the motion misses is coded, at the quality of
+//! the last key frame (at most: a budget may lower it), so that the picture
+//! keeps one quality. A still rig's views cost a few bytes; a moving rig's
+//! cost what comes into view.
+//!
+//! A predicted segmented frame codes each label map from
 //! the reference's, its segments first made to keep the reference's labels
 //! where the colours allow (the noise would otherwise move their edges).
 
@@ -26,9 +30,7 @@ use std::collections::{BTreeMap, VecDeque};
 
 use stereolink_codec::lossy::{LossyCodec, ViewCoding};
 use stereolink_codec::motion::{MotionPlan, MotionSpec, MotionView};
-use stereolink_codec::temporal::{
-    self, PredictedLabels, PredictedView, RefId, SkipSpec, REFERENCES,
-};
+use stereolink_codec::temporal::{self, PredictedLabels, RefId, SkipSpec, REFERENCES};
 use stereolink_codec::{container, labels, View};
 use stereolink_image::{Calibration, IndexedImage, RgbImage};
 use stereolink_segment::carry::{carry_over, default_margin};
@@ -241,19 +243,26 @@ fn lossy(
         let basis = [left.clone(), right.clone()];
         return Ok(((p, None), Kept::Pixels { rebuilt, basis }));
     };
-    let changed =
-        [(left, 0), (right, 1)].map(|(v, k)| temporal::changed_blocks(v, &basis[k], skip));
-    // A view whose blocks mostly changed (a moving rig) is predicted by
-    // motion; its plan does not depend on the quality.
+    // Each view's plan: the blocks within sensor noise of their basis
+    // skipped, the others following their motion; in a view whose blocks
+    // mostly changed (the rig moves), every block follows its motion (a
+    // zero vector amid the rig's motion would cost more than it saves). It
+    // does not depend on the quality.
     let plan = |v: &RgbImage, k: usize| {
-        let spec = MotionSpec::default();
-        moving(&changed[k]).then(|| MotionPlan::new(v, (&basis[k], &rebuilt[k]), &spec))
+        let changed = temporal::changed_blocks(v, &basis[k], skip);
+        let moving = 2 * changed.iter().filter(|&&c| c).count() > changed.len();
+        let still: Vec<bool> = changed.into_iter().map(|c| !c && !moving).collect();
+        MotionPlan::new(v, (&basis[k], &rebuilt[k]), &still, &MotionSpec::default())
     };
     let plans = {
         let (l, r) = rayon::join(|| plan(left, 0), || plan(right, 1));
         [l, r]
     };
-    let mut views = |q| predicted_views((left, right), (id, rebuilt), (&changed, &plans), codec, q);
+    let mut views = |q| {
+        let view = |v: &RgbImage, k: usize| MotionView::encode(v, (id, &plans[k]), codec, q);
+        let (l, r) = rayon::join(|| view(left, 0), || view(right, 1));
+        Ok((View::Motion(l?), View::Motion(r?)))
+    };
     let lowest = *codec.qualities().start();
     let predict = Predict::Lossy {
         qualities: lowest..=key_quality.max(lowest),
@@ -262,14 +271,7 @@ fn lossy(
     let p = prepare_with(left, right, calib, cfg, ids, Some(predict))?;
     // Each view's basis: the original where it was coded, else the
     // reference's basis where the prediction takes it.
-    let basis = [(left, 0), (right, 1)].map(|(v, k)| match &plans[k] {
-        Some(plan) => plan.basis(v, &basis[k]),
-        None => {
-            let mut b = basis[k].clone();
-            temporal::paste_blocks(&mut b, v, &changed[k]);
-            b
-        }
-    });
+    let basis = [(left, 0), (right, 1)].map(|(v, k)| plans[k].basis(v, &basis[k]));
     let rebuilt = [p.sent.0.clone(), p.sent.1.clone()];
     Ok(((p, Some(id)), Kept::Pixels { rebuilt, basis }))
 }
@@ -322,44 +324,6 @@ fn segmented(
         .remove(&p.setting)
         .expect("the views of the setting chosen");
     Ok(((p, reference.map(|(id, _)| id)), Kept::Labels(kept)))
-}
-
-/// Whether a view whose blocks `changed` is predicted by motion: when
-/// most of its blocks changed.
-fn moving(changed: &[bool]) -> bool {
-    2 * changed.iter().filter(|&&c| c).count() > changed.len()
-}
-
-/// Both views predicted from `reference` (its id and the receiver's views)
-/// at quality `q`: by their motion `plans` where they have one, else by
-/// their `changed` blocks.
-fn predicted_views(
-    (left, right): (&RgbImage, &RgbImage),
-    (id, rebuilt): (RefId, &[RgbImage; 2]),
-    (changed, plans): (&[Vec<bool>; 2], &[Option<MotionPlan>; 2]),
-    codec: LossyCodec,
-    q: u8,
-) -> anyhow::Result<(View, View)> {
-    let view = |current: &RgbImage, k: usize| -> anyhow::Result<View> {
-        if let Some(plan) = &plans[k] {
-            return Ok(View::Motion(MotionView::encode(
-                current,
-                (id, plan),
-                codec,
-                q,
-            )?));
-        }
-        let from = (id, &rebuilt[k]);
-        Ok(View::Predicted(PredictedView::encode(
-            current,
-            from,
-            changed[k].clone(),
-            codec,
-            q,
-        )?))
-    };
-    let (l, r) = rayon::join(|| view(left, 0), || view(right, 1));
-    Ok((l?, r?))
 }
 
 #[cfg(all(test, not(target_arch = "arm")))]

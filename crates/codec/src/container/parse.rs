@@ -130,14 +130,16 @@ impl FrameRef<'_> {
     }
 
     /// The reference of a still pair: both views predicted from it, lossy,
-    /// with no block changed (the pair is the reference's).
+    /// with no block changed or moved (the pair is the reference's).
     pub fn unchanged(&self) -> Option<RefId> {
-        let still = |v: &ViewRef| {
-            if v.coding != coding::PREDICTED {
-                return None;
+        let dims = (self.width, self.height);
+        let still = |v: &ViewRef| match v.coding {
+            coding::PREDICTED => {
+                let coded = temporal::Coded::parse(v.payload, dims).ok()?;
+                (!coded.any_changed()).then_some(coded.reference)
             }
-            let coded = temporal::Coded::parse(v.payload, (self.width, self.height)).ok()?;
-            (!coded.any_changed()).then_some(coded.reference)
+            coding::MOTION => crate::motion::still_reference(v.payload, dims),
+            _ => None,
         };
         let left = still(&self.left)?;
         (still(&self.right)? == left).then_some(left)

@@ -773,7 +773,13 @@ fn motion_frames(id: crate::temporal::RefId) -> ([RgbImage; 2], StereoFrame) {
     for v in [&s.left, &s.right] {
         let (first, next) = (window(v, 0, 0), window(v, 3, 2));
         let sent = crate::lossy::encode(&first, LossyCodec::Webp, 50).unwrap();
-        let plan = MotionPlan::new(&next, (&first, sent.image()), &MotionSpec::default());
+        let still = vec![false; 6 * 4];
+        let plan = MotionPlan::new(
+            &next,
+            (&first, sent.image()),
+            &still,
+            &MotionSpec::default(),
+        );
         let view = MotionView::encode(&next, (id, &plan), LossyCodec::Webp, 50).unwrap();
         key.push(sent.image().clone());
         views.push(View::Motion(view));
@@ -804,6 +810,7 @@ fn motion_predicted_views_decode_from_their_reference_through_both_decoders() {
         panic!("not a frame")
     };
     assert_eq!(parsed.references().collect::<Vec<_>>(), [id, id]);
+    assert_eq!(parsed.unchanged(), None, "the views moved");
     let missing = Err(CodecError::MissingReference {
         frame_id: 3,
         timestamp_us: 30,
@@ -823,6 +830,48 @@ fn motion_predicted_views_decode_from_their_reference_through_both_decoders() {
     let other_size = |e: &CodecError| matches!(e, CodecError::Invalid(m) if m.contains("16x16"));
     assert!(parsed.decode_with(&refs).is_err_and(|e| other_size(&e)));
     assert!(d.decode_with(&parsed, &refs).is_err_and(|e| other_size(&e)));
+}
+
+/// A pair predicted by motion with every block still is the reference's
+/// pair (a still pair); one with a block coded, or a vector not zero, is
+/// not.
+#[cfg(feature = "encode")]
+#[test]
+fn a_still_motion_pair_is_unchanged() {
+    use crate::motion::{MotionPlan, MotionSpec, MotionView};
+    use crate::temporal::RefId;
+    let id = RefId {
+        frame_id: 5,
+        timestamp_us: 50,
+    };
+    let ([l, _], _) = motion_frames(id);
+    let unchanged = |still: &[bool], current: &RgbImage| {
+        let plan = MotionPlan::new(current, (&l, &l), still, &MotionSpec::default());
+        let v =
+            View::Motion(MotionView::encode(current, (id, &plan), LossyCodec::Webp, 50).unwrap());
+        let f = StereoFrame {
+            kind: SegmentationKind::None,
+            levels: 0,
+            thresholds: None,
+            left: v.clone(),
+            right: v,
+            ..frame(96, 64)
+        };
+        let bytes = encode(&Message::StereoFrame(Box::new(f)), 6, 60);
+        let Ok((_, Body::StereoFrame(parsed))) = parse(&bytes, &Limits::default()) else {
+            panic!("not a frame")
+        };
+        parsed.unchanged()
+    };
+    assert_eq!(unchanged(&[true; 24], &l), Some(id));
+    // The same view, nothing still: searched, every vector zero, every
+    // block skipped (the prediction is exact).
+    assert_eq!(unchanged(&[false; 24], &l), Some(id));
+    let mut moved = l.clone();
+    for p in &mut moved.as_mut_slice()[..96 * 8] {
+        *p = [255, 0, 0];
+    }
+    assert_eq!(unchanged(&[false; 24], &moved), None);
 }
 
 #[cfg(feature = "encode")]
