@@ -14,9 +14,12 @@
 //! * [`temporal`] predicts a view from the same view of an earlier frame
 //!   the receiver holds: a lossy view by conditional replenishment (only
 //!   the blocks that changed beyond sensor noise are coded), a label map
-//!   coded with the reference's labels as its prediction.
+//!   coded with the reference's labels as its prediction; it keeps the
+//!   receiver's references.
 //! * [`motion`] predicts a lossy view from the same view of an earlier
-//!   frame shifted by the sender's motion vectors, for a moving rig.
+//!   frame shifted by the sender's motion vectors (what the sender's
+//!   stream now sends for a lossy view, still or moving), through
+//!   [`shift`], the coding by shifted cells it shares with [`stereo`].
 //! * [`stereo`] predicts a lossy right view from the decoded left one,
 //!   shifted by the sender's cell disparities (which the receiver then
 //!   shows as its disparity), coding only the blocks the shift misses.

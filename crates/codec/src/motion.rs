@@ -1,8 +1,12 @@
 //! Motion-compensated temporal prediction: a view predicted from the same
 //! view of an earlier frame that the receiver holds, shifted per cell by
 //! the sender's motion vectors, with what the motion misses coded per
-//! block. For a moving rig, where conditional replenishment
-//! ([`crate::temporal`]) finds every block changed.
+//! block. The sender codes every lossy predicted view so: on a still rig,
+//! the blocks within sensor noise are skipped with a zero vector, as
+//! conditional replenishment ([`crate::temporal`], view coding 4, which
+//! receivers still decode) skips them, and a still view costs a few bytes;
+//! on a moving rig, where replenishment finds every block changed, each
+//! block follows its motion.
 //!
 //! Each [`CELL`]×[`CELL`] cell carries an integer vector `(dx, dy)`: its
 //! prediction is the reference view as the receiver decoded it, at
