@@ -650,6 +650,19 @@ fn predicted_label_maps_decode_from_their_reference_only() {
     );
 }
 
+/// A 96x64 frame of two unsegmented views.
+#[cfg(feature = "encode")]
+fn unsegmented(left: View, right: View) -> StereoFrame {
+    StereoFrame {
+        kind: SegmentationKind::None,
+        levels: 0,
+        thresholds: None,
+        left,
+        right,
+        ..frame(96, 64)
+    }
+}
+
 /// A frame whose right view is stereo-predicted from its WebP left view
 /// (the synthetic pair), and the original right view.
 #[cfg(feature = "encode")]
@@ -673,14 +686,7 @@ fn stereo_frame() -> StereoFrame {
         &spec,
     )
     .unwrap();
-    StereoFrame {
-        kind: SegmentationKind::None,
-        levels: 0,
-        thresholds: None,
-        left: View::Lossy(left),
-        right: View::Stereo(right),
-        ..frame(96, 64)
-    }
+    unsegmented(View::Lossy(left), View::Stereo(right))
 }
 
 #[cfg(feature = "encode")]
@@ -785,15 +791,8 @@ fn motion_frames(id: crate::temporal::RefId) -> ([RgbImage; 2], StereoFrame) {
         views.push(View::Motion(view));
     }
     let right = views.pop().unwrap();
-    let frame = StereoFrame {
-        kind: SegmentationKind::None,
-        levels: 0,
-        thresholds: None,
-        left: views.pop().unwrap(),
-        right,
-        ..frame(96, 64)
-    };
-    (key.try_into().unwrap(), frame)
+    let left = views.pop().unwrap();
+    (key.try_into().unwrap(), unsegmented(left, right))
 }
 
 #[cfg(feature = "encode")]
@@ -849,15 +848,11 @@ fn a_still_motion_pair_is_unchanged() {
         let plan = MotionPlan::new(current, (&l, &l), still, &MotionSpec::default());
         let v =
             View::Motion(MotionView::encode(current, (id, &plan), LossyCodec::Webp, 50).unwrap());
-        let f = StereoFrame {
-            kind: SegmentationKind::None,
-            levels: 0,
-            thresholds: None,
-            left: v.clone(),
-            right: v,
-            ..frame(96, 64)
-        };
-        let bytes = encode(&Message::StereoFrame(Box::new(f)), 6, 60);
+        let bytes = encode(
+            &Message::StereoFrame(Box::new(unsegmented(v.clone(), v))),
+            6,
+            60,
+        );
         let Ok((_, Body::StereoFrame(parsed))) = parse(&bytes, &Limits::default()) else {
             panic!("not a frame")
         };
