@@ -44,8 +44,10 @@
 //! difference plus [`crate::shift`]'s rate term on the vector's residual.
 //!
 //! Decoding is a copy per cell row, the mosaic's lossy decode, and an add
-//! per residual pixel: integers only, nothing allocated once the buffers
-//! have grown.
+//! per residual pixel: integers only, and nothing allocated once the
+//! buffers have grown but by the lossy decoder of a mosaic (a still view
+//! has none). The coded blocks are coded [`ModeSpec::quality_drop`]
+//! quality steps below the frame's, as stereo prediction codes them.
 //!
 //! Payload of a motion-predicted view (after the container's view header;
 //! `docs/wire-format.md`, coding 7):
@@ -269,7 +271,7 @@ pub struct MotionDecoder {
 impl MotionDecoder {
     /// Rebuilds the view of `payload` into `out` from `reference`, the
     /// reference frame's same view (which `payload` names first; the
-    /// caller looks it up with [`temporal::split_reference`]).
+    /// caller looks it up with [`ViewRef::reference`](crate::container::ViewRef::reference)).
     pub fn decode_into(
         &mut self,
         payload: &[u8],

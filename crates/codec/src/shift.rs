@@ -9,12 +9,13 @@
 //! [`BLOCK`]×[`BLOCK`] block then has a [`Mode`]: *skipped* (the
 //! prediction alone), a *residual* (the prediction's error, offset by 128)
 //! or *intra* (its pixels). Coded blocks are packed into one mosaic, coded
-//! by the lossy codec, and put over the prediction ([`temporal::mosaic`]).
+//! by the lossy codec, and put over the prediction, as [`crate::temporal`]
+//! packs changed blocks.
 //!
 //! The block data are range coded: each block's mode in raster order,
 //! then each cell's vector less the component-wise median of its left,
-//! upper and upper-right neighbours', one component ([`Shift::Disparity`])
-//! or two ([`Shift::Motion`]), each as a "moved" flag (by the block's
+//! upper and upper-right neighbours', one component (stereo's `dx`) or two
+//! (motion's `dx` and `dy`), each as a "moved" flag (by the block's
 //! mode), a sign and an Exp-Golomb magnitude. Payload (after whatever the
 //! caller puts first):
 //!
