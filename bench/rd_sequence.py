@@ -26,7 +26,7 @@ the whole sequence over its duration at 10 pairs/s. BD-rate: as
 bench/rd_vs_codecs.py computes it, over the bit rates.
 
     cargo build --release -p stereolink && python3 bench/rd_sequence.py
-        [--scene DIR] [--budgets 2500,3500,5000,7000,10000]
+        [--scene DIR] [--budgets 2500,3500,5000,7000,10000] [--sequences fixed,pan]
 
 Needs ffmpeg with libx264 (Debian's `ffmpeg`) and `pip install pillow numpy
 scikit-image`.
@@ -125,11 +125,14 @@ def main():
     ap.add_argument("--budgets", default="2500,3500,5000,7000,10000",
                     help="ours: the most bytes a frame may take, one stream each")
     ap.add_argument("--pairs", type=int, default=30)
+    ap.add_argument("--sequences", default="fixed,pan", help="the sequences to code, of fixed and pan")
     ap.add_argument("--bin", default=os.path.join(ROOT, "target", "release", "stereolink"))
     args = ap.parse_args()
     budgets = [int(b) for b in args.budgets.split(",")]
     results = {}
     for name, pan in (("fixed", False), ("pan", True)):
+        if name not in args.sequences.split(","):
+            continue
         with tempfile.TemporaryDirectory() as tmp:
             seq = os.path.join(tmp, "seq")
             os.makedirs(seq)

@@ -5,8 +5,10 @@
 //! held is an error, never a picture; whatever decodes is kept as the next
 //! frames' reference, as the receiver (`pipeline::receiver`) keeps it.
 //!
-//! Seeds: a key WebP pair followed by a still and a moving predicted pair
-//! (`fuzz/seeds/stream`, made by `tools/fuzz/seeds`).
+//! Seeds: a key WebP pair followed by a still, a moving and a panned
+//! pair predicted by motion ([`stereolink_codec::motion`]), and a
+//! segmented key pair followed by predicted label maps (`fuzz/seeds/stream`,
+//! made by the pipeline's `fuzz_seeds` example).
 #![no_main]
 
 use std::cell::RefCell;

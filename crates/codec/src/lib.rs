@@ -14,7 +14,12 @@
 //! * [`temporal`] predicts a view from the same view of an earlier frame
 //!   the receiver holds: a lossy view by conditional replenishment (only
 //!   the blocks that changed beyond sensor noise are coded), a label map
-//!   coded with the reference's labels as its prediction.
+//!   coded with the reference's labels as its prediction; it keeps the
+//!   receiver's references.
+//! * [`motion`] predicts a lossy view from the same view of an earlier
+//!   frame shifted by the sender's motion vectors (what the sender's
+//!   stream now sends for a lossy view, still or moving), through
+//!   [`shift`], the coding by shifted cells it shares with [`stereo`].
 //! * [`stereo`] predicts a lossy right view from the decoded left one,
 //!   shifted by the sender's cell disparities (which the receiver then
 //!   shows as its disparity), coding only the blocks the shift misses.
@@ -53,10 +58,12 @@ pub mod control;
 pub mod labels;
 pub mod lossy;
 pub(crate) mod mixer;
+pub mod motion;
 pub mod planetable;
 pub(crate) mod rangecoder;
 pub mod rate;
 pub(crate) mod rgb;
+pub mod shift;
 pub mod stereo;
 pub mod temporal;
 
@@ -223,6 +230,9 @@ pub enum View {
     PredictedLabels(temporal::PredictedLabels),
     /// A right view predicted from the frame's left view ([`stereo`]).
     Stereo(stereo::StereoView),
+    /// An unsegmented view predicted by motion from an earlier frame
+    /// ([`motion`]).
+    Motion(motion::MotionView),
 }
 
 impl View {
@@ -235,11 +245,12 @@ impl View {
             View::Predicted(v) => v.image().clone(),
             View::PredictedLabels(v) => v.image().to_rgb(),
             View::Stereo(v) => v.image().clone(),
+            View::Motion(v) => v.image().clone(),
         }
     }
 
     /// How the view is coded: `segmented`, `rgb` (lossless), the lossy
-    /// codec's name, `predicted` or `stereo`.
+    /// codec's name, `predicted`, `stereo` or `motion`.
     pub fn coding_name(&self) -> &'static str {
         match self {
             View::Indexed(_) => lossy::ViewCoding::Segmented.name(),
@@ -248,6 +259,7 @@ impl View {
             View::Predicted(_) => "predicted",
             View::PredictedLabels(_) => lossy::ViewCoding::Segmented.name(),
             View::Stereo(_) => "stereo",
+            View::Motion(_) => "motion",
         }
     }
 
@@ -256,7 +268,11 @@ impl View {
         match self {
             View::Indexed(i) => Some(i),
             View::PredictedLabels(v) => Some(v.image()),
-            View::Rgb(_) | View::Lossy(_) | View::Predicted(_) | View::Stereo(_) => None,
+            View::Rgb(_)
+            | View::Lossy(_)
+            | View::Predicted(_)
+            | View::Stereo(_)
+            | View::Motion(_) => None,
         }
     }
 
@@ -269,6 +285,7 @@ impl View {
             View::Predicted(v) => v.image().dims(),
             View::PredictedLabels(v) => v.image().labels().dims(),
             View::Stereo(v) => v.image().dims(),
+            View::Motion(v) => v.image().dims(),
         }
     }
 }

@@ -1,6 +1,8 @@
 //! Temporal prediction by conditional replenishment: a view predicted from
 //! the same view of an earlier frame that the receiver holds, for a fixed
-//! rig whose pictures change little from frame to frame.
+//! rig whose pictures change little from frame to frame. A moving rig's
+//! views, whose blocks all change, are predicted by motion instead
+//! ([`crate::motion`], view coding 7), from the same [`References`].
 //!
 //! The view is cut into [`BLOCK`]×[`BLOCK`] blocks. A block whose change
 //! since the reference is within sensor noise ([`SkipSpec`]) is skipped:
@@ -335,8 +337,21 @@ impl PredictedLabels {
     }
 }
 
+/// A reference view's size is the predicted view's (`width`×`height`),
+/// or the error.
+pub(crate) fn same_size(reference: &RgbImage, (w, h): (usize, usize)) -> Result<(), CodecError> {
+    match reference.dims() == (w, h) {
+        true => Ok(()),
+        false => Err(CodecError::Invalid(format!(
+            "a {w}x{h} view predicted from a {}x{} one",
+            reference.width(),
+            reference.height()
+        ))),
+    }
+}
+
 /// The reference as a payload starts: frame id, then time stamp.
-fn reference_bytes(id: RefId) -> Vec<u8> {
+pub(crate) fn reference_bytes(id: RefId) -> Vec<u8> {
     let mut out = Vec::new();
     out.extend_from_slice(&id.frame_id.to_le_bytes());
     out.extend_from_slice(&id.timestamp_us.to_le_bytes());
@@ -427,13 +442,7 @@ impl<'a> Coded<'a> {
         out: &mut RgbImage,
     ) -> Result<(), CodecError> {
         let (w, h) = self.dims;
-        if reference.dims() != (w, h) {
-            return Err(CodecError::Invalid(format!(
-                "a {w}x{h} view predicted from a {}x{} one",
-                reference.width(),
-                reference.height()
-            )));
-        }
+        same_size(reference, (w, h))?;
         if out.dims() != (w, h) {
             out.reset(w, h, [0; 3]);
         }

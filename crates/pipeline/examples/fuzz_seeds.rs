@@ -126,8 +126,9 @@ fn main() -> anyhow::Result<()> {
     Ok(())
 }
 
-/// A key frame and two frames predicted from it (the second of a moved
-/// scene), each after its length as the `stream` target reads them.
+/// A key frame and three frames predicted from the one before (the second
+/// of a moved scene, the third of the scene panned: predicted by motion),
+/// each after its length as the `stream` target reads them.
 fn stream(
     left: &RgbImage,
     right: &RgbImage,
@@ -142,11 +143,19 @@ fn stream(
     {
         *p = [255, 0, 0];
     }
+    let (w, h) = left.dims();
+    let panned = |v: &RgbImage| {
+        RgbImage::from_fn(w, h, |x, y| v.get((x + 2).min(w - 1), (y + 1).min(h - 1)))
+    };
+    let (panned_l, panned_r) = (panned(&moved_l), panned(&moved_r));
     let mut out = Vec::new();
-    for (id, (l, r)) in [(left, right), (left, right), (&moved_l, &moved_r)]
-        .into_iter()
-        .enumerate()
-    {
+    let pairs = [
+        (left, right),
+        (left, right),
+        (&moved_l, &moved_r),
+        (&panned_l, &panned_r),
+    ];
+    for (id, (l, r)) in pairs.into_iter().enumerate() {
         let id = id as u32 + 1;
         let (prepared, _) =
             encoder.prepare((l, r), calib, cfg, (id, u64::from(id) * 100_000), false)?;

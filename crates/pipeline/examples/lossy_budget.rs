@@ -25,6 +25,12 @@
 //! WebP key pair `cones-320x240-webp-key.slnk` (of the same pair with other
 //! noise), which is decoded once first; each predicted pair is then
 //! decoded and kept as a reference, as the receiver does.
+//!
+//! `webp-pan` is a pair predicted by motion (`stereolink_codec::motion`):
+//! the Cones pair scaled to 270 px high, a 320x240 window at (2, 1) px
+//! after its key pair `cones-320x240-webp-pan-key.slnk` at (0, 0), each
+//! with sensor noise (σ = 2), the two coded by `stereolink encode DIR -o
+//! OUT --view-coding webp --bytes 8000`.
 
 use std::time::Duration;
 
@@ -39,6 +45,8 @@ const STEREO: &[u8] = include_bytes!("lossy/cones-320x240-webp-stereo.slnk");
 const KEY: &[u8] = include_bytes!("lossy/cones-320x240-webp-key.slnk");
 const STILL: &[u8] = include_bytes!("lossy/cones-320x240-webp-still.slnk");
 const MOVING: &[u8] = include_bytes!("lossy/cones-320x240-webp-moving.slnk");
+const PAN_KEY: &[u8] = include_bytes!("lossy/cones-320x240-webp-pan-key.slnk");
+const PAN: &[u8] = include_bytes!("lossy/cones-320x240-webp-pan.slnk");
 
 /// Parses and decodes a frame with `refs`, and keeps it there.
 fn decode(bytes: &[u8], decoder: &mut FrameDecoder, refs: &mut References) {
@@ -63,8 +71,9 @@ fn main() {
         Some("webp-stereo") => (STEREO, None),
         Some("webp-still") => (STILL, Some(KEY)),
         Some("webp-moving") => (MOVING, Some(KEY)),
+        Some("webp-pan") => (PAN, Some(PAN_KEY)),
         Some(other) => {
-            panic!("codec {other:?}: jpeg, webp, webp-stereo, webp-still or webp-moving")
+            panic!("codec {other:?}: jpeg, webp, webp-stereo, webp-still, webp-moving or webp-pan")
         }
     };
     let receive = arg(3).as_deref() == Some("receive");

@@ -1,14 +1,18 @@
 //! The board's receiver keeps fixed buffers: once it has shown a frame of a
 //! size, decoding, matching and rendering the next ones allocates nothing,
-//! and its heap peaks below the board's 16 MiB budget. Counted by a global
-//! allocator, in a test binary of its own so that no other test allocates
-//! meanwhile (tools/arm926/board runs it on the ARM926 too).
+//! and its heap peaks below the board's 16 MiB budget; a still lossy pair
+//! predicted by motion (what a fixed rig sends) allocates nothing either.
+//! Counted by a global allocator, in a test binary of its own so that no
+//! other test allocates meanwhile (tools/arm926/board runs it on the ARM926
+//! too, but for the lossy pairs, which need the sender's encoders).
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Duration;
 
 use stereolink_image::synth::SynthSpec;
+#[cfg(not(target_arch = "arm"))]
+use stereolink_image::RgbImage;
 use stereolink_pipeline::receiver::{synthetic_frame, BoardReceiver, Event};
 
 struct Counting;
@@ -87,4 +91,54 @@ fn frames_after_the_first_allocate_nothing() {
     // And the frame shown is the one sent.
     let (left, _) = board.pair().unwrap();
     assert_eq!(left.dims(), (480, 272));
+    #[cfg(not(target_arch = "arm"))]
+    {
+        let [key, still] = still_stream();
+        let mut board = BoardReceiver::new(31, 9, Duration::from_secs(10));
+        assert!(shown(board.handle(&key)) && shown(board.handle(&still)));
+        let before = ALLOCATIONS.load(Ordering::Relaxed);
+        for _ in 0..3 {
+            assert!(shown(board.handle(&still)));
+        }
+        let after = ALLOCATIONS.load(Ordering::Relaxed);
+        assert_eq!(after - before, 0, "allocations in three still pairs");
+    }
+}
+
+/// A lossy key pair (WebP) and a pair predicted from it by motion with
+/// every block still: what a fixed rig sends.
+#[cfg(not(target_arch = "arm"))]
+fn still_stream() -> [Vec<u8>; 2] {
+    use stereolink_codec::lossy::LossyCodec;
+    use stereolink_codec::motion::{MotionPlan, MotionSpec, MotionView};
+    use stereolink_codec::temporal::{blocks, RefId};
+    use stereolink_codec::{container, Message, View};
+    use stereolink_pipeline::coding::{lossy_frame, lossy_views};
+    let scene = stereolink_image::synth::synthesize(&SynthSpec {
+        width: 320,
+        height: 240,
+        max_disp: 24,
+        seed: 4,
+    })
+    .unwrap();
+    let webp = LossyCodec::Webp;
+    let views = lossy_views((&scene.left, &scene.right), webp, 40, false).unwrap();
+    let sent = [views.0.to_rgb(), views.1.to_rgb()];
+    let frame = |views, id| {
+        let f = lossy_frame(webp, 40, views, None);
+        container::encode(&Message::StereoFrame(Box::new(f)), id, u64::from(id))
+    };
+    let (cols, rows) = blocks((320, 240));
+    let id = RefId {
+        frame_id: 1,
+        timestamp_us: 1,
+    };
+    let still = |v: &RgbImage| {
+        let plan = MotionPlan::new(v, (v, v), &vec![true; cols * rows], &MotionSpec::default());
+        View::Motion(MotionView::encode(v, (id, &plan), webp, 40).unwrap())
+    };
+    [
+        frame(views, 1),
+        frame((still(&sent[0]), still(&sent[1])), 2),
+    ]
 }

@@ -7,6 +7,7 @@ use stereolink_image::{IndexedImage, LabelMap, Rgb, RgbImage};
 
 use super::{coding, FrameRef, ViewRef};
 use crate::lossy::{self, LossyView};
+use crate::motion::{MotionDecoder, MotionView};
 use crate::stereo::{StereoDecoder, StereoView};
 use crate::temporal::{self, References};
 use crate::{labels, rgb, CodecError, StereoFrame, View};
@@ -35,6 +36,10 @@ impl FrameRef<'_> {
                 coding::PREDICTED => {
                     let coded = temporal::Coded::parse(v.payload, (w, h))?;
                     View::Predicted(coded.decode(&reference(refs, coded.reference)?[side])?)
+                }
+                coding::MOTION => {
+                    let (id, _) = temporal::split_reference(v.payload)?;
+                    View::Motion(MotionView::decode(v.payload, &reference(refs, id)?[side])?)
                 }
                 coding::LABELS_PREDICTED => {
                     let (id, _) = temporal::split_reference(v.payload)?;
@@ -143,6 +148,8 @@ pub struct FrameDecoder {
     /// frame's right view was one.
     stereo: StereoDecoder,
     stereo_right: bool,
+    /// The motion-predicted views' decoder.
+    motion: MotionDecoder,
 }
 
 impl FrameDecoder {
@@ -257,6 +264,12 @@ impl FrameDecoder {
                     let reference = &reference(refs, coded.reference)?[i];
                     coded.changed_into(&mut self.changed);
                     coded.decode_into(reference, &self.changed, &mut self.mosaic, rgb)?;
+                }
+                coding::MOTION => {
+                    let (id, _) = temporal::split_reference(view.payload)?;
+                    let reference = &reference(refs, id)?[i];
+                    temporal::same_size(reference, (w, h))?;
+                    self.motion.decode_into(view.payload, reference, rgb)?;
                 }
                 coding::LABELS_PREDICTED => {
                     // The reference, a label table (one u16 per reference

@@ -83,14 +83,20 @@ fn encode_frame(w: &mut Writer, f: &StereoFrame, mode: labels::Mode) {
     let reference = match &f.left {
         View::Indexed(l) => Some(l),
         View::PredictedLabels(l) => Some(l.image()),
-        View::Rgb(_) | View::Lossy(_) | View::Predicted(_) | View::Stereo(_) => None,
+        View::Rgb(_) | View::Lossy(_) | View::Predicted(_) | View::Stereo(_) | View::Motion(_) => {
+            None
+        }
     };
     encode_view(w, &f.right, reference, mode);
     if let Some(t) = &f.planes {
         let ids = match &f.left {
             View::Indexed(l) => Some(components(l.labels(), t.tile as usize).0),
             View::PredictedLabels(l) => Some(components(l.image().labels(), t.tile as usize).0),
-            View::Rgb(_) | View::Lossy(_) | View::Predicted(_) | View::Stereo(_) => None,
+            View::Rgb(_)
+            | View::Lossy(_)
+            | View::Predicted(_)
+            | View::Stereo(_)
+            | View::Motion(_) => None,
         };
         t.encode(w, ids.as_ref());
     }
@@ -119,6 +125,7 @@ fn encode_view(w: &mut Writer, view: &View, reference: Option<&IndexedImage>, mo
         }
         View::Predicted(v) => (coding::PREDICTED, &[], v.payload()),
         View::Stereo(v) => (coding::STEREO, &[], v.payload()),
+        View::Motion(v) => (coding::MOTION, &[], v.payload()),
         View::PredictedLabels(v) => (
             coding::LABELS_PREDICTED,
             v.image().palette(),

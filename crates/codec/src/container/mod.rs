@@ -62,6 +62,9 @@ mod coding {
     /// A right view predicted from the frame's left view
     /// ([`crate::stereo`]).
     pub const STEREO: u8 = 6;
+    /// A view predicted by motion from an earlier frame
+    /// ([`crate::motion`]).
+    pub const MOTION: u8 = 7;
 
     /// Whether a view so coded is a label map.
     pub fn indexed(code: u8) -> bool {

@@ -130,14 +130,16 @@ impl FrameRef<'_> {
     }
 
     /// The reference of a still pair: both views predicted from it, lossy,
-    /// with no block changed (the pair is the reference's).
+    /// with no block changed or moved (the pair is the reference's).
     pub fn unchanged(&self) -> Option<RefId> {
-        let still = |v: &ViewRef| {
-            if v.coding != coding::PREDICTED {
-                return None;
+        let dims = (self.width, self.height);
+        let still = |v: &ViewRef| match v.coding {
+            coding::PREDICTED => {
+                let coded = temporal::Coded::parse(v.payload, dims).ok()?;
+                (!coded.any_changed()).then_some(coded.reference)
             }
-            let coded = temporal::Coded::parse(v.payload, (self.width, self.height)).ok()?;
-            (!coded.any_changed()).then_some(coded.reference)
+            coding::MOTION => crate::motion::still_reference(v.payload, dims),
+            _ => None,
         };
         let left = still(&self.left)?;
         (still(&self.right)? == left).then_some(left)
@@ -171,16 +173,25 @@ impl ViewRef<'_> {
 
     /// The frame a predicted view is predicted from (checked by [`parse`]).
     pub fn reference(&self) -> Option<RefId> {
-        matches!(self.coding, coding::PREDICTED | coding::LABELS_PREDICTED)
-            .then(|| temporal::split_reference(self.payload).ok())
-            .flatten()
-            .map(|(id, _)| id)
+        matches!(
+            self.coding,
+            coding::PREDICTED | coding::LABELS_PREDICTED | coding::MOTION
+        )
+        .then(|| temporal::split_reference(self.payload).ok())
+        .flatten()
+        .map(|(id, _)| id)
     }
 
     /// Whether the view is predicted from the frame's left view
     /// ([`crate::stereo`]).
     pub fn is_stereo(&self) -> bool {
         self.coding == coding::STEREO
+    }
+
+    /// Whether the view is predicted by motion from an earlier frame
+    /// ([`crate::motion`]).
+    pub fn is_motion(&self) -> bool {
+        self.coding == coding::MOTION
     }
 
     /// Number of palette colours (0 for an unsegmented view).
@@ -308,6 +319,9 @@ fn parse_view<'a>(r: &mut Reader<'a>, limits: &Limits) -> Result<ViewRef<'a>, Co
     match code {
         coding::LABELS | coding::LABELS_CONDITIONED if n > 0 => {}
         coding::LABELS_PREDICTED if n > 0 => {
+            temporal::split_reference(payload)?;
+        }
+        coding::MOTION if n == 0 => {
             temporal::split_reference(payload)?;
         }
         coding::RGB => {}

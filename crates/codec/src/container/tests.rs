@@ -650,6 +650,19 @@ fn predicted_label_maps_decode_from_their_reference_only() {
     );
 }
 
+/// A 96x64 frame of two unsegmented views.
+#[cfg(feature = "encode")]
+fn unsegmented(left: View, right: View) -> StereoFrame {
+    StereoFrame {
+        kind: SegmentationKind::None,
+        levels: 0,
+        thresholds: None,
+        left,
+        right,
+        ..frame(96, 64)
+    }
+}
+
 /// A frame whose right view is stereo-predicted from its WebP left view
 /// (the synthetic pair), and the original right view.
 #[cfg(feature = "encode")]
@@ -673,14 +686,7 @@ fn stereo_frame() -> StereoFrame {
         &spec,
     )
     .unwrap();
-    StereoFrame {
-        kind: SegmentationKind::None,
-        levels: 0,
-        thresholds: None,
-        left: View::Lossy(left),
-        right: View::Stereo(right),
-        ..frame(96, 64)
-    }
+    unsegmented(View::Lossy(left), View::Stereo(right))
 }
 
 #[cfg(feature = "encode")]
@@ -751,4 +757,158 @@ fn misplaced_or_truncated_stereo_views_are_typed_errors() {
         decode(&resealed(cut), &l),
         Err(CodecError::Truncated(_))
     ));
+}
+
+/// A synthetic key pair (WebP, as decoded) and the pair moved 3 px right
+/// and 2 px down, its views predicted by motion from the key's as frame
+/// `id`.
+#[cfg(feature = "encode")]
+fn motion_frames(id: crate::temporal::RefId) -> ([RgbImage; 2], StereoFrame) {
+    use crate::motion::{MotionPlan, MotionSpec, MotionView};
+    use stereolink_image::synth::{synthesize, SynthSpec};
+    let s = synthesize(&SynthSpec {
+        width: 100,
+        height: 70,
+        max_disp: 8,
+        seed: 4,
+    })
+    .unwrap();
+    let window = |v: &RgbImage, x, y| RgbImage::from_fn(96, 64, |i, j| v.get(x + i, y + j));
+    let mut key = Vec::new();
+    let mut views = Vec::new();
+    for v in [&s.left, &s.right] {
+        let (first, next) = (window(v, 0, 0), window(v, 3, 2));
+        let sent = crate::lossy::encode(&first, LossyCodec::Webp, 50).unwrap();
+        let still = vec![false; 6 * 4];
+        let plan = MotionPlan::new(
+            &next,
+            (&first, sent.image()),
+            &still,
+            &MotionSpec::default(),
+        );
+        let view = MotionView::encode(&next, (id, &plan), LossyCodec::Webp, 50).unwrap();
+        key.push(sent.image().clone());
+        views.push(View::Motion(view));
+    }
+    let right = views.pop().unwrap();
+    let left = views.pop().unwrap();
+    (key.try_into().unwrap(), unsegmented(left, right))
+}
+
+#[cfg(feature = "encode")]
+#[test]
+fn motion_predicted_views_decode_from_their_reference_through_both_decoders() {
+    use crate::temporal::{RefId, References};
+    let id = RefId {
+        frame_id: 3,
+        timestamp_us: 30,
+    };
+    let ([l, r], f) = motion_frames(id);
+    let bytes = encode(&Message::StereoFrame(Box::new(f.clone())), 4, 40);
+    let Ok((_, Body::StereoFrame(parsed))) = parse(&bytes, &Limits::default()) else {
+        panic!("not a frame")
+    };
+    assert_eq!(parsed.references().collect::<Vec<_>>(), [id, id]);
+    assert_eq!(parsed.unchanged(), None, "the views moved");
+    let missing = Err(CodecError::MissingReference {
+        frame_id: 3,
+        timestamp_us: 30,
+    });
+    assert_eq!(parsed.decode(), missing);
+    let mut d = FrameDecoder::default();
+    assert_eq!(d.decode(&parsed), missing.map(|_: StereoFrame| ()));
+    let mut refs = References::default();
+    refs.keep(id, (&l, &r));
+    assert_eq!(parsed.decode_with(&refs).unwrap(), f);
+    d.decode_with(&parsed, &refs).unwrap();
+    d.expand_views();
+    assert_eq!(d.views(), (&f.left.to_rgb(), &f.right.to_rgb()));
+    // A reference of another size is refused by both.
+    let small = RgbImage::new(16, 16, [0; 3]);
+    refs.keep(id, (&small, &small));
+    let other_size = |e: &CodecError| matches!(e, CodecError::Invalid(m) if m.contains("16x16"));
+    assert!(parsed.decode_with(&refs).is_err_and(|e| other_size(&e)));
+    assert!(d.decode_with(&parsed, &refs).is_err_and(|e| other_size(&e)));
+}
+
+/// A pair predicted by motion with every block still is the reference's
+/// pair (a still pair); one with a block coded, or a vector not zero, is
+/// not.
+#[cfg(feature = "encode")]
+#[test]
+fn a_still_motion_pair_is_unchanged() {
+    use crate::motion::{MotionPlan, MotionSpec, MotionView};
+    use crate::temporal::RefId;
+    let id = RefId {
+        frame_id: 5,
+        timestamp_us: 50,
+    };
+    let ([l, _], _) = motion_frames(id);
+    let unchanged = |still: &[bool], current: &RgbImage| {
+        let plan = MotionPlan::new(current, (&l, &l), still, &MotionSpec::default());
+        let v =
+            View::Motion(MotionView::encode(current, (id, &plan), LossyCodec::Webp, 50).unwrap());
+        let bytes = encode(
+            &Message::StereoFrame(Box::new(unsegmented(v.clone(), v))),
+            6,
+            60,
+        );
+        let Ok((_, Body::StereoFrame(parsed))) = parse(&bytes, &Limits::default()) else {
+            panic!("not a frame")
+        };
+        parsed.unchanged()
+    };
+    assert_eq!(unchanged(&[true; 24], &l), Some(id));
+    // The same view, nothing still: searched, every vector zero, every
+    // block skipped (the prediction is exact).
+    assert_eq!(unchanged(&[false; 24], &l), Some(id));
+    let mut moved = l.clone();
+    for p in &mut moved.as_mut_slice()[..96 * 8] {
+        *p = [255, 0, 0];
+    }
+    assert_eq!(unchanged(&[false; 24], &moved), None);
+}
+
+#[cfg(feature = "encode")]
+#[test]
+fn truncated_motion_views_are_typed_errors() {
+    use crate::temporal::{RefId, References};
+    let id = RefId {
+        frame_id: 1,
+        timestamp_us: 2,
+    };
+    let ([l, r], f) = motion_frames(id);
+    let View::Motion(right) = &f.right else {
+        unreachable!("built by motion")
+    };
+    let payload = right.payload();
+    let bytes = encode(&Message::StereoFrame(Box::new(f.clone())), 2, 3);
+    // The right view is last: coding (1), palette count (4), payload
+    // length (4), payload.
+    let payload_at = bytes.len() - payload.len();
+    assert_eq!(bytes[payload_at - 9], coding::MOTION);
+    let with = |payload: &[u8]| {
+        let mut b = bytes[..payload_at - 4].to_vec();
+        b.extend_from_slice(&(payload.len() as u32).to_le_bytes());
+        b.extend_from_slice(payload);
+        resealed(b)
+    };
+    let l_ = Limits::default();
+    // Too short to name its reference: refused by the parse.
+    assert_eq!(
+        parse(&with(&payload[..7]), &l_).map(|_| ()),
+        Err(CodecError::Truncated("predicted view"))
+    );
+    let mut refs = References::default();
+    refs.keep(id, (&l, &r));
+    let blocks_end = 16 + u32::from_le_bytes(payload[12..16].try_into().unwrap()) as usize;
+    for cut in [14, 16, blocks_end - 1, blocks_end] {
+        let b = with(&payload[..cut]);
+        let Ok((_, Body::StereoFrame(parsed))) = parse(&b, &l_) else {
+            panic!("parses")
+        };
+        let mut d = FrameDecoder::default();
+        assert!(d.decode_with(&parsed, &refs).is_err(), "cut to {cut}");
+        assert!(parsed.decode_with(&refs).is_err(), "cut to {cut}");
+    }
 }
