@@ -283,14 +283,8 @@ impl WtaMatcher {
 }
 
 /// True when the AVX2 kernels can run here (the SGM kernels also use
-/// POPCNT, which every AVX2 CPU has; both are checked).
+/// POPCNT, which every AVX2 CPU has; both are checked): the project's one
+/// detection, [`stereolink_image::cpu::avx2_available`].
 pub fn avx2_available() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("popcnt")
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
+    stereolink_image::cpu::avx2_available()
 }
