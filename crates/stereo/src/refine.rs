@@ -541,14 +541,16 @@ const SORT8: [(usize, usize); 19] = [
 
 /// Sorts eight NaN-free values by [`SORT8`], unrolled, for `N` sets of
 /// them at once (`v[k]` the `k`-th value of each, in lanes that vectorise).
+// By index: split borrows of the two rows compile to a slower loop
+// (values spilled to the stack; checked in the disassembly).
+#[allow(clippy::needless_range_loop)]
 #[inline(always)]
 fn sort8<const N: usize>(v: &mut [[f32; N]; 8]) {
     seq_macro::seq!(K in 0..19 {
         let (i, j) = SORT8[K];
-        // `i < j` in every comparator.
-        let (low, high) = v.split_at_mut(j);
-        for (a, b) in low[i].iter_mut().zip(&mut high[0]) {
-            (*a, *b) = if *b < *a { (*b, *a) } else { (*a, *b) };
+        for l in 0..N {
+            let (a, b) = (v[i][l], v[j][l]);
+            (v[i][l], v[j][l]) = if b < a { (b, a) } else { (a, b) };
         }
     });
 }
