@@ -1,5 +1,5 @@
 //! What the CPU can run, asked in one place: every crate's vector kernels
-//! (WTA, SGM, census, medians, k-means, mean shift) pick their AVX2 copy
+//! (WTA, SGM, census, medians, k-means, mean shift, RGB rectification) pick their AVX2 copy
 //! through [`avx2`], so one answer holds for a whole run and a test can
 //! reason about which path it exercised.
 

@@ -8,6 +8,7 @@
 //!   pairs a label map with a palette (a segmentation).
 //! * [`io`] reads and writes PNG/PPM/PGM (through the `image` crate) and
 //!   [`pfm`] reads and writes PFM disparity files.
+//! * [`cpu`] says which instruction sets the kernels may use (AVX2).
 //! * [`color`] converts RGB ↔ gray ↔ CIE L\*u\*v\*; [`colormap`] paints
 //!   disparity maps for people.
 //! * [`cpu`] says whether the AVX2 kernels can run.

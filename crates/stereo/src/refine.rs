@@ -301,79 +301,122 @@ fn fill_row(row: &mut [f32]) -> bool {
 /// forward pass carries, per column, the nearest valid value from the north,
 /// north-west and north-east from row to row (branch-free selects on whole
 /// rows) and follows each row for the west; the backward pass does the same
-/// from the south and east. Each lists its four values per invalid pixel,
-/// and the median of the eight comes from a sorting network.
+/// from the south and east. Each writes its four values per invalid pixel
+/// into lists in raster order (the backward pass from the end: the holes
+/// are counted first), one list per direction, so that the medians of the
+/// eight come from a sorting network run on [`LANES`] holes at once.
 pub fn fill_from_directions(map: &mut DisparityMap) {
     fill_from_directions_with(map, &mut FillBuffers::default())
 }
+
+/// Holes whose medians one run of the sorting network takes.
+const LANES: usize = 8;
 
 /// The lists of [`fill_from_directions_with`], kept from one call to the
 /// next.
 #[derive(Default)]
 pub struct FillBuffers {
-    /// Per pass (forward, backward), the holes' indices and nearest values.
-    found: [Vec<(usize, [f32; 4])>; 2],
-    medians: Vec<f32>,
+    /// The holes' indices, in raster order.
+    holes: Vec<usize>,
+    /// Per direction, the nearest valid value of each hole, in raster
+    /// order: west, north-west, north, north-east (the forward pass), then
+    /// east, south-east, south, south-west (the backward one).
+    near: [Vec<f32>; 8],
 }
 
-/// [`fill_from_directions`] in the lists of `buffers` (cleared, storage
+/// [`fill_from_directions`] in the lists of `buffers` (resized, storage
 /// reused: no allocation, nor page faults, for maps of a size seen before).
 pub fn fill_from_directions_with(map: &mut DisparityMap, buffers: &mut FillBuffers) {
     let w = map.width();
     if w == 0 {
         return;
     }
-    let FillBuffers {
-        found: [forward, backward],
-        medians,
-    } = buffers;
-    rayon::join(
-        || nearest_valid(map, false, forward),
-        || nearest_valid(map, true, backward),
-    );
-    // The backward pass lists the holes in reverse raster order.
-    forward
-        .par_iter()
-        .zip(backward.par_iter().rev())
-        .map(|((_, [a, b, c, d]), (_, [e, f, g, h]))| {
-            median_of_valid(&mut [*a, *b, *c, *d, *e, *f, *g, *h])
-        })
-        .collect_into_vec(medians);
-    let values = map.as_mut_slice();
-    for (&(at, _), &m) in forward.iter().zip(medians.iter()) {
-        values[at] = m;
+    let n = map
+        .as_slice()
+        .par_chunks(w)
+        .map(|row| row.iter().filter(|&&d| !valid(d)).count())
+        .sum::<usize>();
+    let FillBuffers { holes, near } = buffers;
+    holes.resize(n, 0);
+    for list in near.iter_mut() {
+        list.resize(n, f32::INFINITY);
     }
-    fill_holes(map);
+    let (forward, backward) = near.split_at_mut(4);
+    rayon::join(
+        || nearest_valid(map, false, forward, Some(holes)),
+        || nearest_valid(map, true, backward, None),
+    );
+    // The medians, `LANES` holes at a time (the last run padded with
+    // holes that see nothing).
+    let values = map.as_mut_slice();
+    let mut unfilled = false;
+    for start in (0..n).step_by(LANES) {
+        let lanes = LANES.min(n - start);
+        let mut v = [[f32::INFINITY; LANES]; 8];
+        for (v, list) in v.iter_mut().zip(near.iter()) {
+            v[..lanes].copy_from_slice(&list[start..start + lanes]);
+        }
+        let medians = medians_of_valid(&mut v);
+        for (&at, &m) in holes[start..start + lanes].iter().zip(&medians) {
+            values[at] = m;
+            unfilled |= !valid(m);
+        }
+    }
+    // Holes that see no valid pixel in any direction are the row fill's.
+    if unfilled {
+        fill_holes(map);
+    }
 }
 
-/// Lists in `found` (cleared), for every invalid pixel (as its index, in
-/// raster order or, `backward`, the reverse), the nearest valid values
-/// along the row (west, or east when `backward`), its diagonal through the
-/// left neighbour's row, straight, and the diagonal through the right; the
-/// rows before it are those above (or below).
-fn nearest_valid(map: &DisparityMap, backward: bool, found: &mut Vec<(usize, [f32; 4])>) {
+/// Writes into `near` (each as long as the map has holes), for every
+/// invalid pixel in raster order, the nearest valid values along the row
+/// (west, or east when `backward`), its diagonal through the left
+/// neighbour's row, straight, and the diagonal through the right; the rows
+/// before it are those above (or below). With `holes`, the pixels' indices
+/// too.
+fn nearest_valid(
+    map: &DisparityMap,
+    backward: bool,
+    near: &mut [Vec<f32>],
+    holes: Option<&mut Vec<usize>>,
+) {
     let (w, h) = map.dims();
-    found.clear();
+    let [west, from_left, straight, from_right] = near else {
+        unreachable!("four directions a pass")
+    };
+    // Slices, not the vectors: their pointers stay in registers.
+    let (west, from_left) = (west.as_mut_slice(), from_left.as_mut_slice());
+    let (straight, from_right) = (straight.as_mut_slice(), from_right.as_mut_slice());
+    let mut holes = holes.map(|h| h.as_mut_slice());
+    let n = west.len();
+    // Holes listed so far.
+    let mut k = 0;
     let mut pass = DirectionPass::new(w);
     for i in 0..h {
         let y = if backward { h - 1 - i } else { i };
         let row = map.row(y);
         pass.find_holes(row);
+        let count = pass.holes.len();
         // The nearest valid value along the row: the neighbour's, or when
         // the neighbour is a hole too (the hole before in the list) that
         // hole's (a select, not a branch: holes are scattered).
         let mut along = f32::INFINITY;
-        let mut entry = |x: usize, neighbour: Option<&f32>| {
+        for j in 0..count {
+            let (x, neighbour) = if backward {
+                let x = pass.holes[count - 1 - j];
+                (x, row.get(x + 1))
+            } else {
+                let x = pass.holes[j];
+                (x, x.checked_sub(1).map(|n| &row[n]))
+            };
             along = pick(neighbour.copied().unwrap_or(f32::INFINITY), along);
-            let [straight, from_left, from_right] = pass.carried(x);
-            (y * w + x, [along, from_left, straight, from_right])
-        };
-        if backward {
-            let holes = pass.holes.iter().rev();
-            found.extend(holes.map(|&x| entry(x, row.get(x + 1))));
-        } else {
-            let holes = pass.holes.iter();
-            found.extend(holes.map(|&x| entry(x, x.checked_sub(1).map(|n| &row[n]))));
+            let at = if backward { n - 1 - k } else { k };
+            let [s, l, r] = pass.carried(x);
+            (west[at], from_left[at], straight[at], from_right[at]) = (along, l, s, r);
+            if let Some(holes) = holes.as_deref_mut() {
+                holes[at] = y * w + x;
+            }
+            k += 1;
         }
         pass.advance(row);
     }
@@ -496,22 +539,46 @@ const SORT8: [(usize, usize); 19] = [
     (1, 2), (3, 4), (5, 6),
 ];
 
-/// Sorts eight NaN-free values by [`SORT8`], unrolled into registers.
+/// Sorts eight NaN-free values by [`SORT8`], unrolled, for `N` sets of
+/// them at once (`v[k]` the `k`-th value of each, in lanes that vectorise).
+// By index: split borrows of the two rows compile to a slower loop
+// (values spilled to the stack; checked in the disassembly).
+#[allow(clippy::needless_range_loop)]
 #[inline(always)]
-fn sort8(v: &mut [f32; 8]) {
+fn sort8<const N: usize>(v: &mut [[f32; N]; 8]) {
     seq_macro::seq!(K in 0..19 {
         let (i, j) = SORT8[K];
-        let (a, b) = (v[i], v[j]);
-        (v[i], v[j]) = if b < a { (b, a) } else { (a, b) };
+        for l in 0..N {
+            let (a, b) = (v[i][l], v[j][l]);
+            (v[i][l], v[j][l]) = if b < a { (b, a) } else { (a, b) };
+        }
     });
 }
 
-/// The lower median of the finite values of `v` (`inf` for none); `inf`
-/// if there are none.
-fn median_of_valid(v: &mut [f32; 8]) -> f32 {
+/// The lower median of the finite values of each of the `N` sets of eight
+/// in `v` (as [`sort8`] takes them); `inf` for a set without any.
+#[inline(always)]
+fn medians_of_valid<const N: usize>(v: &mut [[f32; N]; 8]) -> [f32; N] {
     sort8(v);
-    let n = v.iter().filter(|&&d| valid(d)).count();
-    v[n.saturating_sub(1) / 2]
+    // Lane by lane, as vectors: the count of finite values, then the
+    // median's index (at most 3) by selects rather than a lookup.
+    let mut count = [0u32; N];
+    for v in v.iter() {
+        for (c, &d) in count.iter_mut().zip(v) {
+            *c += u32::from(valid(d));
+        }
+    }
+    let mut median = v[0];
+    for (k, v) in v.iter().enumerate().take(4).skip(1) {
+        for ((m, &d), &c) in median.iter_mut().zip(v).zip(&count) {
+            *m = if c.saturating_sub(1) / 2 == k as u32 {
+                d
+            } else {
+                *m
+            };
+        }
+    }
+    median
 }
 
 /// Mirrors a plane left-right: matching mirrored (right, left) as (left, right)
@@ -550,15 +617,14 @@ mod tests {
     #[test]
     fn the_eight_value_network_sorts() {
         for bits in 0u32..256 {
-            let mut v: [f32; 8] = std::array::from_fn(|k| (bits >> k & 1) as f32);
+            let mut v: [[f32; 1]; 8] = std::array::from_fn(|k| [(bits >> k & 1) as f32]);
             sort8(&mut v);
             assert!(v.windows(2).all(|p| p[0] <= p[1]), "{bits:08b}");
         }
-        assert_eq!(
-            median_of_valid(&mut [INF, 3.0, INF, 1.0, 2.0, INF, 9.0, INF]),
-            2.0
-        );
-        assert_eq!(median_of_valid(&mut [INF; 8]), INF);
+        // Two sets at once, each its own median.
+        let sets = [[INF, 3.0, INF, 1.0, 2.0, INF, 9.0, INF], [INF; 8]];
+        let mut v = std::array::from_fn(|k| [sets[0][k], sets[1][k]]);
+        assert_eq!(medians_of_valid(&mut v), [2.0, INF]);
     }
 
     #[test]

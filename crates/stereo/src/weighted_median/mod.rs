@@ -184,11 +184,7 @@ impl WeightedMedianGuide {
     /// Makes this the guide of `guide` for `p`, in the buffers it has.
     pub fn rebuild(&mut self, guide: &RgbImage, p: &WeightedMedian) {
         let dims = guide.dims();
-        for (k, plane) in self.planes.iter_mut().enumerate() {
-            pad_into(plane, guide.as_slice(), dims, p.radius, |row, src| {
-                row.iter_mut().zip(src).for_each(|(o, c)| *o = c[k]);
-            });
-        }
+        pad_planes_into(&mut self.planes, guide, p.radius);
         let (r, step) = (p.radius as isize, p.step);
         let wp = dims.0 as isize + 2 * r;
         self.offsets.clear();
@@ -359,6 +355,40 @@ fn pad_into<S: Sync, T: Copy + Default + Send>(
         left.fill(middle[0]);
         right.fill(middle[w - 1]);
     });
+}
+
+/// [`pad_into`] for the three colour planes of `guide` at once (one pass
+/// over its pixels, not one per plane).
+fn pad_planes_into(planes: &mut [Vec<u8>; 3], guide: &RgbImage, r: usize) {
+    let (w, h) = guide.dims();
+    if w == 0 || h == 0 {
+        planes.iter_mut().for_each(Vec::clear);
+        return;
+    }
+    let wp = w + 2 * r;
+    // Every element is written below.
+    planes
+        .iter_mut()
+        .for_each(|p| p.resize(wp * (h + 2 * r), 0));
+    let [red, green, blue] = planes;
+    let rows = red.par_chunks_mut(wp).zip(green.par_chunks_mut(wp));
+    rows.zip(blue.par_chunks_mut(wp))
+        .enumerate()
+        .for_each(|(yp, ((red, green), blue))| {
+            let y = yp.clamp(r, r + h - 1) - r;
+            let src = guide.row(y);
+            let middle = r..r + w;
+            let planes = (&mut red[middle.clone()], &mut green[middle.clone()]);
+            let rows = planes.0.iter_mut().zip(planes.1.iter_mut());
+            for (((o0, o1), o2), c) in rows.zip(&mut blue[middle]).zip(src) {
+                (*o0, *o1, *o2) = (c[0], c[1], c[2]);
+            }
+            for row in [red, green, blue] {
+                let (first, last) = (row[r], row[r + w - 1]);
+                row[..r].fill(first);
+                row[r + w..].fill(last);
+            }
+        });
 }
 
 /// The bins of a row of disparities (`invalid` for an invalid one);

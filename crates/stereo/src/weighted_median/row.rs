@@ -136,8 +136,11 @@ pub(super) fn filter_row(job: &MapJob, y: usize, row: &mut [f32], scratch: &mut 
     }
     for ((d, &m), &b) in row.iter_mut().zip(medians.iter()).zip(own) {
         // `HARD` and `invalid` are above every valid bin.
-        let take = (m != b) & (m < invalid);
-        *d = if take { lo + f32::from(m) } else { *d };
+        let take = u32::from((m != b) & (m < invalid)).wrapping_neg();
+        // A select on the bits, storing every lane: as an `if`, LLVM
+        // emits a masked store, slow on some CPUs (AMD's).
+        let median = lo + f32::from(m);
+        *d = f32::from_bits(median.to_bits() & take | d.to_bits() & !take);
     }
     // The rest, in chunks as above (a pixel of overlapping chunks may be
     // searched twice, to the same result).

@@ -23,7 +23,7 @@ use std::arch::x86_64::*;
 
 use super::driver::{lanes, Band, Job};
 use super::portable::accumulate_row;
-use super::winner::{check_row, Disparity, Winner};
+use super::winner::{check_row, plain, Disparity, Winner};
 use crate::lanes::{Avx2, LaneOps, LANES};
 
 /// Runs [`super::portable::band_with`]'s work for `job` without a min
@@ -122,6 +122,8 @@ unsafe fn row<const B: usize, T: Disparity>(
     let ones = _mm256_set1_epi16(-1);
     let mut right = [ones; B];
     let (right_best, winners) = (&mut band.right_best, &mut band.winners);
+    // The costs are spilled for the winner only if it needs them.
+    let plain = plain(p);
     for (x, d) in out.iter_mut().enumerate() {
         if x > 0 {
             if x + r < w {
@@ -139,8 +141,12 @@ unsafe fn row<const B: usize, T: Disparity>(
         let costs = masked(&cost, valid);
         let (lane, best) = argmin(&costs);
         let mut spilled = [[0u16; LANES]; B];
-        store(&mut spilled, &costs);
-        *d = T::winner(spilled.as_flattened(), valid, (lane, best), p);
+        *d = if plain {
+            T::at(lane, p)
+        } else {
+            store(&mut spilled, &costs);
+            T::winner(spilled.as_flattened(), valid, (lane, best), p)
+        };
         if job.check {
             store(&mut spilled, &right);
             winners[x] = Winner {

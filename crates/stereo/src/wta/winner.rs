@@ -47,6 +47,15 @@ pub(super) trait Disparity: Copy + Send + Sync {
     /// index `k` of their smallest cost and that cost (index `k` is
     /// disparity `d_min + k`), after the uniqueness test.
     fn winner(costs: &[u16], valid: usize, best: (usize, u16), p: &WtaParams) -> Self;
+    /// The disparity of index `k`: [`Self::winner`] when `p` asks for
+    /// neither the uniqueness test nor the subpixel fit, which then need
+    /// no costs ([`plain`]).
+    fn at(k: usize, p: &WtaParams) -> Self;
+}
+
+/// Whether `p` picks a winner from its index alone ([`Disparity::at`]).
+pub(super) fn plain(p: &WtaParams) -> bool {
+    p.uniqueness == 0 && !p.subpixel
 }
 
 impl Disparity for f32 {
@@ -59,11 +68,16 @@ impl Disparity for f32 {
         if ambiguous(costs, (k, best), p) {
             return f32::INFINITY;
         }
-        let mut d = (p.min_disp + k) as f32;
+        let mut d = Self::at(k, p);
         if p.subpixel && k > 0 && k + 1 < costs.len() {
             d += crate::refine::parabola(costs[k - 1] as f32, best as f32, costs[k + 1] as f32);
         }
         d
+    }
+
+    #[inline(always)]
+    fn at(k: usize, p: &WtaParams) -> f32 {
+        (p.min_disp + k) as f32
     }
 }
 
@@ -75,8 +89,13 @@ impl Disparity for u16 {
         if ambiguous(&costs[..valid], (k, best), p) {
             NO_DISPARITY
         } else {
-            (p.min_disp + k) as u16
+            Self::at(k, p)
         }
+    }
+
+    #[inline(always)]
+    fn at(k: usize, p: &WtaParams) -> u16 {
+        (p.min_disp + k) as u16
     }
 }
 

@@ -13,12 +13,18 @@
 //! check per pixel. Pixels whose four neighbours are all inside the source
 //! take this path; those mapped wholly outside get zero weights (black, the
 //! constant border); the few along the source's edge, with some neighbours
-//! outside, are finished in a second, exact pass over a short list.
+//! outside, are finished in a second, exact pass over a short list. RGB
+//! images take an AVX2 copy of the first pass where the CPU has it
+//! (`avx2`, detected by [`stereolink_image::cpu::avx2`]), with
+//! the same results bit for bit.
 
 use nalgebra::{Matrix3, Matrix3x4, Point2, Vector3};
 use stereolink_image::{Plane, Rgb};
 
 use crate::{Camera, Error, Result, StereoCalibration};
+
+#[cfg(target_arch = "x86_64")]
+mod avx2;
 
 /// Bits of the source position's fraction (OpenCV's `INTER_BITS`).
 pub const FRACTION_BITS: u32 = 5;
@@ -42,6 +48,11 @@ pub trait Pixel: Copy + Default + Send + Sync + 'static {
     /// The bilinear blend of the four neighbours `p` (top-left, top-right,
     /// bottom-left, bottom-right) with weights `w` summing to 1024, rounded.
     fn blend(p: [Self; 4], w: &[u16; 4]) -> Self;
+    /// `src` and `out` as RGB pixels if these are RGB (`None` otherwise):
+    /// lets a [`RectifyMap`] run its RGB kernel on them.
+    fn as_rgb<'a>(_src: &'a [Self], _out: &'a mut [Self]) -> Option<(&'a [Rgb], &'a mut [Rgb])> {
+        None
+    }
 }
 
 /// Half of the weights' sum: rounds a blend to nearest.
@@ -100,6 +111,9 @@ impl Pixel for Rgb {
             .fold(round, |acc, (&p, &w)| acc + lanes(p) * u64::from(w));
         let shift = |lane: u32| (sum >> (WEIGHT_BITS + lane * LANE)) as u8;
         [shift(0), shift(1), shift(2)]
+    }
+    fn as_rgb<'a>(src: &'a [Rgb], out: &'a mut [Rgb]) -> Option<(&'a [Rgb], &'a mut [Rgb])> {
+        Some((src, out))
     }
 }
 
@@ -162,6 +176,9 @@ pub struct RectifyMap {
     /// Pixels along the source's edge, blended in a second pass.
     edge: Vec<EdgePixel>,
     table: Box<[[u16; 4]; TABLE]>,
+    /// The weights as the AVX2 kernel takes them, if it runs here.
+    #[cfg(target_arch = "x86_64")]
+    separable: Option<Box<[u64; TABLE]>>,
 }
 
 impl RectifyMap {
@@ -199,6 +216,8 @@ impl RectifyMap {
             weight: Vec::with_capacity(n),
             edge: Vec::new(),
             table: weight_table(),
+            #[cfg(target_arch = "x86_64")]
+            separable: stereolink_image::cpu::avx2().then(avx2::separable_weights),
         };
         for v in 0..size.1 {
             for u in 0..size.0 {
@@ -270,19 +289,12 @@ impl RectifyMap {
             out.reset(self.size.0, self.size.1, P::default());
         }
         let s = src.as_slice();
-        let stride = self.source.0;
         let table = &*self.table;
         // Every offset leaves room for the pixel below-right (new() made
         // sure; an outside pixel has offset 0 and zero weights), and the
         // source has at least 2 rows and 2 columns when any offset is used.
-        let reach = stride + 2;
-        if s.len() >= reach {
-            let pixels = out.as_mut_slice().iter_mut();
-            for ((o, &i), &w) in pixels.zip(&self.offset).zip(&self.weight) {
-                let n = &s[i as usize..i as usize + reach];
-                let w = &table[usize::from(w) & (TABLE - 1)];
-                *o = P::blend([n[0], n[1], n[stride], n[stride + 1]], w);
-            }
+        if s.len() >= self.source.0 + 2 {
+            self.blend_inside(s, out.as_mut_slice());
         } else {
             out.as_mut_slice().fill(P::default());
         }
@@ -305,6 +317,36 @@ impl RectifyMap {
             o[e.at as usize] = P::blend(n, &table[usize::from(e.weight)]);
         }
         Ok(())
+    }
+}
+
+impl RectifyMap {
+    /// The first pass of [`Self::apply_into`]: every output pixel blended
+    /// from its four neighbours at its offset in `s` (at least two rows
+    /// and columns), in AVX2 for RGB where the CPU has it.
+    fn blend_inside<P: Pixel>(&self, s: &[P], out: &mut [P]) {
+        #[cfg(target_arch = "x86_64")]
+        if let (Some(separable), Some((src, out))) = (&self.separable, P::as_rgb(s, out)) {
+            let (offset, weight) = (&self.offset, &self.weight);
+            let rest = |k: usize, px: &mut Rgb| *px = self.blend_at(src, offset[k], weight[k]);
+            // SAFETY: `separable` is only built where the CPU has AVX2.
+            return unsafe {
+                avx2::blend_inside(src, self.source.0, offset, weight, separable, out, rest)
+            };
+        }
+        for ((o, &i), &w) in out.iter_mut().zip(&self.offset).zip(&self.weight) {
+            *o = self.blend_at(s, i, w);
+        }
+    }
+
+    /// The blend of the four neighbours of `s` from offset `i` on with
+    /// the weights of index `w` (zero for [`OUTSIDE`]).
+    #[inline(always)]
+    fn blend_at<P: Pixel>(&self, s: &[P], i: u32, w: u16) -> P {
+        let stride = self.source.0;
+        let n = &s[i as usize..i as usize + stride + 2];
+        let w = &self.table[usize::from(w) & (TABLE - 1)];
+        P::blend([n[0], n[1], n[stride], n[stride + 1]], w)
     }
 }
 
