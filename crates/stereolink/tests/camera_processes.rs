@@ -116,7 +116,10 @@ mod live {
         assert_eq!(ids.len(), 3, "{sent}");
         assert!(ids.windows(2).all(|w| w[0] < w[1]), "{sent}");
         assert!(sent["status"]["pairs"].as_u64().unwrap() >= 3, "{sent}");
-        assert!(shots.join("screen-00003.png").is_file());
+        // The screen is named by frame id, which counts pairs taken: the
+        // last frame's, not "3", when a pair went only as a depth report.
+        let last = shots.join(format!("screen-{:05}.png", ids[2]));
+        assert!(last.is_file(), "{} {sent}", last.display());
         let read = |name: &str| io::read_rgb(saved.join(name)).unwrap();
         for side in ["left", "right"] {
             let a = read(&format!("sent-{side}.png"));
