@@ -312,6 +312,10 @@ pub fn fill_from_directions(map: &mut DisparityMap) {
 /// Holes whose medians one run of the sorting network takes.
 const LANES: usize = 8;
 
+/// Holes a parallel task of [`fill_from_directions_with`] takes the
+/// medians of (a multiple of [`LANES`]).
+const MEDIAN_RUN: usize = 64 * LANES;
+
 /// The lists of [`fill_from_directions_with`], kept from one call to the
 /// next.
 #[derive(Default)]
@@ -347,20 +351,34 @@ pub fn fill_from_directions_with(map: &mut DisparityMap, buffers: &mut FillBuffe
         || nearest_valid(map, true, backward, None),
     );
     // The medians, `LANES` holes at a time (the last run padded with
-    // holes that see nothing).
+    // holes that see nothing), runs of them in parallel, into the west
+    // list (each hole's median once its eight are read); then each to its
+    // hole.
+    let (west, others) = near.split_first_mut().expect("eight directions");
+    let others = &*others;
+    let unfilled = west
+        .par_chunks_mut(MEDIAN_RUN)
+        .enumerate()
+        .map(|(run, out)| {
+            let mut unfilled = false;
+            for (k, out) in out.chunks_mut(LANES).enumerate() {
+                let start = run * MEDIAN_RUN + k * LANES;
+                let lanes = out.len();
+                let mut v = [[f32::INFINITY; LANES]; 8];
+                v[0][..lanes].copy_from_slice(out);
+                for (v, list) in v[1..].iter_mut().zip(others) {
+                    v[..lanes].copy_from_slice(&list[start..start + lanes]);
+                }
+                let medians = medians_of_valid(&mut v);
+                out.copy_from_slice(&medians[..lanes]);
+                unfilled |= medians[..lanes].iter().any(|&m| !valid(m));
+            }
+            unfilled
+        })
+        .reduce(|| false, |a, b| a | b);
     let values = map.as_mut_slice();
-    let mut unfilled = false;
-    for start in (0..n).step_by(LANES) {
-        let lanes = LANES.min(n - start);
-        let mut v = [[f32::INFINITY; LANES]; 8];
-        for (v, list) in v.iter_mut().zip(near.iter()) {
-            v[..lanes].copy_from_slice(&list[start..start + lanes]);
-        }
-        let medians = medians_of_valid(&mut v);
-        for (&at, &m) in holes[start..start + lanes].iter().zip(&medians) {
-            values[at] = m;
-            unfilled |= !valid(m);
-        }
+    for (&at, &m) in holes.iter().zip(west.iter()) {
+        values[at] = m;
     }
     // Holes that see no valid pixel in any direction are the row fill's.
     if unfilled {

@@ -238,7 +238,6 @@ impl WeightedMedianGuide {
         if out.dims() != map.dims() {
             out.reset(map.width(), map.height(), 0.0);
         }
-        out.as_mut_slice().copy_from_slice(map.as_slice());
         let w = self.dims.0;
         // The smallest and largest valid values, by rows in parallel
         // (branch-free selects, so that the loop vectorises).
@@ -258,6 +257,7 @@ impl WeightedMedianGuide {
             .reduce(|| (f32::INFINITY, f32::NEG_INFINITY), extremes);
         if lo > hi {
             // No valid pixel.
+            out.as_mut_slice().copy_from_slice(map.as_slice());
             return;
         }
         // Rounding is monotonic: the extremes' bins are the extreme bins.
@@ -266,6 +266,7 @@ impl WeightedMedianGuide {
         if bins >= i16::MAX as usize {
             // Not a disparity map of any image this crate matches: left as
             // is (bins and their differences are `i16` in the lanes).
+            out.as_mut_slice().copy_from_slice(map.as_slice());
             return;
         }
         let r = self.p.radius;
@@ -286,6 +287,9 @@ impl WeightedMedianGuide {
             .par_chunks_mut(w)
             .enumerate()
             .for_each_init(RowScratch::default, |scratch, (y, row)| {
+                // Each row copies its own (in parallel, not one copy of
+                // the map before).
+                row.copy_from_slice(map.row(y));
                 #[cfg(target_arch = "x86_64")]
                 if self.avx2 {
                     // SAFETY: `avx2` only when the CPU has it.
