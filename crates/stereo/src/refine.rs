@@ -28,9 +28,10 @@ pub struct Refinement {
     /// Colour-weighted median guided by the left view: once on the checked
     /// map and once after the fill (it cleans the fill's streaks). Before a
     /// fill, only the valid pixels next to a hole take the median (those
-    /// whose values the fill spreads; the holes are the fill's); without
-    /// one, all pixels take it, holes too (valid pixels vote, so it fills
-    /// holes among similar colours).
+    /// whose values the fill spreads; the holes are the fill's), with the
+    /// sparser window of [`WeightedMedian::before_fill`]; without one, all
+    /// pixels take it, holes too (valid pixels vote, so it fills holes
+    /// among similar colours).
     pub weighted_median: Option<WeightedMedian>,
     /// How invalid pixels are filled, if at all.
     pub fill: Option<HoleFill>,
@@ -85,8 +86,9 @@ impl Refinement {
         match algorithm {
             // WTA: the LR check asks for equal disparities (tolerance 0.5
             // on whole pixels), then the colour-weighted median
-            // (`WeightedMedian::DEFAULT`) before (valid pixels only) and
-            // after the fill. It beats the SSD+MF baseline on all four v2
+            // (`WeightedMedian::DEFAULT`) before (valid pixels next to
+            // holes only, the sparser `before_fill` window) and after the
+            // fill. It beats the SSD+MF baseline on all four v2
             // scenes; a 5×5 median in its place (`--weighted-median 0
             // --median 5`) is a little faster but misses it on two
             // (docs/tuning.md, “The colour-weighted median as the default
@@ -161,29 +163,23 @@ pub fn postprocess(
     if r.median > 1 {
         d = median(&d, r.median);
     }
-    // One guide serves both weighted-median passes; each filters from `d`
-    // into the spare map, which then changes places with `d`.
+    // One guide's buffers serve both weighted-median passes (rebuilt for
+    // each one's window); each filters from `d` into the spare map, which
+    // then changes places with `d`.
     let RefineBuffers {
         guide: wm,
         spare,
         fill,
     } = buffers;
-    let mut wm = r.weighted_median.map(|p| match wm {
-        Some(wm) => {
-            wm.rebuild(guide, &p);
-            wm
-        }
-        None => wm.insert(WeightedMedianGuide::new(guide, &p)),
-    });
-    if let Some(wm) = &mut wm {
+    if let Some(p) = r.weighted_median {
         // Holes left to the fill, and only the pixels next to them, which
         // the fill reads: after WTA this is more accurate, and cheaper,
         // than the median on all valid pixels or on the holes too
         // (docs/tuning.md, “The colour-weighted median as the default
         // refinement”).
         match r.fill {
-            Some(_) => wm.filter_borders(&d, spare),
-            None => wm.filter(&d, spare),
+            Some(_) => guide_for(wm, guide, &p.before_fill()).filter_borders(&d, spare),
+            None => guide_for(wm, guide, &p).filter(&d, spare),
         }
         std::mem::swap(&mut d, spare);
     }
@@ -192,11 +188,27 @@ pub fn postprocess(
         Some(HoleFill::Directions) => fill_from_directions_with(&mut d, fill),
         None => {}
     }
-    if let (Some(wm), Some(_)) = (&mut wm, r.fill) {
-        wm.filter(&d, spare);
+    if let (Some(p), Some(_)) = (r.weighted_median, r.fill) {
+        guide_for(wm, guide, &p).filter(&d, spare);
         std::mem::swap(&mut d, spare);
     }
     d
+}
+
+/// The weighted median's guide of `guide` for `p`, in the buffers of
+/// `kept` (built there on first use).
+fn guide_for<'a>(
+    kept: &'a mut Option<WeightedMedianGuide>,
+    guide: &RgbImage,
+    p: &WeightedMedian,
+) -> &'a mut WeightedMedianGuide {
+    match kept {
+        Some(wm) => {
+            wm.rebuild(guide, p);
+            wm
+        }
+        None => kept.insert(WeightedMedianGuide::new(guide, p)),
+    }
 }
 
 /// Sub-pixel offset of the minimum of the parabola through `(−1, c0)`,

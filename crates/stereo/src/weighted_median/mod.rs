@@ -54,15 +54,15 @@ pub struct WeightedMedian {
 }
 
 impl WeightedMedian {
-    /// The default after WTA: a 17×17 window sampled every fourth pixel
-    /// (25 samples), `K` = 150. Sparse samples keep a wide reach at a
-    /// fraction of the cost of every pixel; the window, step and reach are
-    /// explained in docs/tuning.md, “The weighted median's weights, reach,
-    /// window and step”.
+    /// The default after WTA: a 13×13 window sampled every third pixel
+    /// (25 samples), `K` = 150; before a fill, [`Self::before_fill`].
+    /// Sparse samples keep a wide reach at a fraction of the cost of every
+    /// pixel; the window, step and reach are explained in docs/tuning.md,
+    /// “The weighted median's weights, reach, window and step”.
     pub const DEFAULT: WeightedMedian = WeightedMedian {
-        radius: 8,
+        radius: 6,
         color_reach: 150,
-        step: 4,
+        step: 3,
     };
 
     /// The default after the plane matcher, whose map is dense and subpixel
@@ -75,6 +75,22 @@ impl WeightedMedian {
         color_reach: 250,
         step: 1,
     };
+
+    /// The pass before a hole fill, on the valid pixels next to a hole
+    /// ([`WeightedMedianGuide::filter_borders`]): the centre, corners and
+    /// edge midpoints (9 samples) of a window half again as wide (radius
+    /// `⌊3·radius / 2⌋`, at most 15), with the same reach. Those pixels
+    /// lie along holes, where a wide reach finds their surface's colour;
+    /// 9 samples cost about a third of 25 (docs/tuning.md, “The colour-weighted
+    /// median as the default refinement”).
+    pub fn before_fill(&self) -> WeightedMedian {
+        let radius = (3 * self.radius / 2).clamp(1, 15);
+        WeightedMedian {
+            radius,
+            step: radius,
+            ..*self
+        }
+    }
 
     /// Checks the documented ranges.
     pub fn validate(&self) -> Result<(), StereoError> {

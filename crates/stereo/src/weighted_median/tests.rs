@@ -266,3 +266,30 @@ fn bad_parameters_are_errors() {
         assert!(bad.validate().is_err(), "{bad:?}");
     }
 }
+
+#[test]
+fn the_pass_before_a_fill_takes_nine_samples_of_a_wider_window() {
+    let before = WeightedMedian::DEFAULT.before_fill();
+    assert_eq!(
+        before,
+        WeightedMedian {
+            radius: 9,
+            step: 9,
+            ..WeightedMedian::DEFAULT
+        }
+    );
+    // Valid for every valid radius (at most 15 wide each way).
+    for radius in 1..=15 {
+        let p = WeightedMedian {
+            radius,
+            step: 1,
+            ..WeightedMedian::DEFAULT
+        };
+        let b = p.before_fill();
+        assert_eq!(b.validate(), Ok(()), "{b:?}");
+        assert_eq!(b.radius, (3 * radius / 2).clamp(1, 15));
+    }
+    // The window's centre, corners and edge midpoints.
+    let g = WeightedMedianGuide::new(&RgbImage::new(40, 40, [9; 3]), &before);
+    assert_eq!(g.offsets.len(), 9);
+}
