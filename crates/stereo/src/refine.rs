@@ -163,9 +163,9 @@ pub fn postprocess(
     if r.median > 1 {
         d = median(&d, r.median);
     }
-    // One guide's buffers serve both weighted-median passes (rebuilt for
-    // each one's window); each filters from `d` into the spare map, which
-    // then changes places with `d`.
+    // One guide serves both weighted-median passes (built for the first,
+    // whose window is the wider); each filters from `d` into the spare
+    // map, which then changes places with `d`.
     let RefineBuffers {
         guide: wm,
         spare,
@@ -188,8 +188,10 @@ pub fn postprocess(
         Some(HoleFill::Directions) => fill_from_directions_with(&mut d, fill),
         None => {}
     }
-    if let (Some(p), Some(_)) = (r.weighted_median, r.fill) {
-        guide_for(wm, guide, &p).filter(&d, spare);
+    if let (Some(p), Some(wm)) = (r.weighted_median, wm.as_mut().filter(|_| r.fill.is_some())) {
+        // The first pass's window is the wider: its guide serves.
+        wm.set_window(&p);
+        wm.filter(&d, spare);
         std::mem::swap(&mut d, spare);
     }
     d

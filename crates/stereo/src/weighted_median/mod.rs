@@ -162,7 +162,10 @@ pub fn weighted_median(map: &DisparityMap, guide: &RgbImage, p: &WeightedMedian)
 pub struct WeightedMedianGuide {
     p: WeightedMedian,
     dims: (usize, usize),
-    /// The colour planes apart and border-replicated by `radius` on every
+    /// The border of the padded grid: the radius the guide was built for,
+    /// at least the window's ([`Self::set_window`]).
+    pad: usize,
+    /// The colour planes apart and border-replicated by `pad` on every
     /// side, so that a sample's colours along a row are a slice.
     planes: [Vec<u8>; 3],
     /// The window's samples in order, as offsets in the padded grid.
@@ -187,6 +190,7 @@ impl WeightedMedianGuide {
         let mut g = WeightedMedianGuide {
             p: *p,
             dims: (0, 0),
+            pad: 0,
             planes: Default::default(),
             offsets: Vec::new(),
             shift: 0,
@@ -199,10 +203,25 @@ impl WeightedMedianGuide {
 
     /// Makes this the guide of `guide` for `p`, in the buffers it has.
     pub fn rebuild(&mut self, guide: &RgbImage, p: &WeightedMedian) {
-        let dims = guide.dims();
         pad_planes_into(&mut self.planes, guide, p.radius);
+        (self.dims, self.pad) = (guide.dims(), p.radius);
+        self.set_window(p);
+    }
+
+    /// Makes this the guide of the same image for `p`, whose window fits
+    /// the border it was built with, without padding the colour planes
+    /// again (the refinement's second pass has a narrower window than its
+    /// first).
+    ///
+    /// # Panics
+    /// If `p.radius` is larger than the radius the guide was built for.
+    pub fn set_window(&mut self, p: &WeightedMedian) {
+        assert!(
+            p.radius <= self.pad,
+            "the window outgrows the guide's border"
+        );
         let (r, step) = (p.radius as isize, p.step);
-        let wp = dims.0 as isize + 2 * r;
+        let wp = (self.dims.0 + 2 * self.pad) as isize;
         self.offsets.clear();
         self.offsets.extend(
             (-r..=r)
@@ -210,7 +229,7 @@ impl WeightedMedianGuide {
                 .flat_map(|dy| (-r..=r).step_by(step).map(move |dx| dy * wp + dx)),
         );
         self.shift = weight_shift(p.color_reach, self.offsets.len());
-        (self.p, self.dims) = (*p, dims);
+        self.p = *p;
     }
 
     /// The weighted median of `map` (see [`weighted_median`]).
@@ -285,7 +304,7 @@ impl WeightedMedianGuide {
             out.as_mut_slice().copy_from_slice(map.as_slice());
             return;
         }
-        let r = self.p.radius;
+        let r = self.pad;
         // Invalid pixels go to the extra bin `bins`, which never counts.
         let invalid = bins as u16;
         let mut bin_pad = std::mem::take(&mut self.bin_pad);

@@ -232,6 +232,13 @@ fn a_rebuilt_guide_filters_as_a_new_one() {
     g.filter(&map, &mut reused);
     assert_eq!(reused, fresh);
     assert_eq!(fresh, naive(&map, &guide, &p, false));
+    // Built for a wider window, then set to this one: the same too.
+    let mut wide = WeightedMedianGuide::new(&guide, &p.before_fill());
+    wide.set_window(&p);
+    wide.filter(&map, &mut reused);
+    assert_eq!(reused, fresh);
+    wide.filter_borders(&map, &mut reused);
+    assert_eq!(reused, naive(&map, &guide, &p, true));
 }
 
 #[test]
