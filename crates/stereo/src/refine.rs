@@ -28,9 +28,10 @@ pub struct Refinement {
     /// Colour-weighted median guided by the left view: once on the checked
     /// map and once after the fill (it cleans the fill's streaks). Before a
     /// fill, only the valid pixels next to a hole take the median (those
-    /// whose values the fill spreads; the holes are the fill's); without
-    /// one, all pixels take it, holes too (valid pixels vote, so it fills
-    /// holes among similar colours).
+    /// whose values the fill spreads; the holes are the fill's), with the
+    /// sparser window of [`WeightedMedian::before_fill`]; without one, all
+    /// pixels take it, holes too (valid pixels vote, so it fills holes
+    /// among similar colours).
     pub weighted_median: Option<WeightedMedian>,
     /// How invalid pixels are filled, if at all.
     pub fill: Option<HoleFill>,
@@ -85,8 +86,9 @@ impl Refinement {
         match algorithm {
             // WTA: the LR check asks for equal disparities (tolerance 0.5
             // on whole pixels), then the colour-weighted median
-            // (`WeightedMedian::DEFAULT`) before (valid pixels only) and
-            // after the fill. It beats the SSD+MF baseline on all four v2
+            // (`WeightedMedian::DEFAULT`) before (valid pixels next to
+            // holes only, the sparser `before_fill` window) and after the
+            // fill. It beats the SSD+MF baseline on all four v2
             // scenes; a 5×5 median in its place (`--weighted-median 0
             // --median 5`) is a little faster but misses it on two
             // (docs/tuning.md, “The colour-weighted median as the default
@@ -161,29 +163,23 @@ pub fn postprocess(
     if r.median > 1 {
         d = median(&d, r.median);
     }
-    // One guide serves both weighted-median passes; each filters from `d`
-    // into the spare map, which then changes places with `d`.
+    // One guide serves both weighted-median passes (built for the first,
+    // whose window is the wider); each filters from `d` into the spare
+    // map, which then changes places with `d`.
     let RefineBuffers {
         guide: wm,
         spare,
         fill,
     } = buffers;
-    let mut wm = r.weighted_median.map(|p| match wm {
-        Some(wm) => {
-            wm.rebuild(guide, &p);
-            wm
-        }
-        None => wm.insert(WeightedMedianGuide::new(guide, &p)),
-    });
-    if let Some(wm) = &mut wm {
+    if let Some(p) = r.weighted_median {
         // Holes left to the fill, and only the pixels next to them, which
         // the fill reads: after WTA this is more accurate, and cheaper,
         // than the median on all valid pixels or on the holes too
         // (docs/tuning.md, “The colour-weighted median as the default
         // refinement”).
         match r.fill {
-            Some(_) => wm.filter_borders(&d, spare),
-            None => wm.filter(&d, spare),
+            Some(_) => guide_for(wm, guide, &p.before_fill()).filter_borders(&d, spare),
+            None => guide_for(wm, guide, &p).filter(&d, spare),
         }
         std::mem::swap(&mut d, spare);
     }
@@ -192,11 +188,29 @@ pub fn postprocess(
         Some(HoleFill::Directions) => fill_from_directions_with(&mut d, fill),
         None => {}
     }
-    if let (Some(wm), Some(_)) = (&mut wm, r.fill) {
+    if let (Some(p), Some(wm)) = (r.weighted_median, wm.as_mut().filter(|_| r.fill.is_some())) {
+        // The first pass's window is the wider: its guide serves.
+        wm.set_window(&p);
         wm.filter(&d, spare);
         std::mem::swap(&mut d, spare);
     }
     d
+}
+
+/// The weighted median's guide of `guide` for `p`, in the buffers of
+/// `kept` (built there on first use).
+fn guide_for<'a>(
+    kept: &'a mut Option<WeightedMedianGuide>,
+    guide: &RgbImage,
+    p: &WeightedMedian,
+) -> &'a mut WeightedMedianGuide {
+    match kept {
+        Some(wm) => {
+            wm.rebuild(guide, p);
+            wm
+        }
+        None => kept.insert(WeightedMedianGuide::new(guide, p)),
+    }
 }
 
 /// Sub-pixel offset of the minimum of the parabola through `(−1, c0)`,
@@ -312,6 +326,10 @@ pub fn fill_from_directions(map: &mut DisparityMap) {
 /// Holes whose medians one run of the sorting network takes.
 const LANES: usize = 8;
 
+/// Holes a parallel task of [`fill_from_directions_with`] takes the
+/// medians of (a multiple of [`LANES`]).
+const MEDIAN_RUN: usize = 64 * LANES;
+
 /// The lists of [`fill_from_directions_with`], kept from one call to the
 /// next.
 #[derive(Default)]
@@ -347,20 +365,34 @@ pub fn fill_from_directions_with(map: &mut DisparityMap, buffers: &mut FillBuffe
         || nearest_valid(map, true, backward, None),
     );
     // The medians, `LANES` holes at a time (the last run padded with
-    // holes that see nothing).
+    // holes that see nothing), runs of them in parallel, into the west
+    // list (each hole's median once its eight are read); then each to its
+    // hole.
+    let (west, others) = near.split_first_mut().expect("eight directions");
+    let others = &*others;
+    let unfilled = west
+        .par_chunks_mut(MEDIAN_RUN)
+        .enumerate()
+        .map(|(run, out)| {
+            let mut unfilled = false;
+            for (k, out) in out.chunks_mut(LANES).enumerate() {
+                let start = run * MEDIAN_RUN + k * LANES;
+                let lanes = out.len();
+                let mut v = [[f32::INFINITY; LANES]; 8];
+                v[0][..lanes].copy_from_slice(out);
+                for (v, list) in v[1..].iter_mut().zip(others) {
+                    v[..lanes].copy_from_slice(&list[start..start + lanes]);
+                }
+                let medians = medians_of_valid(&mut v);
+                out.copy_from_slice(&medians[..lanes]);
+                unfilled |= medians[..lanes].iter().any(|&m| !valid(m));
+            }
+            unfilled
+        })
+        .reduce(|| false, |a, b| a | b);
     let values = map.as_mut_slice();
-    let mut unfilled = false;
-    for start in (0..n).step_by(LANES) {
-        let lanes = LANES.min(n - start);
-        let mut v = [[f32::INFINITY; LANES]; 8];
-        for (v, list) in v.iter_mut().zip(near.iter()) {
-            v[..lanes].copy_from_slice(&list[start..start + lanes]);
-        }
-        let medians = medians_of_valid(&mut v);
-        for (&at, &m) in holes[start..start + lanes].iter().zip(&medians) {
-            values[at] = m;
-            unfilled |= !valid(m);
-        }
+    for (&at, &m) in holes.iter().zip(west.iter()) {
+        values[at] = m;
     }
     // Holes that see no valid pixel in any direction are the row fill's.
     if unfilled {

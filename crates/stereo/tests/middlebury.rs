@@ -44,7 +44,7 @@ fn sgm_on_the_v2_scenes() {
 
 /// WTA with its default refinement (LR check, colour-weighted median, fill)
 /// at or below the SSD+MF baseline of 5.23 / 3.74 / 16.5 / 10.6 % (measured
-/// 3.63 / 0.90 / 15.47 / 6.69 %); with the fast refinement (a 5×5 median in
+/// 3.78 / 1.13 / 15.77 / 6.45 %); with the fast refinement (a 5×5 median in
 /// place of the weighted one) below OpenCV StereoBM's 20 % on Cones
 /// (measured 5.89 / 3.73 / 18.44 / 10.09 %).
 #[test]

@@ -54,15 +54,15 @@ pub struct WeightedMedian {
 }
 
 impl WeightedMedian {
-    /// The default after WTA: a 17×17 window sampled every fourth pixel
-    /// (25 samples), `K` = 150. Sparse samples keep a wide reach at a
-    /// fraction of the cost of every pixel; the window, step and reach are
-    /// explained in docs/tuning.md, “The weighted median's weights, reach,
-    /// window and step”.
+    /// The default after WTA: a 13×13 window sampled every third pixel
+    /// (25 samples), `K` = 150; before a fill, [`Self::before_fill`].
+    /// Sparse samples keep a wide reach at a fraction of the cost of every
+    /// pixel; the window, step and reach are explained in docs/tuning.md,
+    /// “The weighted median's weights, reach, window and step”.
     pub const DEFAULT: WeightedMedian = WeightedMedian {
-        radius: 8,
+        radius: 6,
         color_reach: 150,
-        step: 4,
+        step: 3,
     };
 
     /// The default after the plane matcher, whose map is dense and subpixel
@@ -75,6 +75,22 @@ impl WeightedMedian {
         color_reach: 250,
         step: 1,
     };
+
+    /// The pass before a hole fill, on the valid pixels next to a hole
+    /// ([`WeightedMedianGuide::filter_borders`]): the centre, corners and
+    /// edge midpoints (9 samples) of a window half again as wide (radius
+    /// `⌊3·radius / 2⌋`, at most 15), with the same reach. Those pixels
+    /// lie along holes, where a wide reach finds their surface's colour;
+    /// 9 samples cost about a third of 25 (docs/tuning.md, “The colour-weighted
+    /// median as the default refinement”).
+    pub fn before_fill(&self) -> WeightedMedian {
+        let radius = (3 * self.radius / 2).clamp(1, 15);
+        WeightedMedian {
+            radius,
+            step: radius,
+            ..*self
+        }
+    }
 
     /// Checks the documented ranges.
     pub fn validate(&self) -> Result<(), StereoError> {
@@ -146,7 +162,10 @@ pub fn weighted_median(map: &DisparityMap, guide: &RgbImage, p: &WeightedMedian)
 pub struct WeightedMedianGuide {
     p: WeightedMedian,
     dims: (usize, usize),
-    /// The colour planes apart and border-replicated by `radius` on every
+    /// The border of the padded grid: the radius the guide was built for,
+    /// at least the window's ([`Self::set_window`]).
+    pad: usize,
+    /// The colour planes apart and border-replicated by `pad` on every
     /// side, so that a sample's colours along a row are a slice.
     planes: [Vec<u8>; 3],
     /// The window's samples in order, as offsets in the padded grid.
@@ -171,6 +190,7 @@ impl WeightedMedianGuide {
         let mut g = WeightedMedianGuide {
             p: *p,
             dims: (0, 0),
+            pad: 0,
             planes: Default::default(),
             offsets: Vec::new(),
             shift: 0,
@@ -183,10 +203,25 @@ impl WeightedMedianGuide {
 
     /// Makes this the guide of `guide` for `p`, in the buffers it has.
     pub fn rebuild(&mut self, guide: &RgbImage, p: &WeightedMedian) {
-        let dims = guide.dims();
         pad_planes_into(&mut self.planes, guide, p.radius);
+        (self.dims, self.pad) = (guide.dims(), p.radius);
+        self.set_window(p);
+    }
+
+    /// Makes this the guide of the same image for `p`, whose window fits
+    /// the border it was built with, without padding the colour planes
+    /// again (the refinement's second pass has a narrower window than its
+    /// first).
+    ///
+    /// # Panics
+    /// If `p.radius` is larger than the radius the guide was built for.
+    pub fn set_window(&mut self, p: &WeightedMedian) {
+        assert!(
+            p.radius <= self.pad,
+            "the window outgrows the guide's border"
+        );
         let (r, step) = (p.radius as isize, p.step);
-        let wp = dims.0 as isize + 2 * r;
+        let wp = (self.dims.0 + 2 * self.pad) as isize;
         self.offsets.clear();
         self.offsets.extend(
             (-r..=r)
@@ -194,7 +229,7 @@ impl WeightedMedianGuide {
                 .flat_map(|dy| (-r..=r).step_by(step).map(move |dx| dy * wp + dx)),
         );
         self.shift = weight_shift(p.color_reach, self.offsets.len());
-        (self.p, self.dims) = (*p, dims);
+        self.p = *p;
     }
 
     /// The weighted median of `map` (see [`weighted_median`]).
@@ -238,7 +273,6 @@ impl WeightedMedianGuide {
         if out.dims() != map.dims() {
             out.reset(map.width(), map.height(), 0.0);
         }
-        out.as_mut_slice().copy_from_slice(map.as_slice());
         let w = self.dims.0;
         // The smallest and largest valid values, by rows in parallel
         // (branch-free selects, so that the loop vectorises).
@@ -258,6 +292,7 @@ impl WeightedMedianGuide {
             .reduce(|| (f32::INFINITY, f32::NEG_INFINITY), extremes);
         if lo > hi {
             // No valid pixel.
+            out.as_mut_slice().copy_from_slice(map.as_slice());
             return;
         }
         // Rounding is monotonic: the extremes' bins are the extreme bins.
@@ -266,9 +301,10 @@ impl WeightedMedianGuide {
         if bins >= i16::MAX as usize {
             // Not a disparity map of any image this crate matches: left as
             // is (bins and their differences are `i16` in the lanes).
+            out.as_mut_slice().copy_from_slice(map.as_slice());
             return;
         }
-        let r = self.p.radius;
+        let r = self.pad;
         // Invalid pixels go to the extra bin `bins`, which never counts.
         let invalid = bins as u16;
         let mut bin_pad = std::mem::take(&mut self.bin_pad);
@@ -286,6 +322,9 @@ impl WeightedMedianGuide {
             .par_chunks_mut(w)
             .enumerate()
             .for_each_init(RowScratch::default, |scratch, (y, row)| {
+                // Each row copies its own (in parallel, not one copy of
+                // the map before).
+                row.copy_from_slice(map.row(y));
                 #[cfg(target_arch = "x86_64")]
                 if self.avx2 {
                     // SAFETY: `avx2` only when the CPU has it.

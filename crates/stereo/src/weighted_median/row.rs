@@ -31,7 +31,7 @@ const HARD: u16 = u16::MAX;
 /// for row `y` of the output, `row` (a copy of the map's).
 #[inline(always)]
 pub(super) fn filter_row(job: &MapJob, y: usize, row: &mut [f32], scratch: &mut RowScratch) {
-    let (w, r) = (row.len(), job.guide.p.radius);
+    let (w, r) = (row.len(), job.guide.pad);
     let wp = w + 2 * r;
     let (lo, invalid) = (job.lo, job.invalid);
     let centre = (y + r) * wp + r;

@@ -232,6 +232,13 @@ fn a_rebuilt_guide_filters_as_a_new_one() {
     g.filter(&map, &mut reused);
     assert_eq!(reused, fresh);
     assert_eq!(fresh, naive(&map, &guide, &p, false));
+    // Built for a wider window, then set to this one: the same too.
+    let mut wide = WeightedMedianGuide::new(&guide, &p.before_fill());
+    wide.set_window(&p);
+    wide.filter(&map, &mut reused);
+    assert_eq!(reused, fresh);
+    wide.filter_borders(&map, &mut reused);
+    assert_eq!(reused, naive(&map, &guide, &p, true));
 }
 
 #[test]
@@ -265,4 +272,31 @@ fn bad_parameters_are_errors() {
     ] {
         assert!(bad.validate().is_err(), "{bad:?}");
     }
+}
+
+#[test]
+fn the_pass_before_a_fill_takes_nine_samples_of_a_wider_window() {
+    let before = WeightedMedian::DEFAULT.before_fill();
+    assert_eq!(
+        before,
+        WeightedMedian {
+            radius: 9,
+            step: 9,
+            ..WeightedMedian::DEFAULT
+        }
+    );
+    // Valid for every valid radius (at most 15 wide each way).
+    for radius in 1..=15 {
+        let p = WeightedMedian {
+            radius,
+            step: 1,
+            ..WeightedMedian::DEFAULT
+        };
+        let b = p.before_fill();
+        assert_eq!(b.validate(), Ok(()), "{b:?}");
+        assert_eq!(b.radius, (3 * radius / 2).clamp(1, 15));
+    }
+    // The window's centre, corners and edge midpoints.
+    let g = WeightedMedianGuide::new(&RgbImage::new(40, 40, [9; 3]), &before);
+    assert_eq!(g.offsets.len(), 9);
 }

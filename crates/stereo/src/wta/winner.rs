@@ -53,7 +53,9 @@ pub(super) trait Disparity: Copy + Send + Sync {
     fn at(k: usize, p: &WtaParams) -> Self;
 }
 
-/// Whether `p` picks a winner from its index alone ([`Disparity::at`]).
+/// Whether `p` picks a winner from its index alone ([`Disparity::at`]);
+/// only the AVX2 band asks.
+#[cfg(target_arch = "x86_64")]
 pub(super) fn plain(p: &WtaParams) -> bool {
     p.uniqueness == 0 && !p.subpixel
 }

@@ -47,9 +47,10 @@ pub struct MatcherArgs {
     pub median: Option<usize>,
     /// Colour-weighted median guided by the left view, radius in pixels; it
     /// runs before and after the fill and replaces the plain median unless
-    /// --median is given too. Default 8 for wta (`0 --median 5` is a little
-    /// faster and less accurate; see docs/tuning.md), 2 for planes (once,
-    /// every pixel, reach 250), off (0) for lg and sgm.
+    /// --median is given too. Before the fill it takes 9 samples of a
+    /// window half again as wide. Default 6 for wta (`0 --median 5` is a
+    /// little faster and less accurate; see docs/tuning.md), 2 for planes
+    /// (once, every pixel, reach 250), off (0) for lg and sgm.
     #[arg(long, value_name = "RADIUS")]
     pub weighted_median: Option<usize>,
     /// Colour reach of the weighted median: the summed RGB difference at
@@ -57,8 +58,8 @@ pub struct MatcherArgs {
     /// planes).
     #[arg(long, value_parser = clap::value_parser!(u8).range(1..))]
     pub wm_reach: Option<u8>,
-    /// Sampling step inside the weighted median's window (default 4, 1 for
-    /// planes).
+    /// Sampling step inside the weighted median's window (default 3, 1 for
+    /// planes; before the fill, the window's radius).
     #[arg(long)]
     pub wm_step: Option<usize>,
     /// Subpixel parabola fit through the winner's neighbouring costs
